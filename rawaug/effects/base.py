@@ -1,0 +1,132 @@
+"""The effect unit: one physical noise stage, synthesized on a batch on the device.
+
+An effect is a small ``nn.Module`` with
+
+* ``token``: its name in model strings (``"G*+P*+R+U"``) and in ``profile.effects``;
+* ``order``: where it acts along photons -> electrons -> voltage -> DN;
+* ``draw(ctx)``: its per-sample scalar parameters, on the device, given the drawn gain K;
+* ``forward(signal_dn, clean_dn, params, generator)``: the batch after this stage, in DN
+  at the sensor (black-subtracted, before the low-light ratio is multiplied back).
+
+Effects found by the closed loop also carry ``validate_params`` (for their
+``profile.effects`` entry) and, in their own module, how they are estimated and
+which statistic of a measured frame shows them. Register new effects with
+``@register``; ``RawNoiseAugment`` then uses them by token.
+"""
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+from torch import nn
+
+EFFECTS: dict[str, type["NoiseEffect"]] = {}
+
+# Physical stage order (lower acts first).
+PHOTON, SHOT, DARK, READ, BANDING, ADC, OFFSET, CLIP = 10, 20, 30, 40, 50, 60, 70, 80
+
+
+def register(cls):
+    """Class decorator: make an effect available by its token."""
+    if cls.token in EFFECTS and EFFECTS[cls.token] is not cls:
+        raise ValueError(f"effect token {cls.token!r} is already registered by {EFFECTS[cls.token].__name__}")
+    EFFECTS[cls.token] = cls
+    return cls
+
+
+@dataclass
+class DrawContext:
+    """What an effect needs to draw its per-sample parameters."""
+
+    profile: "object"  # NoiseProfile
+    k: torch.Tensor  # (B,) system gain, DN per electron
+    batch: int  # B
+    n_draw: int  # B, or 1 when same_on_batch
+    generator: torch.Generator
+    fixed: dict  # user-fixed parameter values by key
+
+    @property
+    def device(self):
+        return self.k.device
+
+    def normal(self):
+        z = torch.randn(self.n_draw, device=self.device, generator=self.generator, dtype=torch.float64)
+        return z.expand(self.batch) if self.n_draw == 1 else z
+
+    def uniform(self):
+        u = torch.rand(self.n_draw, device=self.device, generator=self.generator, dtype=torch.float64)
+        return u.expand(self.batch) if self.n_draw == 1 else u
+
+
+class NoiseEffect(nn.Module):
+    token: ClassVar[str] = ""
+    order: ClassVar[int] = 0
+    param_keys: ClassVar[tuple[str, ...]] = ()  # keys this effect records in params
+
+    def __init__(self, profile):
+        super().__init__()
+        self.profile = profile
+
+    def draw(self, ctx: DrawContext) -> dict[str, torch.Tensor]:
+        return {}
+
+    def forward(self, signal_dn, clean_dn, params, generator):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    @classmethod
+    def validate_params(cls, params) -> None:
+        """Check this effect's ``profile.effects`` entry; raise ValueError naming the bad value."""
+        if params not in (None, {}) and not isinstance(params, dict):
+            raise ValueError(f"effect {cls.token!r} parameters must be a mapping, got {params!r}")
+
+    def extra_repr(self):
+        return f"token={self.token!r}"
+
+
+def effect_seed(seed: int, token: str) -> int:
+    """Independent generator seed for one effect: replaying or removing one effect never
+    changes the noise another draws (ablation rows share their common noise)."""
+    return (seed * 1_000_003 + zlib.crc32(token.encode())) % (2**63 - 1)
+
+
+def as_sample(value, batch, device, dtype=torch.float64):
+    """A fixed scalar (or per-sample sequence) as a (B,) tensor."""
+    t = torch.as_tensor(value, dtype=dtype, device=device)
+    if t.ndim == 0:
+        return t.expand(batch)
+    if t.shape[0] != batch:
+        raise ValueError(f"a fixed per-sample value must have {batch} entries, got {tuple(t.shape)}")
+    return t
+
+
+def per_sample(t: torch.Tensor, ndim: int = 4) -> torch.Tensor:
+    """(B,) or (B, C) -> broadcastable against (B, C, H, W), float32."""
+    t = t.to(torch.float32)
+    return t.reshape(t.shape + (1,) * (ndim - t.ndim))
+
+
+def log_linear_draw(relation, log_k: torch.Tensor, ctx: DrawContext) -> torch.Tensor:
+    """sigma = exp(slope * log K + intercept + residual_std * z), per segment, with floor."""
+    pieces = relation.pieces()
+    slope = torch.full_like(log_k, pieces[0][1])
+    intercept = torch.full_like(log_k, pieces[0][2])
+    resid = torch.full_like(log_k, pieces[0][3])
+    for k_from, s, b, r in pieces[1:]:
+        above = log_k >= torch.log(torch.tensor(k_from, dtype=log_k.dtype, device=log_k.device))
+        slope = torch.where(above, s, slope)
+        intercept = torch.where(above, b, intercept)
+        resid = torch.where(above, r, resid)
+    sigma = torch.exp(slope * log_k + intercept + resid * ctx.normal())
+    if relation.floor_dn:
+        sigma = torch.sqrt(sigma**2 + relation.floor_dn**2)
+    return sigma
+
+
+def nearest_in_k(table, k: torch.Tensor) -> torch.Tensor:
+    """Per-sample value of a KTable at the record whose K is nearest in log K."""
+    ks = torch.tensor(table.k, dtype=torch.float64, device=k.device)
+    idx = torch.argmin((torch.log(ks)[None, :] - torch.log(k)[:, None]).abs(), dim=1)
+    values = torch.tensor(table.values, dtype=torch.float64, device=k.device)
+    return values[idx]

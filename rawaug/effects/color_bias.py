@@ -1,0 +1,26 @@
+"""Colour bias: the per-channel black-level error (mean of a bias frame), in DN."""
+from __future__ import annotations
+
+import torch
+
+from .base import OFFSET, NoiseEffect, nearest_in_k, per_sample, register
+
+
+@register
+class ColorBias(NoiseEffect):
+    """C: adds the (R, G1, B, G2) bias recorded at the calibration frame nearest the drawn K."""
+
+    token = "C"
+    order = OFFSET
+    param_keys = ("color_bias.dn",)
+
+    def draw(self, ctx):
+        fixed = ctx.fixed.get("color_bias_dn")
+        if fixed is not None:
+            bias = torch.as_tensor(fixed, dtype=torch.float64, device=ctx.device).reshape(-1, 4).expand(ctx.batch, 4)
+        else:
+            bias = nearest_in_k(self.profile.color_bias, ctx.k)
+        return {"color_bias.dn": bias}
+
+    def forward(self, signal_dn, clean_dn, params, generator):
+        return signal_dn + per_sample(params["color_bias.dn"]).to(signal_dn.dtype)

@@ -1,0 +1,80 @@
+"""Read noise (thermal, source-follower, dark current lumped): Tukey lambda (G*) or Gaussian (G)."""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .base import READ, NoiseEffect, as_sample, log_linear_draw, nearest_in_k, per_sample, register
+
+# Smallest tail probability drawn: float32 uniforms come in steps of 2**-24, so u == 0 is
+# replaced by 2**-26; this keeps every sample finite for lambda < 0 at a bias below 1e-7.
+_TAIL_FLOOR = 2.0**-26
+_LAMBDA_ZERO = 1e-6
+
+
+def tukey_lambda_icdf(u: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+    """Tukey lambda quantile ``(u^l - (1-u)^l) / l`` (unit scale), with the l -> 0 logistic limit
+    ``log(u / (1-u))``. Evaluated on the smaller tail, so both tails keep full float32 precision
+    and u = 0 or 1 give finite values. ``lam`` broadcasts against ``u``."""
+    upper = u >= 0.5
+    tail = torch.clamp(torch.where(upper, 1.0 - u, u), min=_TAIL_FLOOR)  # in (0, 0.5]
+    log_tail = torch.log(tail)
+    log_body = torch.log1p(-tail)
+    small = lam.abs() < _LAMBDA_ZERO
+    safe = torch.where(small, torch.ones_like(lam), lam)
+    q = (torch.expm1(safe * log_body) - torch.expm1(safe * log_tail)) / safe  # quantile of 1 - tail, >= 0
+    q = torch.where(small, log_body - log_tail, q)
+    return torch.where(upper, q, -q)
+
+
+def tukey_lambda_variance(lam: float) -> float:
+    """Variance of the standard Tukey lambda distribution (infinite for lam <= -0.5)."""
+    if lam <= -0.5:
+        return math.inf
+    if abs(lam) < _LAMBDA_ZERO:
+        return math.pi**2 / 3.0
+    return (2.0 / lam**2) * (1.0 / (1.0 + 2.0 * lam) - math.gamma(lam + 1.0) ** 2 / math.gamma(2.0 * lam + 2.0))
+
+
+@register
+class TukeyLambdaReadNoise(NoiseEffect):
+    """G*: ``N_read ~ TL(lambda; 0, sigma_TL)``, drawn by the inverse CDF on the device."""
+
+    token = "G*"
+    order = READ
+    param_keys = ("read_noise.sigma_tl", "read_noise.lambda")
+
+    def draw(self, ctx):
+        log_k = torch.log(ctx.k)
+        sigma = ctx.fixed.get("sigma_tl")
+        lam = ctx.fixed.get("lambda")
+        sigma = as_sample(sigma, ctx.batch, ctx.device) if sigma is not None else log_linear_draw(self.profile.tukey_scale, log_k, ctx)
+        lam = as_sample(lam, ctx.batch, ctx.device) if lam is not None else nearest_in_k(self.profile.tukey_shape, ctx.k)
+        return {"read_noise.sigma_tl": sigma, "read_noise.lambda": lam}
+
+    def forward(self, signal_dn, clean_dn, params, generator):
+        u = torch.rand(signal_dn.shape, device=signal_dn.device, generator=generator, dtype=torch.float32)
+        noise = tukey_lambda_icdf(u, per_sample(params["read_noise.lambda"]))
+        return signal_dn + noise.to(signal_dn.dtype) * per_sample(params["read_noise.sigma_tl"]).to(signal_dn.dtype)
+
+
+@register
+class GaussianReadNoise(NoiseEffect):
+    """G: ``N_read ~ N(0, sigma_G^2)``, the homoscedastic baseline."""
+
+    token = "G"
+    order = READ
+    param_keys = ("read_noise.sigma_g",)
+
+    def draw(self, ctx):
+        sigma = ctx.fixed.get("sigma_g")
+        if sigma is None:
+            sigma = log_linear_draw(self.profile.gaussian_scale, torch.log(ctx.k), ctx)
+        else:
+            sigma = as_sample(sigma, ctx.batch, ctx.device)
+        return {"read_noise.sigma_g": sigma}
+
+    def forward(self, signal_dn, clean_dn, params, generator):
+        z = torch.randn(signal_dn.shape, device=signal_dn.device, generator=generator, dtype=signal_dn.dtype)
+        return signal_dn + z * per_sample(params["read_noise.sigma_g"]).to(signal_dn.dtype)

@@ -1,0 +1,355 @@
+"""NoiseProfile: the calibrated noise parameters of one camera, and its file format.
+
+File format (YAML, ``format: rawaug.noise-profile``, ``version: 1``)::
+
+    format: rawaug.noise-profile
+    version: 1
+    camera: SonyA7S2
+    source: where the numbers come from (free text)
+    sensor: {black_level: 512, white_level: 16383, bit_depth: 14, cfa: RGGB}
+    system_gain:                      # K, DN per electron
+      k_min: 0.0939                   # K at the lowest calibrated ISO
+      k_max: 6.0106                   # K at the highest calibrated ISO
+      iso: [100, 6400]                # optional ISO -> K table (log-log interpolation)
+      k: [0.0939, 6.0106]
+    read_noise:
+      tukey_scale:    {slope: .., intercept: .., residual_std: ..}   # sigma_TL, DN
+      gaussian_scale: {slope: .., intercept: .., residual_std: ..}   # sigma_G, DN
+      tukey_shape: {k: [...], lambda: [...]}                        # lambda against K
+    row_noise:
+      scale: {slope: .., intercept: .., residual_std: ..}           # sigma_r, DN
+    quantization: {step_dn: 1.0}
+    color_bias: {k: [...], dn: [[R, G1, B, G2], ...]}               # black-level error, DN
+    effects: {}                       # effects added by the closed loop, by registered name
+
+A scale relation means ``log(sigma) = slope * log(K) + intercept + N(0, residual_std^2)``
+(natural logs, sigma in DN). It may instead hold ``segments`` (a list of such
+relations, each with ``k_from``: a change of regime across ISO, e.g. a
+conversion-gain switch) and a ``floor_dn`` (sigma never falls below it:
+``sigma = sqrt(line^2 + floor^2)``).
+"""
+from __future__ import annotations
+
+import copy
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import yaml
+
+from .bayer import CFA_PATTERNS
+
+FORMAT_NAME = "rawaug.noise-profile"
+FORMAT_VERSION = 1
+BUILTIN_PROFILES = ("SonyA7S2", "NikonD850", "CanonEOS70D", "CanonEOS700D", "CanonEOS5D4")
+
+
+def _require(mapping, key, where):
+    if not isinstance(mapping, dict):
+        raise ValueError(f"{where} must be a mapping, got {type(mapping).__name__}")
+    if key not in mapping:
+        raise ValueError(f"profile is missing required field '{where}.{key}'")
+    return mapping[key]
+
+
+def _finite(value, where):
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where} must be a number, got {value!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{where} must be finite, got {value}")
+    return value
+
+
+def _positive(value, where):
+    value = _finite(value, where)
+    if value <= 0:
+        raise ValueError(f"{where} must be > 0, got {value}")
+    return value
+
+
+@dataclass(frozen=True)
+class LogLinear:
+    """``log(sigma) = slope * log(K) + intercept + N(0, residual_std^2)``, optionally
+    piecewise in K (``segments``) and with a noise floor (``floor_dn``)."""
+
+    slope: float
+    intercept: float
+    residual_std: float
+    k_from: float = 0.0  # this relation applies for K >= k_from (segments only)
+    segments: tuple["LogLinear", ...] = ()
+    floor_dn: float = 0.0
+
+    @classmethod
+    def from_dict(cls, data, where):
+        if isinstance(data, dict) and "segments" in data:
+            segs = data["segments"]
+            if not isinstance(segs, list) or not segs:
+                raise ValueError(f"{where}.segments must be a non-empty list, got {segs!r}")
+            parts = tuple(cls.from_dict(s, f"{where}.segments[{i}]") for i, s in enumerate(segs))
+            parts = tuple(sorted(parts, key=lambda s: s.k_from))
+            floor = _finite(data.get("floor_dn", 0.0), f"{where}.floor_dn")
+            first = parts[0]
+            return cls(first.slope, first.intercept, first.residual_std, 0.0, parts, floor)
+        slope = _finite(_require(data, "slope", where), f"{where}.slope")
+        intercept = _finite(_require(data, "intercept", where), f"{where}.intercept")
+        resid = _finite(_require(data, "residual_std", where), f"{where}.residual_std")
+        if resid < 0:
+            raise ValueError(f"{where}.residual_std must be >= 0, got {resid}")
+        k_from = _finite(data.get("k_from", 0.0), f"{where}.k_from")
+        floor = _finite(data.get("floor_dn", 0.0), f"{where}.floor_dn")
+        if floor < 0:
+            raise ValueError(f"{where}.floor_dn must be >= 0, got {floor}")
+        return cls(slope, intercept, resid, k_from, (), floor)
+
+    def to_dict(self):
+        if self.segments:
+            out = {"segments": [s.to_dict() for s in self.segments]}
+        else:
+            out = {"slope": self.slope, "intercept": self.intercept, "residual_std": self.residual_std}
+            if self.k_from:
+                out["k_from"] = self.k_from
+        if self.floor_dn:
+            out["floor_dn"] = self.floor_dn
+        return out
+
+    def pieces(self):
+        """The (k_from, slope, intercept, residual_std) rows, sorted by k_from."""
+        parts = self.segments or (self,)
+        return [(p.k_from, p.slope, p.intercept, p.residual_std) for p in parts]
+
+    def median(self, k: float) -> float:
+        """Median sigma (DN) at gain K, without the residual draw."""
+        row = [p for p in self.pieces() if p[0] <= k] or self.pieces()[:1]
+        _, slope, intercept, _ = row[-1]
+        line = math.exp(slope * math.log(k) + intercept)
+        return math.sqrt(line**2 + self.floor_dn**2)
+
+
+@dataclass(frozen=True)
+class KTable:
+    """Values recorded at calibration frames, against the K they were measured at."""
+
+    k: tuple[float, ...]
+    values: tuple  # scalars or 4-tuples
+
+    def nearest(self, k: float):
+        i = min(range(len(self.k)), key=lambda j: abs(math.log(self.k[j]) - math.log(k)))
+        return self.values[i]
+
+
+@dataclass
+class NoiseProfile:
+    """Calibrated noise parameters of one camera. Sigmas in DN, K in DN per electron."""
+
+    camera: str
+    black_level: float
+    white_level: float
+    bit_depth: int
+    cfa: str
+    k_min: float
+    k_max: float
+    tukey_scale: LogLinear
+    gaussian_scale: LogLinear
+    row_scale: LogLinear
+    tukey_shape: KTable
+    color_bias: KTable
+    quantization_step_dn: float = 1.0
+    iso_table: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    effects: dict = field(default_factory=dict)
+    source: str = ""
+
+    # ---------------------------------------------------------------- loading
+    @classmethod
+    def load(cls, name_or_path) -> "NoiseProfile":
+        """A built-in camera name (see ``BUILTIN_PROFILES``) or a profile file path."""
+        if isinstance(name_or_path, NoiseProfile):
+            return name_or_path
+        text = None
+        if str(name_or_path) in BUILTIN_PROFILES:
+            text = resources.files("rawaug.profiles").joinpath(f"{name_or_path}.yaml").read_text()
+            where = f"built-in profile {name_or_path}"
+        else:
+            path = Path(name_or_path)
+            if not path.is_file():
+                raise ValueError(
+                    f"profile {str(name_or_path)!r} is neither a built-in name {BUILTIN_PROFILES} nor an existing file"
+                )
+            text = path.read_text()
+            where = str(path)
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"{where} is not valid YAML: {exc}") from None
+        return cls.from_dict(data)
+
+    @classmethod
+    def from_dict(cls, data) -> "NoiseProfile":
+        if not isinstance(data, dict):
+            raise ValueError(f"a profile must be a mapping, got {type(data).__name__}")
+        fmt = data.get("format")
+        if fmt != FORMAT_NAME:
+            raise ValueError(f"profile 'format' must be {FORMAT_NAME!r}, got {fmt!r}")
+        version = data.get("version")
+        if version != FORMAT_VERSION:
+            raise ValueError(f"profile 'version' must be {FORMAT_VERSION}, got {version!r}")
+        sensor = _require(data, "sensor", "profile")
+        black = _finite(_require(sensor, "black_level", "sensor"), "sensor.black_level")
+        white = _finite(_require(sensor, "white_level", "sensor"), "sensor.white_level")
+        if white <= black:
+            raise ValueError(f"sensor.white_level must exceed black_level, got white={white}, black={black}")
+        cfa = str(_require(sensor, "cfa", "sensor")).upper()
+        if cfa not in CFA_PATTERNS:
+            raise ValueError(f"sensor.cfa must be one of {CFA_PATTERNS}, got {cfa!r}")
+        bit_depth = int(_require(sensor, "bit_depth", "sensor"))
+        if not 1 <= bit_depth <= 32:
+            raise ValueError(f"sensor.bit_depth must be in [1, 32], got {bit_depth}")
+
+        gain = _require(data, "system_gain", "profile")
+        k_min = _positive(_require(gain, "k_min", "system_gain"), "system_gain.k_min")
+        k_max = _positive(_require(gain, "k_max", "system_gain"), "system_gain.k_max")
+        if k_max < k_min:
+            raise ValueError(f"system_gain.k_max must be >= k_min, got k_min={k_min}, k_max={k_max}")
+        iso_table = None
+        if "iso" in gain or "k" in gain:
+            isos = [_positive(v, "system_gain.iso[]") for v in _require(gain, "iso", "system_gain")]
+            ks = [_positive(v, "system_gain.k[]") for v in _require(gain, "k", "system_gain")]
+            if len(isos) != len(ks) or not isos:
+                raise ValueError(f"system_gain.iso and system_gain.k must have equal non-zero length, got {len(isos)} and {len(ks)}")
+            order = sorted(range(len(isos)), key=isos.__getitem__)
+            iso_table = (tuple(isos[i] for i in order), tuple(ks[i] for i in order))
+
+        read = _require(data, "read_noise", "profile")
+        tukey_scale = LogLinear.from_dict(_require(read, "tukey_scale", "read_noise"), "read_noise.tukey_scale")
+        gaussian_scale = LogLinear.from_dict(_require(read, "gaussian_scale", "read_noise"), "read_noise.gaussian_scale")
+        shape = _require(read, "tukey_shape", "read_noise")
+        shape_k = [_positive(v, "read_noise.tukey_shape.k[]") for v in _require(shape, "k", "read_noise.tukey_shape")]
+        lambdas = [_finite(v, "read_noise.tukey_shape.lambda[]") for v in _require(shape, "lambda", "read_noise.tukey_shape")]
+        for lam in lambdas:
+            if not -1.0 <= lam <= 1.0:
+                raise ValueError(f"read_noise.tukey_shape.lambda must be in [-1, 1], got {lam}")
+        if len(shape_k) != len(lambdas) or not lambdas:
+            raise ValueError(f"read_noise.tukey_shape.k and .lambda must have equal non-zero length, got {len(shape_k)} and {len(lambdas)}")
+
+        row = _require(data, "row_noise", "profile")
+        row_scale = LogLinear.from_dict(_require(row, "scale", "row_noise"), "row_noise.scale")
+
+        quant = data.get("quantization", {"step_dn": 1.0})
+        step = _positive(_require(quant, "step_dn", "quantization"), "quantization.step_dn")
+
+        bias = _require(data, "color_bias", "profile")
+        bias_k = [_positive(v, "color_bias.k[]") for v in _require(bias, "k", "color_bias")]
+        rows = _require(bias, "dn", "color_bias")
+        if not isinstance(rows, list) or len(rows) != len(bias_k) or not rows:
+            raise ValueError(f"color_bias.dn must be a list with one row per color_bias.k entry ({len(bias_k)}), got {rows!r:.80}")
+        bias_rows = []
+        for i, r in enumerate(rows):
+            if not isinstance(r, (list, tuple)) or len(r) != 4:
+                raise ValueError(f"color_bias.dn[{i}] must hold 4 values (R, G1, B, G2), got {r!r}")
+            bias_rows.append(tuple(_finite(v, f"color_bias.dn[{i}]") for v in r))
+
+        effects = data.get("effects") or {}
+        if not isinstance(effects, dict):
+            raise ValueError(f"profile 'effects' must be a mapping of effect name -> parameters, got {type(effects).__name__}")
+        from .effects import EFFECTS  # registry; imported late to avoid a cycle
+
+        for name in effects:
+            if name not in EFFECTS:
+                raise ValueError(f"profile effect {name!r} is not a registered effect; known: {sorted(EFFECTS)}")
+            EFFECTS[name].validate_params(effects[name])
+
+        return cls(
+            camera=str(data.get("camera", "unnamed")),
+            black_level=black,
+            white_level=white,
+            bit_depth=bit_depth,
+            cfa=cfa,
+            k_min=k_min,
+            k_max=k_max,
+            tukey_scale=tukey_scale,
+            gaussian_scale=gaussian_scale,
+            row_scale=row_scale,
+            tukey_shape=KTable(tuple(shape_k), tuple(lambdas)),
+            color_bias=KTable(tuple(bias_k), tuple(bias_rows)),
+            quantization_step_dn=step,
+            iso_table=iso_table,
+            effects=copy.deepcopy(effects),
+            source=str(data.get("source", "")),
+        )
+
+    # ---------------------------------------------------------------- saving
+    def to_dict(self) -> dict:
+        gain = {"k_min": self.k_min, "k_max": self.k_max}
+        if self.iso_table:
+            gain["iso"] = list(self.iso_table[0])
+            gain["k"] = list(self.iso_table[1])
+        return {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "camera": self.camera,
+            "source": self.source,
+            "sensor": {
+                "black_level": self.black_level,
+                "white_level": self.white_level,
+                "bit_depth": self.bit_depth,
+                "cfa": self.cfa,
+            },
+            "system_gain": gain,
+            "read_noise": {
+                "tukey_scale": self.tukey_scale.to_dict(),
+                "gaussian_scale": self.gaussian_scale.to_dict(),
+                "tukey_shape": {"k": list(self.tukey_shape.k), "lambda": list(self.tukey_shape.values)},
+            },
+            "row_noise": {"scale": self.row_scale.to_dict()},
+            "quantization": {"step_dn": self.quantization_step_dn},
+            "color_bias": {"k": list(self.color_bias.k), "dn": [list(r) for r in self.color_bias.values]},
+            "effects": copy.deepcopy(self.effects),
+        }
+
+    def save(self, path) -> None:
+        """Write the profile as YAML, atomically (temp file in the same folder, then rename)."""
+        path = Path(path)
+        text = yaml.safe_dump(self.to_dict(), sort_keys=False)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(text)
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+    # ---------------------------------------------------------------- helpers
+    @property
+    def span_dn(self) -> float:
+        """White minus black: the DN that normalized 1.0 stands for."""
+        return self.white_level - self.black_level
+
+    def k_at_iso(self, iso: float) -> float:
+        """System gain K (DN/e-) at an ISO, by log-log interpolation of the ISO table."""
+        iso = _positive(iso, "iso")
+        if not self.iso_table:
+            raise ValueError(f"profile {self.camera!r} has no system_gain.iso table, so K at ISO {iso} is unknown")
+        isos, ks = self.iso_table
+        if len(isos) == 1:
+            return ks[0] * iso / isos[0]
+        lx = [math.log(v) for v in isos]
+        ly = [math.log(v) for v in ks]
+        x = math.log(iso)
+        j = 1
+        while j < len(lx) - 1 and x > lx[j]:
+            j += 1
+        t = (x - lx[j - 1]) / (lx[j] - lx[j - 1])
+        return math.exp(ly[j - 1] + t * (ly[j] - ly[j - 1]))
+
+    def with_effect(self, name: str, params: dict) -> "NoiseProfile":
+        """A copy of this profile with one more (or a replaced) loop effect."""
+        data = self.to_dict()
+        data["effects"][name] = params
+        return NoiseProfile.from_dict(data)
