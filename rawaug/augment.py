@@ -191,6 +191,8 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         if "k" not in params:  # container path: finish the (deterministic) draws on the device
             drawn = self.draw_parameters(input.shape[0], input.device, seed=int(params["seed"].reshape(-1)[0]))
             params = {**drawn, **params}
+        if params["ratio"].shape[0] != input.shape[0]:
+            raise ValueError(f"params were drawn for {params['ratio'].shape[0]} samples, got a batch of {input.shape[0]}")
         work = input.to(torch.float32) if input.dtype in (torch.float16, torch.bfloat16) else input
         span = self.profile.span_dn
         ratio = per_sample(params["ratio"].to(work.device)).to(work.dtype)

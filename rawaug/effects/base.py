@@ -55,6 +55,11 @@ class DrawContext:
         z = torch.randn(self.n_draw, device=self.device, generator=self.generator, dtype=torch.float64)
         return z.expand(self.batch) if self.n_draw == 1 else z
 
+    def nearest(self, table) -> torch.Tensor:
+        """A KTable's record nearest each drawn K (shared when same_on_batch)."""
+        values = nearest_in_k(table, self.k[: self.n_draw], self.generator)
+        return values.expand((self.batch,) + values.shape[1:]) if self.n_draw == 1 else values
+
     def uniform(self):
         u = torch.rand(self.n_draw, device=self.device, generator=self.generator, dtype=torch.float64)
         return u.expand(self.batch) if self.n_draw == 1 else u
@@ -124,9 +129,15 @@ def log_linear_draw(relation, log_k: torch.Tensor, ctx: DrawContext) -> torch.Te
     return sigma
 
 
-def nearest_in_k(table, k: torch.Tensor) -> torch.Tensor:
-    """Per-sample value of a KTable at the record whose K is nearest in log K."""
+def nearest_in_k(table, k: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Per-sample value of a KTable at the record nearest the drawn K (in log K). Records
+    measured at the same K (several frames per ISO) are tied: one is drawn uniformly."""
     ks = torch.tensor(table.k, dtype=torch.float64, device=k.device)
-    idx = torch.argmin((torch.log(ks)[None, :] - torch.log(k)[:, None]).abs(), dim=1)
+    dist = (torch.log(ks)[None, :] - torch.log(k)[:, None]).abs()
+    tied = dist <= dist.min(dim=1, keepdim=True).values + 1e-9
+    if generator is None:
+        idx = tied.to(torch.int8).argmax(dim=1)
+    else:
+        idx = torch.multinomial(tied.to(torch.float64), 1, generator=generator).squeeze(1)
     values = torch.tensor(table.values, dtype=torch.float64, device=k.device)
     return values[idx]

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import torch
 
-from .base import OFFSET, NoiseEffect, nearest_in_k, per_sample, register
+from .base import OFFSET, NoiseEffect, per_sample, register
 
 
 @register
@@ -19,7 +19,7 @@ class ColorBias(NoiseEffect):
         if fixed is not None:
             bias = torch.as_tensor(fixed, dtype=torch.float64, device=ctx.device).reshape(-1, 4).expand(ctx.batch, 4)
         else:
-            bias = nearest_in_k(self.profile.color_bias, ctx.k)
+            bias = ctx.nearest(self.profile.color_bias)
         return {"color_bias.dn": bias}
 
     def forward(self, signal_dn, clean_dn, params, generator):

@@ -5,7 +5,7 @@ import math
 
 import torch
 
-from .base import READ, NoiseEffect, as_sample, log_linear_draw, nearest_in_k, per_sample, register
+from .base import READ, NoiseEffect, as_sample, log_linear_draw, per_sample, register
 
 # Smallest tail probability drawn: float32 uniforms come in steps of 2**-24, so u == 0 is
 # replaced by 2**-26; this keeps every sample finite for lambda < 0 at a bias below 1e-7.
@@ -50,7 +50,7 @@ class TukeyLambdaReadNoise(NoiseEffect):
         sigma = ctx.fixed.get("sigma_tl")
         lam = ctx.fixed.get("lambda")
         sigma = as_sample(sigma, ctx.batch, ctx.device) if sigma is not None else log_linear_draw(self.profile.tukey_scale, log_k, ctx)
-        lam = as_sample(lam, ctx.batch, ctx.device) if lam is not None else nearest_in_k(self.profile.tukey_shape, ctx.k)
+        lam = as_sample(lam, ctx.batch, ctx.device) if lam is not None else ctx.nearest(self.profile.tukey_shape)
         return {"read_noise.sigma_tl": sigma, "read_noise.lambda": lam}
 
     def forward(self, signal_dn, clean_dn, params, generator):
