@@ -1,0 +1,498 @@
+"""Stage 1 of calibration: noise parameters at one ISO from bias frames and flat pairs.
+
+All arrays are packed (4, h, w) in (R, G1, B, G2) order, in DN (black-subtracted digital
+numbers). Methods follow ELD (Wei et al., CVPR 2020), section 3.2:
+
+* system gain K (DN/e-) by photon transfer on flat-field pairs;
+* row noise sigma_r (DN) from per-sensor-row means of bias frames (maximum likelihood);
+* read noise from the row-corrected bias residual: Tukey-lambda shape by PPCC, sigma_TL
+  (DN) from the probability-plot slope, and the Gaussian sigma_G for comparison;
+* colour bias (per-channel mean of a bias frame, DN).
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from .joint import IsoParameters
+
+# Packed channels read out from the same sensor row (see rawaug.bayer).
+SENSOR_ROWS = ((0, 1), (2, 3))
+LAMBDA_GRID = np.round(np.arange(-0.5, 1.0 + 1e-9, 0.05), 4)  # PPCC coarse grid
+
+
+def _packed(x, name) -> np.ndarray:
+    x = np.asarray(x)
+    if x.ndim != 3 or x.shape[0] != 4:
+        raise ValueError(f"{name} must be packed Bayer DN of shape (4, h, w), got {x.shape}")
+    if x.shape[1] < 2 or x.shape[2] < 2:
+        raise ValueError(f"{name} is too small: {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name} holds NaN or Inf values")
+    return x
+
+
+# ----------------------------------------------------------------------------- row noise
+@dataclass
+class RowNoiseEstimate:
+    """Row noise of one bias frame.
+
+    sigma_r : std of the per-sensor-row offset, DN (read noise averaged over the row removed).
+    shapiro_p : Shapiro-Wilk p-value of the row means (Gaussian offsets give p ~ U(0, 1)).
+    row_means : per-sensor-row means, DN, shape (2, h): [rows of (R, G1), rows of (B, G2)],
+        after removing the per-channel mean.
+    read_variance_dn2 : per-pixel variance left after removing the row offsets, DN^2.
+    pixels_per_row : pixels averaged in one row mean.
+    """
+
+    sigma_r: float
+    shapiro_p: float
+    row_means: np.ndarray
+    read_variance_dn2: float
+    pixels_per_row: int
+
+
+def _centered(bias_dn):
+    bias = np.asarray(bias_dn, dtype=np.float64)
+    return bias - bias.mean(axis=(1, 2), keepdims=True)
+
+
+def estimate_row_noise(bias_dn: np.ndarray) -> RowNoiseEstimate:
+    """Row noise sigma_r (DN) of a packed bias frame by maximum likelihood.
+
+    Each sensor row mean ``m_j ~ N(0, sigma_r^2 + s^2 / n)``: the row offset plus the read
+    noise (per-pixel variance ``s^2``) averaged over the ``n`` pixels of the row. The ML
+    estimate is ``sigma_r^2 = max(0, mean(m^2) - s^2 / n)``; ``s^2`` comes from the
+    row-corrected residual. Without that subtraction sigma_r would be biased upward when
+    it is small.
+    """
+    bias = _centered(_packed(bias_dn, "bias_dn"))
+    _, h, w = bias.shape
+    rows = np.stack([bias[list(pair)].mean(axis=(0, 2)) for pair in SENSOR_ROWS])  # (2, h)
+    n = 2 * w
+    residual = bias - rows[[0, 0, 1, 1]][:, :, None]
+    # Removing the row mean takes 1/n of the pixel variance away; restore it.
+    read_var = float(residual.var() * n / (n - 1))
+    dof = rows.size - 2  # two per-channel-pair means were removed
+    mean_square = float((rows**2).sum() / max(dof, 1))
+    sigma_r = math.sqrt(max(0.0, mean_square - read_var / n))
+    flat = rows.ravel()
+    if flat.size > 5000:  # scipy's p-value is accurate up to N = 5000
+        flat = flat[np.linspace(0, flat.size - 1, 5000).astype(int)]
+    p = float(stats.shapiro(flat).pvalue) if flat.size >= 3 else float("nan")
+    return RowNoiseEstimate(sigma_r, p, rows, read_var, n)
+
+
+def row_corrected(bias_dn: np.ndarray, row_means: np.ndarray | None = None) -> np.ndarray:
+    """Bias frame with per-channel means and per-sensor-row offsets removed (DN, float64)."""
+    bias = _centered(_packed(bias_dn, "bias_dn"))
+    if row_means is None:
+        row_means = np.stack([bias[list(pair)].mean(axis=(0, 2)) for pair in SENSOR_ROWS])
+    return bias - np.asarray(row_means)[[0, 0, 1, 1]][:, :, None]
+
+
+# ----------------------------------------------------------------------------- read noise
+@dataclass
+class ReadNoiseEstimate:
+    """Read noise of a row-corrected bias residual.
+
+    lam : Tukey-lambda shape maximizing the probability-plot correlation (PPCC).
+    sigma_tl : Tukey-lambda scale, DN (slope of the probability plot at ``lam``).
+    sigma_g : Gaussian scale, DN (slope of the normal probability plot).
+    r2_tukey, r2_gauss : R^2 of the two probability plots.
+    ppcc_grid : (lambda, PPCC) on the coarse grid, for the PPCC plot.
+    n_samples : values used (after subsampling).
+    """
+
+    lam: float
+    sigma_tl: float
+    sigma_g: float
+    r2_tukey: float
+    r2_gauss: float
+    ppcc_grid: tuple = ()
+    n_samples: int = 0
+    std_dn: float = 0.0
+
+
+def _tukey_ppf(p, lam):
+    """Standard Tukey-lambda quantile function (same as scipy.stats.tukeylambda.ppf)."""
+    if abs(lam) < 1e-9:
+        return np.log(p) - np.log1p(-p)
+    return (p**lam - (1.0 - p) ** lam) / lam
+
+
+def _filliben(n):
+    v = np.empty(n)
+    v[-1] = 0.5 ** (1.0 / n)
+    v[0] = 1.0 - v[-1]
+    i = np.arange(2, n)
+    v[1:-1] = (i - 0.3175) / (n + 0.365)
+    return v
+
+
+def _ppcc(sorted_x, osm, lam):
+    q = _tukey_ppf(osm, lam)
+    return float(np.corrcoef(q, sorted_x)[0, 1])
+
+
+def subsample(values: np.ndarray, max_samples: int | None, seed: int = 0) -> np.ndarray:
+    """Up to ``max_samples`` values drawn without replacement (all of them when fewer)."""
+    flat = np.asarray(values).ravel()
+    if max_samples is None or flat.size <= max_samples:
+        return flat.astype(np.float64)
+    rng = np.random.default_rng(seed)
+    return flat[rng.choice(flat.size, size=int(max_samples), replace=False)].astype(np.float64)
+
+
+def estimate_read_noise(residual_dn, *, max_samples: int | None = 200_000, seed: int = 0) -> ReadNoiseEstimate:
+    """Tukey-lambda read noise of a row-corrected residual (DN), by PPCC.
+
+    ``lambda`` is found on a grid over [-0.5, 1] and refined with ``scipy.stats.ppcc_max``;
+    ``sigma_TL`` is the least-squares slope of the sorted values against
+    ``scipy.stats.tukeylambda.ppf`` at that lambda. ``max_samples`` random values are used
+    (None: all); the benchmark shows what subsampling costs in accuracy.
+    """
+    x = np.sort(subsample(residual_dn, max_samples, seed))
+    if x.size < 100:
+        raise ValueError(f"read-noise fit needs at least 100 values, got {x.size}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError("residual_dn holds NaN or Inf values")
+    if x[0] == x[-1]:
+        raise ValueError(f"residual_dn is constant ({x[0]}): no read noise to fit")
+    osm = _filliben(x.size)
+    grid = [(float(lam), _ppcc(x, osm, lam)) for lam in LAMBDA_GRID]
+    best = max(range(len(grid)), key=lambda i: grid[i][1])
+    lo = LAMBDA_GRID[max(best - 1, 0)]
+    hi = LAMBDA_GRID[min(best + 1, len(LAMBDA_GRID) - 1)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        try:
+            lam = float(stats.ppcc_max(x, brack=(float(lo), float(LAMBDA_GRID[best]), float(hi)), dist="tukeylambda"))
+        except ValueError:  # bracket condition not met at the grid edge: keep the grid value
+            lam = float(LAMBDA_GRID[best])
+    if not (LAMBDA_GRID[0] - 0.05 <= lam <= LAMBDA_GRID[-1] + 0.05) or _ppcc(x, osm, lam) < grid[best][1]:
+        lam = float(LAMBDA_GRID[best])
+    q = stats.tukeylambda.ppf(osm, lam)
+    slope_tl, _, r_tl, _, _ = stats.linregress(q, x)
+    z = stats.norm.ppf(osm)
+    slope_g, _, r_g, _, _ = stats.linregress(z, x)
+    return ReadNoiseEstimate(lam=lam, sigma_tl=float(slope_tl), sigma_g=float(slope_g), r2_tukey=float(r_tl**2),
+                             r2_gauss=float(r_g**2), ppcc_grid=tuple(grid), n_samples=int(x.size), std_dn=float(x.std()))
+
+
+# ----------------------------------------------------------------------------- colour bias, banding, quantization
+def estimate_color_bias(bias_dn) -> np.ndarray:
+    """Per-channel mean of a packed bias frame (R, G1, B, G2), DN: the black-level error."""
+    return np.asarray(_packed(bias_dn, "bias_dn"), dtype=np.float64).mean(axis=(1, 2))
+
+
+def centered_spectrum(image, max_size: int = 1024) -> np.ndarray:
+    """log10 power of the centralized 2-D FFT of a (centre crop of a) 2-D image, mean removed.
+
+    Row noise shows as a bright vertical line through the centre (power at horizontal
+    frequency 0), column noise as a horizontal line."""
+    img = np.asarray(image, dtype=np.float64)
+    h, w = img.shape
+    ch, cw = min(h, max_size), min(w, max_size)
+    top, left = (h - ch) // 2, (w - cw) // 2
+    img = img[top: top + ch, left: left + cw]
+    power = np.abs(np.fft.fftshift(np.fft.fft2(img - img.mean()))) ** 2
+    return np.log10(power + 1e-12)
+
+
+def banding_ratios(image, max_size: int = 1024) -> dict:
+    """Share of spectral power on the zero-frequency axes, over the share white noise gives.
+
+    ``row`` (power at horizontal frequency 0, i.e. constant along a row) and ``column``;
+    about 1 for white noise, much larger with row/column banding."""
+    img = np.asarray(image, dtype=np.float64)
+    h, w = img.shape
+    img = img[(h - min(h, max_size)) // 2:][: min(h, max_size), (w - min(w, max_size)) // 2:][:, : min(w, max_size)]
+    power = np.abs(np.fft.fft2(img - img.mean())) ** 2
+    power[0, 0] = 0.0
+    total = power.sum()
+    if total <= 0:
+        return {"row": float("nan"), "column": float("nan")}
+    ch, cw = img.shape
+    row_share = power[:, 0].sum() / total  # constant along rows: horizontal frequency 0
+    col_share = power[0, :].sum() / total
+    return {"row": float(row_share * cw), "column": float(col_share * ch)}
+
+
+def estimate_quantization_step(codes, max_values: int = 1_000_000) -> float | None:
+    """Quantization step (DN) of integer-valued codes: the gcd of the gaps between occupied
+    codes. None when the values are not integers (e.g. already scaled floats)."""
+    values = subsample(codes, max_values)
+    if values.size == 0 or not np.all(values == np.round(values)):
+        return None
+    levels = np.unique(values.astype(np.int64))
+    if levels.size < 2:
+        return None
+    return float(np.gcd.reduce(np.diff(levels)))
+
+
+def missing_code_fraction(codes, max_values: int = 1_000_000) -> float:
+    """Fraction of codes between the 1st and 99th percentile (in steps of the quantization
+    step) that never occur: > 0 means missing ADC codes (a non-ideal ADC or a digital gain)."""
+    values = subsample(codes, max_values)
+    step = estimate_quantization_step(values)
+    if step is None:
+        return 0.0
+    lo, hi = np.percentile(values, [1, 99])
+    levels = np.unique(values[(values >= lo) & (values <= hi)])
+    expected = int(round((hi - lo) / step)) + 1
+    return float(max(0.0, 1.0 - levels.size / max(expected, 1)))
+
+
+# ----------------------------------------------------------------------------- gain (photon transfer)
+@dataclass
+class GainEstimate:
+    """Photon-transfer result.
+
+    k : system gain, DN per electron (slope of pair variance against mean).
+    read_variance_dn2 : intercept, DN^2 (read + row + quantization variance at zero signal).
+    k_per_channel : slope fitted per packed channel (R, G1, B, G2).
+    tile_mean_dn, tile_variance_dn2 : the tiles used (for the plot).
+    n_tiles, n_excluded : tiles used and tiles excluded (saturated, black-clipped, outliers).
+    pair_means_dn : mean signal of each pair.
+    """
+
+    k: float
+    read_variance_dn2: float
+    k_per_channel: tuple = ()
+    tile_mean_dn: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    tile_variance_dn2: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    n_tiles: int = 0
+    n_excluded: int = 0
+    pair_means_dn: tuple = ()
+
+
+def _tile_stats(a, b, tile):
+    """Per tile of each channel: mean of the pair, half the variance of the pair difference
+    (the single-frame variance), and the pair's min and max. Flat (channel, mean, var, min,
+    max) arrays over tiles."""
+    c, h, w = a.shape
+    th, tw = h // tile, w // tile
+    if th == 0 or tw == 0:
+        raise ValueError(f"flat frames of packed size {h}x{w} are smaller than one {tile}x{tile} tile")
+    a = a[:, : th * tile, : tw * tile].reshape(c, th, tile, tw, tile)
+    b = b[:, : th * tile, : tw * tile].reshape(c, th, tile, tw, tile)
+    mean = 0.5 * (a.mean(axis=(2, 4)) + b.mean(axis=(2, 4)))
+    diff = a - b
+    var = diff.var(axis=(2, 4), ddof=1) / 2.0  # var(a - b) = 2 var(single frame)
+    lo = np.minimum(a.min(axis=(2, 4)), b.min(axis=(2, 4)))
+    hi = np.maximum(a.max(axis=(2, 4)), b.max(axis=(2, 4)))
+    chan = np.broadcast_to(np.arange(c)[:, None, None], mean.shape)
+    return chan.ravel(), mean.ravel(), var.ravel(), lo.ravel(), hi.ravel()
+
+
+def _robust_line(x, y, n_per_tile, iterations=8):
+    """Weighted line fit y = k x + c with Huber reweighting; a tile variance has standard error
+    ~ y * sqrt(2 / (n - 1)). Returns (k, c, inlier mask)."""
+    keep = np.ones(x.size, bool)
+    k, c = np.polyfit(x, y, 1)
+    for _ in range(iterations):
+        pred = np.maximum(k * x + c, 1e-12)
+        se = pred * math.sqrt(2.0 / (n_per_tile - 1))
+        z = (y - pred) / se
+        keep = np.abs(z) < 5.0
+        huber = np.where(np.abs(z) <= 1.5, 1.0, 1.5 / np.maximum(np.abs(z), 1e-12))
+        wts = np.where(keep, huber / se**2, 0.0)
+        if wts.sum() == 0 or np.unique(x[keep]).size < 2:
+            break
+        sw = np.sqrt(wts)
+        design = np.stack([x * sw, sw], axis=1)
+        (k, c), *_ = np.linalg.lstsq(design, y * sw, rcond=None)
+    return float(k), float(c), keep
+
+
+def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = None,
+                  black_clip_dn: float | None = None, read_variance_dn2: float | None = None) -> GainEstimate:
+    """System gain K (DN/e-) by photon transfer on flat-field pairs (packed DN).
+
+    For every ``tile x tile`` tile of every channel of every pair: mean of the two frames
+    and half the variance of their difference (the difference cancels fixed patterns such as
+    PRNU and vignetting). ``variance = K * mean + read variance``; the line is fitted robustly
+    (weighted by the expected standard error of a tile variance, Huber reweighting, 5-sigma
+    rejection). Tiles touching ``saturation_dn`` or ``black_clip_dn`` are excluded; the
+    clipping levels are detected from the data when not given (many pixels sharing the
+    extreme value).
+
+    ``read_variance_dn2`` (from bias frames, optional) decides which pairs are too dark to
+    carry shot noise.
+
+    Raises ValueError for a pair with frames of different shapes, a saturated pair, a pair too
+    dark to carry shot noise, or when fewer than 2 usable exposure levels remain.
+    """
+    pairs = list(flat_pairs)
+    if not pairs:
+        raise ValueError("photon transfer needs at least one flat pair, got none")
+    chans, means, variances, pair_means = [], [], [], []
+    n_total = 0
+    rejected = []
+    for i, pair in enumerate(pairs):
+        if not isinstance(pair, (tuple, list)) or len(pair) != 2:
+            raise ValueError(f"flat pair {i} must be a (frame_a, frame_b) pair, got {type(pair).__name__}")
+        a = _packed(pair[0], f"flat pair {i} frame a").astype(np.float64)
+        b = _packed(pair[1], f"flat pair {i} frame b").astype(np.float64)
+        if a.shape != b.shape:
+            raise ValueError(f"flat pair {i}: frames differ in size: {a.shape} vs {b.shape}")
+        sat = saturation_dn if saturation_dn is not None else _clip_level(a, b, high=True)
+        low = black_clip_dn if black_clip_dn is not None else _clip_level(a, b, high=False)
+        ch, m, v, lo, hi = _tile_stats(a, b, tile)
+        ok = np.ones(m.size, bool)
+        if sat is not None:
+            ok &= hi < sat
+        if low is not None:
+            ok &= lo > low
+        n_total += m.size
+        mean_dn = float(0.5 * (a.mean() + b.mean()))
+        pair_means.append(mean_dn)
+        if ok.mean() < 0.5:
+            which = "saturated" if sat is not None and np.mean(hi >= sat) >= 0.5 else "black-clipped"
+            rejected.append(f"pair {i} (mean {mean_dn:.1f} DN) is {which}: {100 * (1 - ok.mean()):.0f}% of tiles clipped")
+            continue
+        pair_var = float(np.median(v[ok]))
+        read_var = read_variance_dn2
+        if read_var is not None:
+            excess = pair_var - read_var
+            se = pair_var * math.sqrt(2.0 / max(int(ok.sum()) * (tile * tile - 1), 1))
+            if excess < max(5 * se, 0.05 * read_var) or mean_dn < 3 * math.sqrt(read_var):
+                rejected.append(f"pair {i} (mean {mean_dn:.2f} DN) is too dark to carry shot noise: variance "
+                                f"{pair_var:.3g} DN^2 vs read variance {read_var:.3g} DN^2")
+                continue
+        chans.append(ch[ok]); means.append(m[ok]); variances.append(v[ok])
+    if rejected:
+        message = "; ".join(rejected)
+        if not means:
+            raise ValueError(f"no usable flat pair: {message}")
+        warnings.warn(f"flat pairs not used: {message}", stacklevel=2)
+    ch = np.concatenate(chans); m = np.concatenate(means); v = np.concatenate(variances)
+    if m.max() < 1.5 * max(m.min(), 1e-9) and read_variance_dn2 is None:
+        raise ValueError(f"photon transfer needs flat pairs at >= 2 exposure levels (tile means span "
+                         f"{m.min():.1f}..{m.max():.1f} DN); add pairs at another exposure or give bias frames")
+    if m.max() < 1.5 * max(m.min(), 1e-9):  # one level: anchor the intercept at the bias read variance
+        k = float(np.sum(m * (v - read_variance_dn2)) / np.sum(m * m))
+        c, keep = float(read_variance_dn2), np.ones(m.size, bool)
+    else:
+        k, c, keep = _robust_line(m, v, tile * tile)
+    if not k > 0:
+        raise ValueError(f"photon transfer gave a non-positive gain K = {k:.4g} DN/e-: flats carry no shot noise "
+                         f"(too dark?) or frames are not pairs at equal settings")
+    per_channel = []
+    for j in range(4):
+        sel = keep & (ch == j)
+        per_channel.append(float(np.polyfit(m[sel], v[sel], 1)[0]) if np.unique(m[sel]).size > 1 else float("nan"))
+    return GainEstimate(k=k, read_variance_dn2=c, k_per_channel=tuple(per_channel), tile_mean_dn=m[keep],
+                        tile_variance_dn2=v[keep], n_tiles=int(keep.sum()), n_excluded=int(n_total - keep.sum()),
+                        pair_means_dn=tuple(pair_means))
+
+
+def _clip_level(a, b, high: bool):
+    """A clipping level, when many pixels share the extreme value (>= 0.01% and >= 10)."""
+    both = (a, b)
+    level = max(x.max() for x in both) if high else min(x.min() for x in both)
+    count = sum(int(np.count_nonzero(x == level)) for x in both)
+    if count >= max(10, 1e-4 * (a.size + b.size)):
+        return level
+    return None
+
+
+# ----------------------------------------------------------------------------- one ISO
+def _thin(x, y, n, seed):
+    if x.size <= n:
+        return x, y
+    idx = np.random.default_rng(seed).choice(x.size, n, replace=False)
+    return x[idx], y[idx]
+
+
+def _load(item, what):
+    array = item() if callable(item) else item
+    return np.asarray(array)
+
+
+def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | None = 200_000,
+                  saturation_dn: float | None = None, black_clip_dn: float | None = None,
+                  tile: int = 32, seed: int = 0, progress=None) -> IsoParameters:
+    """All stage-1 parameters at one ISO.
+
+    Parameters
+    ----------
+    bias_frames : packed (4, h, w) bias frames in DN (or zero-argument callables returning
+        one, so large frames are loaded one at a time).
+    flat_pairs : (a, b) pairs of packed flats in DN (or callables), equal settings per pair.
+    iso : the ISO of these frames.
+    max_samples : values used by the PPCC read-noise fit, pooled over the bias frames.
+    saturation_dn, black_clip_dn : clipping levels in DN (detected from the data if None).
+    progress : optional callable(str) told about each step.
+
+    Returns an :class:`IsoParameters` with K, sigma_TL, sigma_r, lambda, sigma_G and the
+    colour bias (medians over bias frames where per frame); ``extra`` holds diagnostics.
+    """
+    if iso is None or not float(iso) > 0:
+        raise ValueError(f"iso must be a positive number, got {iso!r}")
+    iso = float(iso)
+    bias_frames = list(bias_frames)
+    if not bias_frames:
+        raise ValueError(f"ISO {iso:g}: no bias frames; row and read noise need at least one")
+    tell = progress or (lambda _msg: None)
+    rows, biases, samples, shapes = [], [], [], []
+    first_bias = None
+    per_frame = max(1, (max_samples or 0) // len(bias_frames)) if max_samples else None
+    for i, item in enumerate(bias_frames):
+        bias = _packed(_load(item, "bias"), f"ISO {iso:g} bias frame {i}")
+        shapes.append(bias.shape)
+        if bias.shape != shapes[0]:
+            raise ValueError(f"ISO {iso:g}: bias frames differ in size: {shapes[0]} vs {bias.shape} (frame {i})")
+        row = estimate_row_noise(bias)
+        rows.append(row)
+        biases.append(estimate_color_bias(bias))
+        samples.append(subsample(row_corrected(bias, row.row_means), per_frame, seed + i))
+        if first_bias is None:
+            first_bias = bias
+        tell(f"ISO {iso:g}: bias frame {i + 1}/{len(bias_frames)}")
+    residual = np.concatenate(samples)
+    read = estimate_read_noise(residual, max_samples=max_samples, seed=seed)
+    tell(f"ISO {iso:g}: read noise fitted")
+    read_var = float(np.median([r.read_variance_dn2 for r in rows]))
+    sigma_r = float(np.median([r.sigma_r for r in rows]))
+    pairs = [tuple(_packed(_load(x, "flat"), f"ISO {iso:g} flat pair {j}") for x in pair) for j, pair in enumerate(flat_pairs)]
+    for j, (a, b) in enumerate(pairs):
+        if a.shape != shapes[0] or b.shape != shapes[0]:
+            raise ValueError(f"ISO {iso:g}: flat pair {j} has size {a.shape}/{b.shape}, bias frames {shapes[0]}")
+    if not pairs:
+        raise ValueError(f"ISO {iso:g}: no flat pairs; the gain K needs flat-field pairs at equal settings")
+    total_read_var = read_var + sigma_r**2
+    gain = estimate_gain(pairs, tile=tile, saturation_dn=saturation_dn, black_clip_dn=black_clip_dn,
+                         read_variance_dn2=total_read_var)
+    tell(f"ISO {iso:g}: gain K = {gain.k:.4g} DN/e-")
+    color = np.median(np.stack(biases), axis=0)
+    extra = {
+        "r2_tukey": read.r2_tukey,
+        "r2_gauss": read.r2_gauss,
+        "ppcc_grid": [list(p) for p in read.ppcc_grid],
+        "read_samples": read.n_samples,
+        "read_std_dn": read.std_dn,
+        "shapiro_p": [r.shapiro_p for r in rows],
+        "sigma_r_per_frame": [r.sigma_r for r in rows],
+        "read_variance_dn2": read_var,
+        "ptc_intercept_dn2": gain.read_variance_dn2,
+        "bias_read_plus_row_variance_dn2": total_read_var,
+        "k_per_channel": list(gain.k_per_channel),
+        "ptc_tiles": gain.n_tiles,
+        "ptc_tiles_excluded": gain.n_excluded,
+        "flat_pair_means_dn": list(gain.pair_means_dn),
+        "color_bias_per_frame_dn": [b.tolist() for b in biases],
+        "banding": banding_ratios(first_bias[1]),
+        "n_bias": len(bias_frames),
+        "n_flat_pairs": len(pairs),
+        # Kept for the report's figures, left out of report.json (leading underscore).
+        "_residual_sample": subsample(residual, 20_000, seed),
+        "_ptc": _thin(gain.tile_mean_dn, gain.tile_variance_dn2, 5000, seed),
+    }
+    return IsoParameters(iso=iso, k=gain.k, sigma_tl=read.sigma_tl, sigma_r=sigma_r, lam=read.lam,
+                         sigma_g=read.sigma_g, color_bias_dn=tuple(float(v) for v in color), extra=extra)

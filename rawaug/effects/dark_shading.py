@@ -1,0 +1,126 @@
+"""Dark shading and fixed-pattern noise (FPN): a per-pixel offset map, the same in every
+frame, whose size depends on ISO.
+
+Physics: pixel-to-pixel differences of dark current and source-follower offsets give
+every pixel its own offset (a white fixed pattern); amplifier glow and readout-path
+gradients add a smooth shading across the frame. Both grow with the analog gain.
+
+Storage choice (compact YAML): a per-pixel map of a full sensor would take megabytes, so
+the profile holds
+
+* ``seed`` and ``sigma_dn``: the white part is a seeded standard-normal realization scaled
+  by the measured per-pixel std. Its statistics (what a denoiser learns from) are the
+  sensor's; its exact pixel values are not -- they cannot be from a profile of this size;
+* ``shading_dn``: a low-resolution grid (at most 8x8) of the measured smooth shading,
+  bilinearly upsampled to the synthesized frame (which is treated as the whole sensor),
+  shared by the four packed channels (their mean differences are the colour bias ``C``).
+
+Both are per-K records (nearest record in log K)::
+
+    FPN: {seed: 11, k: [K, ...], sigma_dn: [..], shading_dn: [[[..gw..], ..gh..], ...]}
+
+Detected by ``fixed_std`` (stack-mean spread), ``psd2d_lowfreq``, ``row_lowfreq`` and
+``col_lowfreq`` (smooth shading), see ``rawaug.loop.statistics``. Estimated by
+``estimate``: grid = least-squares fit of the upsampled grid to the stack-mean map; sigma = the excess spread of the
+map minus its shading (robust, so hot pixels do not count) over the current model. A single frame cannot separate a white
+fixed pattern from temporal noise: then only the shading is estimated (``sigma_dn`` 0).
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .base import DARK, NoiseEffect, per_sample, register
+from .k_records import check_seed, fixed_normal, record_index, validate_records, value_at_k
+
+STATISTICS = ("fixed_std", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
+MAX_GRID = 8
+
+
+def _grids(params) -> torch.Tensor:
+    return torch.tensor(params["shading_dn"], dtype=torch.float32)  # (R, gh, gw)
+
+
+def upsample_grid(grid, h: int, w: int):
+    """Bilinear upsampling of (..., gh, gw) grids to (..., h, w) (numpy or torch)."""
+    t = torch.as_tensor(np.asarray(grid) if not isinstance(grid, torch.Tensor) else grid, dtype=torch.float32)
+    lead = t.shape[:-2]
+    up = F.interpolate(t.reshape(-1, 1, *t.shape[-2:]), size=(h, w), mode="bilinear", align_corners=False)
+    up = up.reshape(*lead, h, w)
+    return up if isinstance(grid, torch.Tensor) else up.numpy().astype(np.float64)
+
+
+@register
+class DarkShading(NoiseEffect):
+    token = "FPN"
+    order = DARK
+    param_keys = ("dark_shading.sigma_dn", "dark_shading.record")
+
+    def draw(self, ctx):
+        p = self.profile.effects[self.token]
+        return {"dark_shading.sigma_dn": value_at_k(p, "sigma_dn", ctx.k), "dark_shading.record": record_index(p, ctx.k)}
+
+    def forward(self, signal_dn, clean_dn, params, generator):
+        _, _, h, w = signal_dn.shape
+        p = self.profile.effects[self.token]
+        dtype = signal_dn.dtype
+        white = fixed_normal(p["seed"], (4, h, w), signal_dn.device).to(dtype)[None]
+        grids = _grids(p).to(signal_dn.device)[params["dark_shading.record"].to(signal_dn.device)]  # (B, gh, gw)
+        shading = upsample_grid(grids, h, w).to(dtype)[:, None]
+        return signal_dn + white * per_sample(params["dark_shading.sigma_dn"]).to(dtype) + shading
+
+    @classmethod
+    def validate_params(cls, params):
+        validate_records(cls.token, params, ("sigma_dn", "shading_dn"), nonnegative=("sigma_dn",))
+        check_seed(cls.token, params)
+        shape = None
+        for i, grid in enumerate(params["shading_dn"]):
+            arr = np.asarray(grid, dtype=np.float64) if isinstance(grid, (list, tuple)) else None
+            if arr is None or arr.ndim != 2 or min(arr.shape) < 1 or max(arr.shape) > 64 or not np.isfinite(arr).all():
+                raise ValueError(f"effect 'FPN': shading_dn[{i}] must be a finite 2-D grid (at most 64x64), got {grid!r:.80}")
+            if shape is not None and arr.shape != shape:
+                raise ValueError(f"effect 'FPN': every shading_dn grid must have the same shape, got {shape} and {arr.shape}")
+            shape = arr.shape
+
+
+def _grid_shape(h, w):
+    return max(1, min(MAX_GRID, h // 8)), max(1, min(MAX_GRID, w // 8))
+
+
+def _upsampling_matrix(n_out, n_grid):
+    """(n_out, n_grid) matrix of 1-D bilinear upsampling (``upsample_grid`` along one axis)."""
+    eye = torch.eye(n_grid, dtype=torch.float32)[:, None, :]  # (n_grid, 1, n_grid)
+    up = F.interpolate(eye, size=n_out, mode="linear", align_corners=False)[:, 0, :]
+    return up.T.numpy().astype(np.float64)
+
+
+def shading_grid(frames) -> np.ndarray:
+    """(gh, gw) grid whose bilinear upsampling best fits (least squares) the
+    channel-averaged, zero-mean stack-mean map, DN."""
+    m = np.asarray(frames, dtype=np.float64).mean(axis=0)
+    m = (m - m.mean(axis=(1, 2), keepdims=True)).mean(axis=0)  # (h, w)
+    gh, gw = _grid_shape(*m.shape)
+    uy, ux = _upsampling_matrix(m.shape[0], gh), _upsampling_matrix(m.shape[1], gw)
+    return np.linalg.pinv(uy) @ m @ np.linalg.pinv(ux).T
+
+
+def _white_var(frames, grid):
+    """Robust variance (``fixed_std`` squared) of the stack-mean map once the shading grid
+    is removed, DN^2: hot pixels do not count here."""
+    from ..loop.statistics import fixed_std
+
+    return fixed_std(frames - upsample_grid(grid, *frames.shape[2:])[None, None]) ** 2
+
+
+def estimate(frames, synthesized, k: float, seed: int = 11, **_) -> dict:
+    """Dark-shading record at gain ``k`` from measured frames (N, 4, h, w) in DN and
+    stacks of the same shape synthesized by the current model."""
+    frames = np.asarray(frames, dtype=np.float64)
+    grid = shading_grid(frames)
+    sigma = 0.0
+    if frames.shape[0] >= 2:
+        base = [np.asarray(s, dtype=np.float64) for s in synthesized]
+        excess = _white_var(frames, grid) - float(np.mean([_white_var(s, shading_grid(s)) for s in base]))
+        sigma = float(np.sqrt(max(excess, 0.0)))
+    return {"seed": int(seed), "k": [float(k)], "sigma_dn": [sigma], "shading_dn": [grid.tolist()]}

@@ -1,0 +1,91 @@
+"""Hot pixels (Hot): a sparse set of pixels with a large fixed dark offset.
+
+Physics: crystal defects give a few pixels a dark current far above the rest; in a bias
+or short dark frame they sit at a fixed position with a fixed, gain-dependent offset
+(stuck-high pixels are the extreme case).
+
+Synthesis: positions are the pixels where a seeded U(0, 1) pattern falls below
+``density``; each has a log-normal amplitude ``median_dn * exp(log_std * z)`` with a
+seeded standard-normal ``z``; the amplitude scale is a per-K record. The temporal
+(shot) noise of a hot pixel's dark current is not modelled.
+
+Profile entry::
+
+    Hot: {seed: 13, density: 1.0e-4, log_std: 0.5, k: [K, ...], median_dn: [...]}
+
+Detected by ``hot_fraction`` (pixels of the stack mean 8 robust sigma above the median)
+and ``tail_mass``. Estimated by ``estimate``: density = excess hot fraction over the
+current model, amplitudes from the detected pixels. Hot pixels dimmer than the 8-sigma
+threshold are not seen, so density and median are those of the detectable population.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from .base import DARK, NoiseEffect, per_sample, register
+from .k_records import _number, check_seed, fixed_normal, fixed_uniform, validate_records, value_at_k
+
+STATISTICS = ("hot_fraction", "tail_mass")
+THRESHOLD_SIGMA = 8.0
+
+
+@register
+class HotPixels(NoiseEffect):
+    token = "Hot"
+    order = DARK
+    param_keys = ("hot_pixels.median_dn",)
+
+    def draw(self, ctx):
+        return {"hot_pixels.median_dn": value_at_k(self.profile.effects[self.token], "median_dn", ctx.k)}
+
+    def forward(self, signal_dn, clean_dn, params, generator):
+        _, c, h, w = signal_dn.shape
+        p = self.profile.effects[self.token]
+        dtype = signal_dn.dtype
+        where = fixed_uniform(p["seed"], (c, h, w), signal_dn.device) < float(p["density"])
+        spread = torch.exp(float(p["log_std"]) * fixed_normal(p["seed"] + 1, (c, h, w), signal_dn.device))
+        amplitude = torch.where(where, spread, torch.zeros_like(spread)).to(dtype)[None]
+        return signal_dn + amplitude * per_sample(params["hot_pixels.median_dn"]).to(dtype)
+
+    @classmethod
+    def validate_params(cls, params):
+        validate_records(cls.token, params, ("median_dn",), nonnegative=("median_dn",))
+        check_seed(cls.token, params)
+        density = _number(params.get("density"), "Hot.density")
+        if not 0.0 <= density <= 0.1:
+            raise ValueError(f"effect 'Hot': density (fraction of pixels) must be in [0, 0.1], got {density}")
+        if _number(params.get("log_std"), "Hot.log_std") < 0:
+            raise ValueError(f"effect 'Hot': log_std must be >= 0, got {params.get('log_std')}")
+
+
+def detect(frames):
+    """Boolean (4, h, w) mask of hot pixels of the stack mean and their amplitude (DN above
+    the channel median)."""
+    m = np.asarray(frames, dtype=np.float64).mean(axis=0).reshape(4, -1)
+    med = np.median(m, axis=1, keepdims=True)
+    mad = 1.482602218505602 * np.median(np.abs(m - med), axis=1, keepdims=True)
+    scale = np.where(mad > 0, mad, m.std(axis=1, keepdims=True)) + 1e-12
+    hot = (m - med) / scale > THRESHOLD_SIGMA
+    return hot, (m - med)[hot]
+
+
+def estimate(frames, synthesized, k: float, seed: int = 13, **_) -> dict:
+    """Hot-pixel parameters at gain ``k`` from measured frames (N, 4, h, w) in DN."""
+    frames = np.asarray(frames, dtype=np.float64)
+    hot, amp = detect(frames)
+    base = float(np.mean([detect(s)[0].mean() for s in synthesized])) if synthesized else 0.0
+    density = max(float(hot.mean()) - base, 0.0)
+    amp = amp[amp > 0]
+    if density == 0.0 or amp.size == 0:
+        return {"seed": int(seed), "density": 0.0, "log_std": 0.0, "k": [float(k)], "median_dn": [0.0]}
+    logs = np.log(amp)
+    return {
+        "seed": int(seed),
+        "density": min(density, 0.1),
+        "log_std": float(logs.std(ddof=1)) if amp.size > 1 else 0.0,
+        "k": [float(k)],
+        "median_dn": [float(math.exp(logs.mean()))],
+    }

@@ -1,0 +1,113 @@
+"""Shared plumbing of the loop effects: parameters recorded against the gain K, and
+seeded fixed patterns.
+
+Effects whose size depends on ISO store one record per calibrated gain::
+
+    {k: [K1, K2, ...], sigma_dn: [s1, s2, ...], ...}
+
+and a synthesized sample uses the record nearest its drawn K (in log K), as the ELD
+profiles do for ``tukey_shape`` and ``color_bias``. A fixed pattern (a sensor's
+per-pixel or per-column offsets) is the same realization in every frame and every call:
+it is drawn on the CPU from the profile's seed (so it is identical on every device) and
+cached on the device once.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .base import nearest_in_k
+from ..profile import KTable
+
+
+def _number(value, where):
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where} must be a number, got {value!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{where} must be finite, got {value}")
+    return value
+
+
+def validate_records(token: str, params, keys: tuple[str, ...], nonnegative: tuple[str, ...] = ()) -> None:
+    """Check ``{k: [...], key: [...]}`` records: equal non-empty lengths, K > 0, finite values."""
+    if not isinstance(params, dict):
+        raise ValueError(f"effect {token!r} parameters must be a mapping, got {params!r}")
+    ks = params.get("k")
+    if not isinstance(ks, (list, tuple)) or not ks:
+        raise ValueError(f"effect {token!r} needs a non-empty list 'k' (gain K per record, DN/e-), got {ks!r}")
+    for v in ks:
+        if _number(v, f"{token}.k[]") <= 0:
+            raise ValueError(f"effect {token!r}: every k must be > 0, got {v}")
+    for key in keys:
+        vals = params.get(key)
+        if not isinstance(vals, (list, tuple)) or len(vals) != len(ks):
+            raise ValueError(f"effect {token!r} needs '{key}' with one value per k ({len(ks)}), got {vals!r:.80}")
+        for v in vals:
+            if isinstance(v, (list, tuple)):
+                continue  # nested records (maps) are checked by the effect
+            v = _number(v, f"{token}.{key}[]")
+            if key in nonnegative and v < 0:
+                raise ValueError(f"effect {token!r}: {key} must be >= 0, got {v}")
+
+
+def record_index(params: dict, k: torch.Tensor) -> torch.Tensor:
+    """(B,) index of the record nearest each K (log distance; first of ties)."""
+    table = KTable(tuple(float(v) for v in params["k"]), tuple(float(i) for i in range(len(params["k"]))))
+    return nearest_in_k(table, k).round().to(torch.int64)
+
+
+def value_at_k(params: dict, key: str, k: torch.Tensor) -> torch.Tensor:
+    """(B,) value of ``params[key]`` at the record nearest each K, float64."""
+    table = KTable(tuple(float(v) for v in params["k"]), tuple(float(v) for v in params[key]))
+    return nearest_in_k(table, k)
+
+
+def merge_records(records: list[dict]) -> dict:
+    """Concatenate single-K records (as estimated per ISO) into one parameter dict,
+    sorted by K. List-valued keys are concatenated, scalar keys taken from the first."""
+    if not records:
+        raise ValueError("merge_records needs at least one record")
+    order = sorted(range(len(records)), key=lambda i: float(records[i]["k"][0]))
+    out: dict = {}
+    for i in order:
+        for key, val in records[i].items():
+            if isinstance(val, list):
+                out.setdefault(key, []).extend(val)
+            else:
+                out.setdefault(key, val)
+    return out
+
+
+_PATTERNS: dict = {}
+_MAX_CACHED = 64  # patterns kept per process (one per seed, size and device)
+
+
+def _cache(key, make):
+    if key not in _PATTERNS:
+        if len(_PATTERNS) >= _MAX_CACHED:
+            _PATTERNS.clear()
+        _PATTERNS[key] = make()
+    return _PATTERNS[key]
+
+
+def fixed_normal(seed: int, shape: tuple[int, ...], device) -> torch.Tensor:
+    """A standard-normal fixed pattern of ``shape``, the same on every device and call."""
+    gen = lambda: torch.Generator().manual_seed(int(seed))  # noqa: E731
+    return _cache(("normal", int(seed), tuple(shape), str(device)),
+                  lambda: torch.randn(shape, generator=gen(), dtype=torch.float32).to(device))
+
+
+def fixed_uniform(seed: int, shape: tuple[int, ...], device) -> torch.Tensor:
+    """A U(0, 1) fixed pattern of ``shape``, the same on every device and call."""
+    gen = lambda: torch.Generator().manual_seed(int(seed))  # noqa: E731
+    return _cache(("uniform", int(seed), tuple(shape), str(device)),
+                  lambda: torch.rand(shape, generator=gen(), dtype=torch.float32).to(device))
+
+
+def check_seed(token: str, params: dict) -> None:
+    seed = params.get("seed")
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise ValueError(f"effect {token!r} needs an integer 'seed' >= 0 for its fixed pattern, got {seed!r}")

@@ -1,0 +1,61 @@
+"""Photo-response non-uniformity (PRNU): every pixel has its own gain.
+
+Physics: pixel-to-pixel differences of photodiode area and microlens give each pixel a
+slightly different response; it multiplies the photo signal, so its fixed-pattern spread
+grows in proportion to the signal (the quadratic term of a photon transfer curve).
+
+Synthesis: ``signal * (1 + sigma * g)`` before shot noise, with a seeded standard-normal
+map ``g`` (the same in every frame). ``sigma`` does not depend on ISO.
+
+Profile entry::  ``PRNU: {seed: 17, sigma: 0.01}``  (fraction of the signal)
+
+Detected by ``flat_fixed_rel`` on flat stacks (fixed-pattern std over the mean level).
+Estimated by ``estimate``: the excess fixed-pattern variance of the flat stack over the
+current model, divided by the squared mean level. Bias frames cannot show PRNU.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import PHOTON, NoiseEffect, register
+from .k_records import _number, check_seed, fixed_normal
+
+STATISTICS = ("flat_fixed_rel",)
+
+
+@register
+class PhotoResponseNonUniformity(NoiseEffect):
+    token = "PRNU"
+    order = PHOTON
+
+    def forward(self, signal_dn, clean_dn, params, generator):
+        _, c, h, w = signal_dn.shape
+        p = self.profile.effects[self.token]
+        gain = fixed_normal(p["seed"], (c, h, w), signal_dn.device).to(signal_dn.dtype)[None]
+        return signal_dn * (1.0 + float(p["sigma"]) * gain)
+
+    @classmethod
+    def validate_params(cls, params):
+        if not isinstance(params, dict):
+            raise ValueError(f"effect 'PRNU' parameters must be a mapping, got {params!r}")
+        check_seed(cls.token, params)
+        sigma = _number(params.get("sigma"), "PRNU.sigma")
+        if not 0.0 <= sigma < 0.5:
+            raise ValueError(f"effect 'PRNU': sigma (fraction of the signal) must be in [0, 0.5), got {sigma}")
+
+
+def _fixed_var(frames):
+    """Robust fixed-pattern variance of a stack (``fixed_std`` squared), DN^2."""
+    from ..loop.statistics import fixed_std
+
+    return fixed_std(frames) ** 2
+
+
+def estimate(frames, synthesized, k: float, level_dn=None, seed: int = 17, **_) -> dict:
+    """PRNU from a flat stack (N >= 2, 4, h, w) in DN at clean level ``level_dn`` (DN)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if level_dn is None or frames.shape[0] < 2:
+        raise ValueError("PRNU needs a flat stack of >= 2 frames and its clean level level_dn (DN)")
+    level = float(np.mean(level_dn))
+    base = float(np.mean([_fixed_var(np.asarray(s, dtype=np.float64)) for s in synthesized]))
+    return {"seed": int(seed), "sigma": float(np.sqrt(max(_fixed_var(frames) - base, 0.0)) / max(level, 1e-12))}

@@ -1,0 +1,172 @@
+"""``rawaug loop INPUT --out profile.yaml --report DIR``.
+
+INPUT is one of
+
+* a per-ISO parameter table (JSON incl. the PMN ``*_per_ISO`` layout, or CSV with
+  ``iso, K, sigma_TL, sigma_r, lambda``): the joint model is fitted
+  (``rawaug.calibration.joint.fit_joint``) and its relations get a regime change and a
+  noise floor where the residuals demand them;
+* a per-frame fit table (CSV with ``frame, channel, meanR, sigmaR, sigmaGs``): the
+  frame-to-frame black-level error is diagnosed (needs ``--k`` and ``--frame-size``);
+  with ``--profile`` the found ``BLE`` is added to that profile;
+* a frame manifest (CSV with ``path, kind, iso, ...``) or a folder, as ``rawaug calibrate``
+  takes it: without ``--profile`` the base model is first calibrated from it (stage 1 and 2,
+  report in ``DIR/calibration``); then the frame loop compares the bias stacks of every ISO
+  with syntheses and adds the missing effects.
+"""
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..profile import NoiseProfile
+from . import parameters
+from .report import residual_table, steps_table, write_report
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("input", help="per-ISO parameter table (.json/.csv), per-frame fit table (.csv) or frame manifest")
+    parser.add_argument("--out", help="output profile (YAML)")
+    parser.add_argument("--report", required=True, help="report folder (report.json, report.md)")
+    parser.add_argument("--profile", help="base profile (built-in name or YAML) for per-frame tables and manifests")
+    parser.add_argument("--camera", default="camera", help="camera name for a profile fitted from a table")
+    parser.add_argument("--black-level", type=float, help="black level (raw code); default: the table's 'bl' column")
+    parser.add_argument("--white-level", type=float, help="white level (raw code); default: the table's 'wp' column")
+    parser.add_argument("--cfa", default="RGGB")
+    parser.add_argument("--k", type=float, help="system gain K (DN/e-) of a per-frame table")
+    parser.add_argument("--frame-size", type=int, nargs=2, metavar=("ROWS", "COLS"),
+                        help="sensor size of the frames of a per-frame table (raw rows, columns)")
+    parser.add_argument("--n-synth", type=int, default=12, help="syntheses per diagnosis (frame loop)")
+    parser.add_argument("--seed", type=int, default=0)
+
+
+def _is_frame_table(path: Path) -> bool:
+    if path.suffix.lower() != ".csv":
+        return False
+    with path.open() as f:
+        head = next(csv.reader(f), [])
+    return "frame" in head and "channel" in head
+
+
+def _run_parameter_table(args, path):
+    from ..calibration.joint import fit_joint, read_parameter_table
+
+    params = read_parameter_table(path)
+    extra = params[0].extra
+    black = args.black_level if args.black_level is not None else extra.get("bl")
+    white = args.white_level if args.white_level is not None else extra.get("wp")
+    if black is None or white is None:
+        raise ValueError("the table has no 'bl'/'wp' columns: give --black-level and --white-level")
+    black, white = float(black), float(white)
+    base = fit_joint(params, camera=args.camera, black_level=black, white_level=white,
+                     bit_depth=int(np.ceil(np.log2(white + 1))), cfa=args.cfa, source=f"rawaug loop on {path.name}")
+    result = parameters.parameter_loop(params)
+    profile = parameters.apply_to_profile(base, result["fits"])
+    md = [f"# rawaug loop: {path.name}", "", f"{len(params)} ISOs, K {params[0].k:.4g} .. {params[-1].k:.4g} DN/e-.",
+          "Errors: rms residual of log(sigma) (natural log; 0.1 is about 10 %).", "", steps_table(result["steps"]),
+          "## Residual structure of each relation", "", "| relation | structure | rms log | BIC | break K |", "|---|---|---|---|---|"]
+    for name, d in result["diagnosis"].items():
+        for st, v in d.items():
+            bk = f"{v['break_k']:.4g}" if v["break_k"] else ""
+            md.append(f"| {name} | {st} | {v['rms_log']:.3f} | {v['bic']:.1f} | {bk} |")
+    report = {"input": str(path), "kind": "parameter_table", "steps": result["steps"], "diagnosis": result["diagnosis"],
+              "final": {n: f.relation.to_dict() for n, f in result["fits"].items()}}
+    return profile, report, "\n".join(md) + "\n"
+
+
+def _run_frame_table(args, path):
+    if args.k is None or args.frame_size is None:
+        raise ValueError("a per-frame table needs --k (DN/e-) and --frame-size ROWS COLS (raw sensor size)")
+    table = parameters.read_frame_table(path)
+    rows, cols = args.frame_size[0] // 2, args.frame_size[1] // 2
+    result = parameters.frame_table_loop(table, rows, cols, args.k, seed=args.seed)
+    profile = None
+    if args.profile and result["params"]:
+        profile = NoiseProfile.load(args.profile).with_effect("BLE", result["params"])
+    md = [f"# rawaug loop: {path.name}", "", f"{table['means'].shape[0]} frames, K = {args.k:g} DN/e-.", "",
+          steps_table(result["steps"]), residual_table(result["before"], "before"), residual_table(result["after"], "after")]
+    return profile, {"input": str(path), "kind": "frame_table", **result}, "\n".join(md)
+
+
+def _run_manifest(args, path):
+    from ..calibration.stage1 import estimate_read_noise, estimate_row_noise, row_corrected
+    from ..io import read_manifest
+    from .diagnose import FrameStack
+    from .frames_loop import run_frame_loop
+
+    if args.profile:
+        profile = NoiseProfile.load(args.profile)
+    else:
+        profile = _calibrate_base(path, Path(args.report) / "calibration")
+    if path.is_dir():
+        path = path / "manifest.csv"
+        if not path.is_file():
+            raise ValueError(f"{path.parent}: the frame loop needs a manifest.csv (kinds and ISOs of the frames)")
+    groups: dict = {}
+    for entry in read_manifest(path):
+        if getattr(entry, "kind", "bias") != "bias":
+            continue
+        frame = entry.read()
+        groups.setdefault(frame.iso, []).append(frame.packed_dn())
+    if not groups:
+        raise ValueError(f"{path}: no bias frames in the manifest")
+    stacks = []
+    for iso, frames in sorted(groups.items()):
+        frames = np.stack(frames).astype(np.float64)
+        row = estimate_row_noise(frames[0])
+        read = estimate_read_noise(row_corrected(frames[0], row.row_means))
+        k = profile.k_at_iso(iso) if iso else 1.0
+        stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}",
+                                 base={"sigma_tl": read.sigma_tl, "lambda": read.lam, "sigma_g": read.sigma_g, "sigma_r": row.sigma_r}))
+    result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
+    md = [f"# rawaug loop: {path.name}", "", steps_table([s.to_dict() for s in result.steps])]
+    for label in result.initial:
+        md += [residual_table([r.to_dict() for r in result.initial[label]], f"{label}: before"),
+               residual_table([r.to_dict() for r in result.final[label]], f"{label}: after")]
+    report = {"input": str(path), "kind": "frames", "steps": [s.to_dict() for s in result.steps],
+              "initial": {k: [r.to_dict() for r in v] for k, v in result.initial.items()},
+              "final": {k: [r.to_dict() for r in v] for k, v in result.final.items()}}
+    return result.profile, report, "\n".join(md)
+
+
+def _calibrate_base(path: Path, report_dir: Path) -> NoiseProfile:
+    """Fit the base ELD model from the frames with ``rawaug calibrate`` (its report goes to ``report_dir``)."""
+    import argparse
+
+    from ..calibration import command as calibration
+
+    parser = argparse.ArgumentParser(prog="rawaug calibrate")
+    calibration.add_arguments(parser)
+    report_dir.mkdir(parents=True, exist_ok=True)
+    base = report_dir / "base_profile.yaml"
+    calibration.run(parser.parse_args([str(path), "--out", str(base), "--report", str(report_dir), "--no-progress"]))
+    return NoiseProfile.load(base)
+
+
+def _is_manifest(path: Path) -> bool:
+    from ..calibration.command import _is_manifest_csv
+
+    return path.is_dir() or (path.suffix.lower() == ".csv" and _is_manifest_csv(path))
+
+
+def run(args) -> int:
+    path = Path(args.input)
+    if not path.exists():
+        raise FileNotFoundError(f"loop input {str(path)!r} does not exist")
+    start = time.time()
+    if _is_manifest(path):
+        profile, report, md = _run_manifest(args, path)
+    elif _is_frame_table(path):
+        profile, report, md = _run_frame_table(args, path)
+    else:
+        profile, report, md = _run_parameter_table(args, path)
+    report["elapsed_s"] = time.time() - start
+    write_report(args.report, report, md)
+    if profile is not None and args.out:
+        profile.save(args.out)
+        print(f"profile -> {args.out}")
+    print(f"report -> {Path(args.report) / 'report.md'}")
+    return 0

@@ -1,0 +1,153 @@
+"""Residual diagnosis on frames: measured stack against repeated syntheses of the model.
+
+For a measured stack (N frames at gain K), the model synthesizes ``n_synth`` stacks of the
+same size and count; every statistic of ``rawaug.loop.statistics`` gets
+
+* ``z = (measured - mean of syntheses) / spread of syntheses`` (significance), and
+* ``rel_error = |measured - mean| / max(|measured|, 3 spread, resolution)`` (error figure:
+  relative to the measured value, or to the synthesis noise where that is larger),
+
+and residuals are ranked by ``|z|`` and traced to the effects that explain them.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+
+from ..augment import RawNoiseAugment, parse_model
+from ..profile import NoiseProfile
+from .registry import effects_for
+from .statistics import STATISTICS, frame_statistics
+
+
+@dataclass
+class FrameStack:
+    """Measured frames of one setting, packed ``(N, 4, h, w)`` in DN (black-subtracted).
+
+    ``kind`` is ``"bias"`` (no light) or ``"flat"`` (uniform light of ``level_dn``);
+    ``base`` may fix base-model parameters measured on these frames (keys of
+    ``RawNoiseAugment(fixed=...)``: ``sigma_tl``, ``lambda``, ``sigma_r``); missing ones
+    come from the profile at ``k``."""
+
+    frames_dn: np.ndarray
+    k: float
+    kind: str = "bias"
+    level_dn: float | None = None
+    label: str = ""
+    base: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.frames_dn = np.asarray(self.frames_dn, dtype=np.float64)
+        if self.frames_dn.ndim != 4 or self.frames_dn.shape[1] != 4:
+            raise ValueError(f"frames_dn must be packed (N, 4, h, w), got shape {self.frames_dn.shape}")
+        if not (isinstance(self.k, (int, float)) and math.isfinite(self.k) and self.k > 0):
+            raise ValueError(f"k (system gain, DN/e-) must be a positive number, got {self.k!r}")
+        if self.kind not in ("bias", "flat"):
+            raise ValueError(f"kind must be 'bias' or 'flat', got {self.kind!r}")
+        if self.kind == "flat" and self.level_dn is None:
+            raise ValueError("a flat stack needs its clean level level_dn (DN)")
+        self.label = self.label or f"{self.kind} K={self.k:.4g}"
+
+    @property
+    def integer(self) -> bool:
+        """Whole-number codes (a real raw file): syntheses are then rounded, not dithered."""
+        return bool(np.all(self.frames_dn == np.rint(self.frames_dn)))
+
+
+@dataclass
+class Residual:
+    statistic: str
+    measured: float
+    synth_mean: float
+    synth_std: float
+    z: float
+    rel_error: float
+    significant: bool
+    effects: list
+    base: str
+
+    def to_dict(self):
+        return asdict(self)
+
+
+def channel_offsets(frames) -> list[float]:
+    """Per-channel 10-90 % trimmed mean (DN): the black-level error the synthesis copies."""
+    x = np.sort(np.moveaxis(frames, 1, 0).reshape(4, -1), axis=1)
+    n = x.shape[1]
+    return [float(v) for v in x[:, n // 10 : max(n // 10 + 1, n - n // 10)].mean(axis=1)]
+
+
+def synthesis_fixed(profile: NoiseProfile, stack: FrameStack) -> dict:
+    """The fixed parameters of a synthesis matching ``stack``: K, ratio 1, the base-model
+    sigmas at K (median of the profile relation, unless measured), and its channel offsets."""
+    k = stack.k
+    fixed = {
+        "k": k,
+        "ratio": 1.0,
+        "sigma_tl": profile.tukey_scale.median(k),
+        "sigma_g": profile.gaussian_scale.median(k),
+        "lambda": float(profile.tukey_shape.nearest(k)),
+        "sigma_r": profile.row_scale.median(k),
+        "color_bias_dn": channel_offsets(stack.frames_dn) if stack.kind == "bias" else [0.0] * 4,
+    }
+    fixed.update(stack.base)
+    return fixed
+
+
+def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int, model: str = "G*+P*+R+U") -> np.ndarray:
+    """``n_synth`` stacks like ``stack`` from the model (base ``model`` + colour bias +
+    every effect in the profile): array (n_synth, N, 4, h, w) in DN, float32. Integer
+    measured codes get rounded syntheses (the ADC rounds) instead of the ``U`` dither."""
+    tokens = [t for t in parse_model(model) if not (t == "U" and stack.integer)]
+    if "C" not in tokens:
+        tokens.append("C")
+    aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed=synthesis_fixed(profile, stack),
+                          generator=torch.Generator().manual_seed(int(seed)), rank_seeding=False)
+    n, _, h, w = stack.frames_dn.shape
+    level = 0.0 if stack.kind == "bias" else float(np.mean(stack.level_dn))
+    clean = torch.full((n_synth * n, 4, h, w), level / profile.span_dn, dtype=torch.float32)
+    with torch.no_grad():
+        out = aug(clean) * profile.span_dn
+    if stack.integer:
+        out = torch.round(out)
+    return out.numpy().reshape(n_synth, n, 4, h, w)
+
+
+def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float = 0.1) -> list[Residual]:
+    """Residuals of every applicable statistic, ranked by ``|z|`` (largest first)."""
+    measured = frame_statistics(stack.frames_dn, stack.kind, stack.level_dn)
+    synth = [frame_statistics(s, stack.kind, stack.level_dn) for s in synthesized]
+    out = []
+    for name, m in measured.items():
+        values = np.array([s[name] for s in synth])
+        mean, std = float(values.mean()), float(values.std(ddof=1)) if len(values) > 1 else 0.0
+        res = STATISTICS[name].resolution(stack.frames_dn, abs(mean))  # null: the model count
+        z = (m - mean) / math.sqrt(std**2 + res**2)
+        rel = abs(m - mean) / max(abs(m), 3.0 * std, res)
+        out.append(Residual(name, m, mean, std, float(z), float(rel), bool(abs(z) > z_min and rel > rel_min),
+                            effects_for(name), STATISTICS[name].base))
+    return sorted(out, key=lambda r: -abs(r.z))
+
+
+def diagnose(stack: FrameStack, profile, *, model: str = "G*+P*+R+U", n_synth: int = 12, seed: int = 0,
+             z_min: float = 6.0, rel_min: float = 0.1):
+    """Synthesize ``n_synth`` stacks like ``stack`` and rank the residuals.
+
+    Returns ``(residuals, synthesized)``; ``synthesized`` (n_synth, N, 4, h, w) DN is the
+    baseline the estimators subtract."""
+    if n_synth < 3:
+        raise ValueError(f"n_synth must be >= 3 to estimate the spread of the syntheses, got {n_synth}")
+    profile = NoiseProfile.load(profile)
+    synthesized = synthesize(profile, stack, n_synth, seed, model)
+    return compare(stack, synthesized, z_min, rel_min), synthesized
+
+
+def battery_error(residuals: list[Residual]) -> dict:
+    """Summary over the battery: mean relative error, rms z, count of significant residuals."""
+    rel = [r.rel_error for r in residuals]
+    zs = [r.z for r in residuals]
+    return {"mean_rel_error": float(np.mean(rel)), "rms_z": float(np.sqrt(np.mean(np.square(zs)))),
+            "n_significant": int(sum(r.significant for r in residuals))}

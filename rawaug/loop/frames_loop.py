@@ -1,0 +1,170 @@
+"""The closed loop on frames: diagnose, add the missing effect that explains most, repeat.
+
+Each step collects the candidate effects (not in the profile, not yet rejected) that some
+significant residual points to; estimates each on every stack it applies to (one record per
+gain K); re-diagnoses with it, all candidates against the same syntheses' seeds. A candidate
+is acceptable if the error of its evidence statistic fell by at least 20 % and no more
+residuals are significant than before; of the acceptable ones, the one that lowers the
+battery's mean relative error most is added (greedy model selection: one statistic often
+points to several effects -- a fixed column pattern also raises the per-pixel fixed-pattern
+spread -- and only trying them tells which one the data hold). A rejected candidate is tried
+again once another effect has been added (its estimate depends on the model); the loop ends
+when no significant residual points to an effect untried in the current model.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..effects.k_records import merge_records
+from ..profile import NoiseProfile
+from .diagnose import FrameStack, Residual, battery_error, diagnose
+from .registry import CANDIDATES
+
+ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
+
+
+@dataclass
+class Step:
+    effect: str
+    params: dict
+    accepted: bool
+    evidence: dict  # the triggering residual (before)
+    stack: str
+    error_before: float  # rel_error of the evidence statistic
+    error_after: float
+    z_after: float
+    battery_before: dict
+    battery_after: dict
+    note: str = ""
+
+    def to_dict(self):
+        return self.__dict__.copy()
+
+
+@dataclass
+class LoopResult:
+    profile: NoiseProfile
+    steps: list = field(default_factory=list)
+    initial: dict = field(default_factory=dict)  # stack label -> residuals
+    final: dict = field(default_factory=dict)
+
+    @property
+    def added(self) -> list[str]:
+        return [s.effect for s in self.steps if s.accepted]
+
+    def unexplained(self) -> list[tuple[str, Residual]]:
+        """Significant residuals left at the end (none of the candidate effects fixed them)."""
+        return [(label, r) for label, res in self.final.items() for r in res if r.significant]
+
+
+def _battery(diags) -> dict:
+    every = [r for res, _ in diags.values() for r in res]
+    return battery_error(every)
+
+
+def _options(diags, tried, present):
+    """Untried effects that significant residuals point to: (token, stack label, strongest
+    residual), most significant first."""
+    best: dict = {}
+    for label, (residuals, _) in diags.items():
+        for r in residuals:
+            if not r.significant:
+                continue
+            for token in r.effects:
+                if token in tried or token in present:
+                    continue
+                if token not in best or abs(r.z) > abs(best[token][2].z):
+                    best[token] = (token, label, r)
+    return sorted(best.values(), key=lambda o: -abs(o[2].z))
+
+
+def _estimate(token, stacks, diags, seed):
+    cand = CANDIDATES[token]
+    records = []
+    for stack in stacks:
+        try:
+            rec = cand.estimate(stack.frames_dn, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn, seed=seed)
+        except ValueError:
+            continue  # this stack cannot show the effect (too few frames, not a flat)
+        records.append(rec)
+    if not records:
+        return None
+    if all("k" in r for r in records):
+        return merge_records(records)
+    return records[0]
+
+
+def run_frame_loop(stacks: list[FrameStack], profile, *, model: str = "G*+P*+R+U", n_synth: int = 12, seed: int = 0,
+                   z_min: float = 6.0, rel_min: float = 0.1, max_steps: int = 8, log=None) -> LoopResult:
+    """Fit the missing effects of ``profile`` to measured ``stacks``.
+
+    Parameters
+    ----------
+    stacks : measured frame stacks (labels must be unique).
+    profile : the fitted base model (``NoiseProfile``, built-in name or path).
+    model : the base-model components used for the syntheses.
+    n_synth : syntheses per diagnosis (the spread behind every ``z``).
+    z_min, rel_min : a residual is significant when ``|z| > z_min`` and its relative error
+        exceeds ``rel_min`` (statistically and practically significant).
+    """
+    if not stacks:
+        raise ValueError("run_frame_loop needs at least one FrameStack")
+    labels = [s.label for s in stacks]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"stack labels must be unique, got {labels}")
+    current = NoiseProfile.load(profile)
+    say = log or (lambda *_: None)
+
+    def diagnose_all(prof, step_seed):
+        return {s.label: diagnose(s, prof, model=model, n_synth=n_synth, seed=step_seed + i, z_min=z_min, rel_min=rel_min)
+                for i, s in enumerate(stacks)}
+
+    diags = diagnose_all(current, seed)
+    result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
+    tried: set[str] = set()
+    for step_no in range(1, max_steps + 1):
+        options = _options(diags, tried, set(current.effects))
+        if not options:
+            break
+        before_b = _battery(diags)
+        trials = []
+        for token, label, evidence in options:
+            params = _estimate(token, stacks, diags, seed=int(np.random.default_rng(seed + step_no).integers(1, 2**31)))
+            if params is None:
+                tried.add(token)
+                say(f"step {step_no}: {token} suggested by {evidence.statistic} but no stack can estimate it")
+                continue
+            trial = current.with_effect(token, params)
+            new_diags = diagnose_all(trial, seed + 1000 * step_no)
+            after = next(r for r in new_diags[label][0] if r.statistic == evidence.statistic)
+            after_b = _battery(new_diags)
+            # acceptable if its evidence improved by a fifth or more and nothing new became significant
+            ok = after.rel_error <= ACCEPT_FACTOR * evidence.rel_error and after_b["n_significant"] <= before_b["n_significant"]
+            step = Step(token, params, ok, evidence.to_dict(), label, evidence.rel_error, after.rel_error, after.z, before_b, after_b)
+            trials.append((step, trial, new_diags))
+        acceptable = [t for t in trials if t[0].accepted]
+        chosen = min(acceptable, key=lambda t: (t[0].battery_after["mean_rel_error"], t[0].battery_after["n_significant"])) if acceptable else None
+        for step, _, _ in trials:
+            if step is not (chosen[0] if chosen else None):
+                if step.accepted:
+                    step.accepted, step.note = False, f"acceptable, but {chosen[0].effect} explains more"
+                else:
+                    tried.add(step.effect)
+                    step.note = "rejected"
+            else:
+                tried.add(step.effect)
+                step.note = "added" + (f" (best of {len(trials)} tried)" if len(trials) > 1 else "")
+            result.steps.append(step)
+            ev = step.evidence
+            say(f"step {step_no}: {step.effect} ({ev['statistic']} z={ev['z']:.1f}): error {step.error_before:.3f} -> "
+                f"{step.error_after:.3f}, battery {step.battery_before['mean_rel_error']:.3f} -> "
+                f"{step.battery_after['mean_rel_error']:.3f}: {step.note}")
+        if chosen is None:
+            continue
+        current, diags = chosen[1], chosen[2]
+        tried = {t for t in tried if t in current.effects}  # estimates depend on the model: retry the rejected
+    result.profile = current
+    result.final = {k: v[0] for k, v in diags.items()}
+    return result

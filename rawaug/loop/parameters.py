@@ -1,0 +1,336 @@
+"""Residual diagnosis on parameters, and the loop on parameter tables.
+
+1. Per-ISO tables (stage 1 of calibration, or a published table): each relation
+   ``log(sigma)`` against ``log(K)`` starts as the ELD single line; its residuals are
+   tested for structure -- a *jump* (a change of regime across ISO, e.g. a conversion-gain
+   switch: two lines, the break chosen by least squares), a *floor* (``sigma =
+   sqrt(line^2 + floor^2)``: a read-noise floor) and *curvature* (a quadratic, diagnostic
+   only) -- and the loop adds the structure with the best BIC while it is significant
+   (BIC drop > 10 and nested F-test p < 1e-3). Jump and floor are stored in the profile's
+   ``LogLinear.segments`` / ``floor_dn``. Errors are rms residuals of ``log(sigma)``.
+
+2. Per-frame fit tables (one row per bias frame and channel with the frame's mean): the
+   covariance of the four channel means across frames against the model's prediction
+   (row noise couples only the channels of a sensor row; read noise averages out) tells
+   whether a frame-to-frame black-level error (effect ``BLE``: a common part from the
+   covariance of channels sharing no row, a per-channel part from the rest of the
+   variance) is missing. The mean column is the frame mean in DN.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import optimize
+from scipy import stats as sstats
+
+from ..effects.frame_black_level import split_excess
+from ..profile import LogLinear
+
+BIC_DROP = 10.0
+F_TEST_P = 1e-3
+MIN_SEGMENT = 3  # points per segment of a jump
+
+
+# ----------------------------------------------------------------------------- relation fits
+@dataclass
+class RelationFit:
+    """One candidate structure of ``log(sigma)`` against ``log(K)``."""
+
+    structures: tuple  # () line, ("jump",), ("floor",), ("jump", "floor"), ("curvature",)
+    n_params: int
+    rss: float
+    residuals: np.ndarray
+    relation: LogLinear | None  # None for the diagnostic-only curvature
+    break_k: float | None = None
+
+    @property
+    def name(self) -> str:
+        return "+".join(("line",) + self.structures)
+
+    def bic(self, n: int) -> float:
+        return n * math.log(max(self.rss, 1e-300) / n) + self.n_params * math.log(n)
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(np.mean(self.residuals**2)))
+
+
+def _predict(x, pieces, floor):
+    """log sigma at log K ``x`` for (x_from, slope, intercept) pieces and a floor (DN)."""
+    y = np.full_like(x, np.nan)
+    for x_from, s, b in sorted(pieces):
+        y = np.where(x >= x_from, s * x + b, y)
+    first = sorted(pieces)[0]
+    y = np.where(np.isnan(y), first[1] * x + first[2], y)
+    return 0.5 * np.log(np.exp(2 * y) + floor**2) if floor > 0 else y
+
+
+def _fit(x, y, breaks: tuple, with_floor: bool):
+    """Least squares of pieces starting at ``breaks`` (log K), optionally with a floor."""
+    edges = (-np.inf,) + tuple(breaks)
+    init = []
+    for i, lo in enumerate(edges):
+        hi = edges[i + 1] if i + 1 < len(edges) else np.inf
+        sel = (x >= lo) & (x < hi)
+        s, b = np.polyfit(x[sel], y[sel], 1) if sel.sum() >= 2 else (0.0, float(np.mean(y)))
+        init += [s, b]
+    if with_floor:
+        init.append(math.log(max(float(np.exp(y).min()) * 0.5, 1e-6)))
+
+    def unpack(p):
+        pieces = [(edges[i] if i else -np.inf, p[2 * i], p[2 * i + 1]) for i in range(len(edges))]
+        floor = math.exp(p[-1]) if with_floor else 0.0
+        return pieces, floor
+
+    sol = optimize.least_squares(lambda p: _predict(x, *unpack(p)) - y, np.array(init, dtype=np.float64))
+    pieces, floor = unpack(sol.x)
+    return pieces, floor, sol.fun
+
+
+def _relation(x, residuals, pieces, floor, breaks_k) -> LogLinear:
+    """The fitted pieces as a profile ``LogLinear`` (residual_std per segment, ddof 2)."""
+    segs = []
+    bounds = [0.0] + list(breaks_k)
+    edges = [-np.inf] + [math.log(b) for b in breaks_k] + [np.inf]
+    for i, (_, s, b) in enumerate(sorted(pieces)):
+        sel = (x >= edges[i]) & (x < edges[i + 1])
+        r = residuals[sel]
+        resid = float(np.sqrt(np.sum(r**2) / max(r.size - 2, 1)))
+        segs.append(LogLinear(float(s), float(b), resid, float(bounds[i])))
+    if len(segs) == 1:
+        s = segs[0]
+        return LogLinear(s.slope, s.intercept, s.residual_std, 0.0, (), float(floor))
+    return LogLinear(segs[0].slope, segs[0].intercept, segs[0].residual_std, 0.0, tuple(segs), float(floor))
+
+
+def fit_structure(k, sigma, structures: tuple = ()) -> RelationFit:
+    """Fit ``log(sigma)`` against ``log(K)`` with the given structures (see module doc).
+
+    A jump's break is searched over every gap between consecutive distinct K values
+    leaving at least ``MIN_SEGMENT`` points on each side (least squares); its ``k_from``
+    is the geometric mean of the two K values around the gap."""
+    k = np.asarray(k, dtype=np.float64)
+    sigma = np.asarray(sigma, dtype=np.float64)
+    if k.shape != sigma.shape or k.ndim != 1 or k.size < 3:
+        raise ValueError(f"k and sigma must be 1-D of equal length >= 3, got {k.shape} and {sigma.shape}")
+    if np.any(k <= 0) or np.any(sigma <= 0) or not (np.isfinite(k).all() and np.isfinite(sigma).all()):
+        raise ValueError("k and sigma must be positive and finite")
+    order = np.argsort(k)
+    x, y = np.log(k[order]), np.log(sigma[order])
+    floor = "floor" in structures
+    if "curvature" in structures:
+        coef = np.polyfit(x, y, 2)
+        r = y - np.polyval(coef, x)
+        return RelationFit(("curvature",), 3, float(np.sum(r**2)), r, None)
+    if "jump" not in structures:
+        pieces, fl, r = _fit(x, y, (), floor)
+        return RelationFit(tuple(structures), 2 + floor, float(np.sum(r**2)), r, _relation(x, r, pieces, fl, []))
+    best = None
+    ux = np.unique(x)
+    for i in range(len(ux) - 1):
+        xb = 0.5 * (ux[i] + ux[i + 1])
+        if (x < xb).sum() < MIN_SEGMENT or (x >= xb).sum() < MIN_SEGMENT:
+            continue
+        pieces, fl, r = _fit(x, y, (xb,), floor)
+        rss = float(np.sum(r**2))
+        if best is None or rss < best[0]:
+            best = (rss, xb, pieces, fl, r)
+    if best is None:
+        raise ValueError(f"a jump needs >= {2 * MIN_SEGMENT} distinct K values, got {len(ux)}")
+    rss, xb, pieces, fl, r = best
+    kb = float(math.exp(xb))
+    return RelationFit(tuple(structures), 5 + floor, rss, r, _relation(x, r, pieces, fl, [kb]), kb)
+
+
+def f_test(simple: RelationFit, rich: RelationFit, n: int) -> float:
+    """p-value of the nested F-test of ``rich`` against ``simple``."""
+    dp = rich.n_params - simple.n_params
+    dof = n - rich.n_params
+    if dp <= 0 or dof <= 0 or rich.rss <= 0:
+        return 0.0 if rich.rss < simple.rss else 1.0
+    f = ((simple.rss - rich.rss) / dp) / (rich.rss / dof)
+    return float(sstats.f.sf(f, dp, dof))
+
+
+def diagnose_relation(k, sigma) -> dict:
+    """Every candidate structure of one relation with its rms residual and BIC (the
+    residual-structure diagnosis: which of jump, curvature, floor the residuals show)."""
+    n = len(k)
+    out = {}
+    for st in ((), ("jump",), ("floor",), ("curvature",), ("jump", "floor")):
+        try:
+            fit = fit_structure(k, sigma, st)
+        except ValueError:
+            continue
+        out[fit.name] = {"rms_log": fit.rms, "bic": fit.bic(n), "n_params": fit.n_params, "break_k": fit.break_k}
+    return out
+
+
+def relation_loop(k, sigma, name: str = "sigma") -> tuple[RelationFit, list[dict]]:
+    """Start from the single line; add jump or floor (best BIC) while significant.
+
+    Returns the final fit and the steps ``{structure, evidence, error_before, error_after,
+    ...}`` with errors as rms residuals of log(sigma) (natural log: 0.1 = about 10 %)."""
+    n = len(k)
+    current = fit_structure(k, sigma, ())
+    steps = []
+    while True:
+        options = []
+        for add in ("jump", "floor"):
+            if add in current.structures:
+                continue
+            st = tuple(s for s in ("jump", "floor") if s in current.structures or s == add)
+            try:
+                options.append((add, fit_structure(k, sigma, st)))
+            except ValueError:
+                continue
+        if not options:
+            break
+        add, best = min(options, key=lambda o: o[1].bic(n))
+        drop = best.bic(n) - current.bic(n)
+        p = f_test(current, best, n)
+        if not (drop < -BIC_DROP and p < F_TEST_P):
+            break
+        steps.append({
+            "relation": name, "structure": add, "break_k": best.break_k,
+            "floor_dn": best.relation.floor_dn if best.relation else None,
+            "evidence": f"BIC {current.bic(n):.1f} -> {best.bic(n):.1f}, F-test p = {p:.2g}",
+            "error_before": current.rms, "error_after": best.rms,
+            "max_abs_before": float(np.abs(current.residuals).max()), "max_abs_after": float(np.abs(best.residuals).max()),
+        })
+        current = best
+    return current, steps
+
+
+def parameter_loop(params) -> dict:
+    """Run ``relation_loop`` on sigma_TL, sigma_r and sigma_G of per-ISO ``IsoParameters``.
+
+    Returns ``{"fits": {name: RelationFit}, "steps": [...], "diagnosis": {name: ...}}``."""
+    params = sorted(params, key=lambda p: p.k)
+    k = np.array([p.k for p in params])
+    series = {"sigma_tl": np.array([p.sigma_tl for p in params])}
+    if all(p.sigma_r > 0 for p in params):
+        series["sigma_r"] = np.array([p.sigma_r for p in params])
+    if all(p.sigma_g is not None for p in params):
+        series["sigma_g"] = np.array([p.sigma_g for p in params])
+    fits, steps, diagnosis = {}, [], {}
+    for name, s in series.items():
+        diagnosis[name] = diagnose_relation(k, s)
+        fits[name], st = relation_loop(k, s, name)
+        steps += st
+    return {"fits": fits, "steps": steps, "diagnosis": diagnosis}
+
+
+def apply_to_profile(profile, fits: dict):
+    """A copy of ``profile`` with the selected relations (segments, floor) in place."""
+    data = profile.to_dict()
+    where = {"sigma_tl": ("read_noise", "tukey_scale"), "sigma_g": ("read_noise", "gaussian_scale"),
+             "sigma_r": ("row_noise", "scale")}
+    for name, fit in fits.items():
+        a, b = where[name]
+        data[a][b] = fit.relation.to_dict()
+    return type(profile).from_dict(data)
+
+
+# ----------------------------------------------------------------------------- per-frame tables
+def read_frame_table(path, mean_column: str = "meanR") -> dict:
+    """Per-frame fits (CSV: ``frame, channel`` and fitted columns) -> arrays (frames, 4).
+
+    ``mean_column`` holds the frame-channel mean, DN. In the PMN IMX686 tables that is
+    ``meanR`` (mean of the row means = the frame mean); ``meanGs`` / ``meanTL`` are ~1e-8:
+    the PMN fit removed the mean before fitting the pixel distributions."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"per-frame table {str(path)!r} does not exist")
+    with path.open() as f:
+        rows = list(csv.DictReader(f))
+    if not rows or "frame" not in rows[0] or "channel" not in rows[0]:
+        raise ValueError(f"{path}: a per-frame table needs 'frame' and 'channel' columns")
+    for col in (mean_column, "sigmaR", "sigmaGs"):
+        if col not in rows[0]:
+            raise ValueError(f"{path}: missing column {col!r} (have {sorted(rows[0])})")
+    frames = sorted({int(r["frame"]) for r in rows})
+    idx = {f: i for i, f in enumerate(frames)}
+    out = {c: np.full((len(frames), 4), np.nan) for c in (mean_column, "sigmaR", "sigmaGs")}
+    for r in rows:
+        ch = int(r["channel"])
+        if not 0 <= ch < 4:
+            raise ValueError(f"{path}: channel must be 0..3, got {ch}")
+        for c in out:
+            out[c][idx[int(r["frame"])], ch] = float(r[c])
+    for c, v in out.items():
+        if np.isnan(v).any():
+            raise ValueError(f"{path}: column {c!r} is missing for some frame/channel")
+    return {"means": out[mean_column], "sigma_r": out["sigmaR"], "sigma_g": out["sigmaGs"]}
+
+
+def model_mean_covariance(sigma_r, sigma_pix, rows: int, cols: int, ble_dn: float = 0.0,
+                          channel_dn: float = 0.0) -> np.ndarray:
+    """(4, 4) covariance (DN^2) across frames of the packed channel means of ``rows x cols``
+    packed frames: row noise shared by (0, 1) and (2, 3), independent pixel noise, a
+    common black-level error ``ble_dn`` and a per-channel one ``channel_dn``."""
+    cov = np.diag(np.full(4, (sigma_r**2 + sigma_pix**2 / cols) / rows + channel_dn**2))
+    for a, b in ((0, 1), (2, 3)):
+        cov[a, b] = cov[b, a] = sigma_r**2 / rows
+    return cov + ble_dn**2
+
+
+def _table_statistics(means) -> dict:
+    c = np.cov(means.T)
+    sd = np.sqrt(np.diag(c))
+    corr = c / np.outer(sd, sd)
+    f = means.mean(axis=1)
+    return {
+        "frame_mean_std": float(np.sqrt(np.mean(np.diag(c)))),
+        "frame_mean_common_cov": float((c[0, 2] + c[1, 3]) / 2),
+        "row_pair_corr": float((corr[0, 1] + corr[2, 3]) / 2),
+        "frame_mean_lag1_autocorr": float(np.corrcoef(f[:-1], f[1:])[0, 1]),
+    }
+
+
+def diagnose_frame_table(table: dict, rows: int, cols: int, *, ble_dn: float = 0.0, channel_dn: float = 0.0, n_synth: int = 400,
+                         seed: int = 0, z_min: float = 6.0, rel_min: float = 0.1) -> list[dict]:
+    """Statistics of the per-frame channel means against ``n_synth`` synthesized tables of
+    the same number of frames (Gaussian channel means with the model covariance)."""
+    means = np.asarray(table["means"], dtype=np.float64)
+    n = means.shape[0]
+    if n < 8:
+        raise ValueError(f"a per-frame table needs >= 8 frames, got {n}")
+    cov = model_mean_covariance(float(np.mean(table["sigma_r"])), float(np.mean(table["sigma_g"])), rows, cols,
+                                ble_dn, channel_dn)
+    rng = np.random.default_rng(seed)
+    synth = [_table_statistics(rng.multivariate_normal(np.zeros(4), cov, size=n)) for _ in range(n_synth)]
+    out = []
+    for name, m in _table_statistics(means).items():
+        v = np.array([s[name] for s in synth])
+        mean, std = float(v.mean()), float(v.std(ddof=1))
+        z = (m - mean) / max(std, 1e-30)
+        rel = abs(m - mean) / max(abs(m), 3 * std, 1e-30)
+        effect = {"frame_mean_std": ["BLE"], "frame_mean_common_cov": ["BLE"]}.get(name, [])
+        out.append({"statistic": name, "measured": m, "synth_mean": mean, "synth_std": std, "z": float(z),
+                    "rel_error": float(rel), "significant": bool(abs(z) > z_min and rel > rel_min), "effects": effect})
+    return sorted(out, key=lambda r: -abs(r["z"]))
+
+
+def frame_table_loop(table: dict, rows: int, cols: int, k: float, **kw) -> dict:
+    """The loop on a per-frame table: diagnose; if the common-mode statistics point to BLE,
+    estimate it (common covariance minus the model's) and diagnose again."""
+    before = diagnose_frame_table(table, rows, cols, **kw)
+    steps, after, params = [], before, None
+    evidence = next((r for r in before if r["significant"] and "BLE" in r["effects"]), None)
+    if evidence is not None:
+        means = np.asarray(table["means"], dtype=np.float64)
+        c = np.cov(means.T)
+        model = model_mean_covariance(float(np.mean(table["sigma_r"])), float(np.mean(table["sigma_g"])), rows, cols)
+        sigma, channel = split_excess((c[0, 2] + c[1, 3]) / 2 - (model[0, 2] + model[1, 3]) / 2,
+                                      float(np.mean(np.diag(c) - np.diag(model))))
+        params = {"k": [float(k)], "sigma_dn": [sigma], "channel_sigma_dn": [channel]}
+        after = diagnose_frame_table(table, rows, cols, ble_dn=sigma, channel_dn=channel, **kw)
+        new = next(r for r in after if r["statistic"] == evidence["statistic"])
+        steps.append({"effect": "BLE", "params": params, "evidence": evidence, "error_before": evidence["rel_error"],
+                      "error_after": new["rel_error"], "z_after": new["z"], "accepted": new["rel_error"] < evidence["rel_error"]})
+    return {"before": before, "after": after, "steps": steps, "params": params}

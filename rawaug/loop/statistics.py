@@ -1,0 +1,274 @@
+"""The battery of frame statistics the loop compares between measured and synthesized frames.
+
+Every statistic maps a stack of packed frames ``(N, 4, h, w)`` in DN (black-subtracted,
+float) to one number. Each is listed in ``STATISTICS`` with the smallest stack it needs,
+the frame kind it applies to (``bias``: dark/bias frames, ``flat``: uniformly lit frames,
+``any``) and the resolution below which a difference means nothing (one pixel for a
+pixel fraction). Which effect a statistic points to is declared by the effects themselves
+(``rawaug.loop.registry``); statistics of the base model (read noise, row noise) point
+to a refit, not to a new effect.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy import stats as sstats
+
+_MAD_TO_SIGMA = 1.482602218505602
+_LOW_BAND = 16  # low-frequency band: the lowest 1/16 of the frequencies
+
+
+def _centered(frames):
+    return frames - frames.mean(axis=(2, 3), keepdims=True)
+
+
+def _robust_scale(x, axis):
+    """1.4826 MAD along ``axis`` (falls back to the std where the MAD is 0: coarse codes)."""
+    med = np.median(x, axis=axis, keepdims=True)
+    mad = _MAD_TO_SIGMA * np.median(np.abs(x - med), axis=axis, keepdims=True)
+    std = x.std(axis=axis, keepdims=True)
+    return med, np.where(mad > 0, mad, std) + 1e-12
+
+
+def _rms(values):
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+# ----------------------------------------------------------------- single-frame statistics
+def pixel_std(frames, level_dn=None):
+    """Std of the pixels about their frame-channel mean (DN)."""
+    return _rms(_centered(frames))
+
+
+def line_mean_variance(c, axis):
+    """Variance across lines of the line means (lines run along ``axis`` of a (..., h, w)
+    array), from first differences of neighbouring lines: ``var(diff) / 2``. Smooth
+    shading does not count; offsets that differ line to line do. Shape (...)."""
+    means = c.mean(axis=axis)
+    return np.diff(means, axis=-1).var(axis=-1, ddof=1) / 2.0
+
+
+def _profile_excess(frames, axis):
+    """Line-mean variance (``line_mean_variance``) times the line length, over the pixel
+    variance, per frame and channel (mean over them): 1 for independent pixels, above 1
+    when whole lines share an offset. Insensitive to per-pixel noise of any size and to
+    smooth shading."""
+    c = _centered(frames)
+    n = c.shape[axis]
+    line_var = line_mean_variance(c, axis) * n
+    return float((line_var / (c.var(axis=(2, 3)) + 1e-30)).mean())
+
+
+def row_excess(frames, level_dn=None):
+    """Row-mean variance x row length / pixel variance: row (banding) noise."""
+    return _profile_excess(frames, 3)
+
+
+def col_excess(frames, level_dn=None):
+    """Column-mean variance x column length / pixel variance: column noise."""
+    return _profile_excess(frames, 2)
+
+
+def _lowfreq_ratio(profiles):
+    """Mean power of the lowest 1/16 frequencies over the mean power (DC excluded) of
+    1-D profiles along the last axis: 1 for white noise, large for smooth shading."""
+    p = np.abs(np.fft.rfft(profiles - profiles.mean(axis=-1, keepdims=True), axis=-1)) ** 2
+    p = p[..., 1:]
+    n_low = max(1, p.shape[-1] // _LOW_BAND)
+    return float(p[..., :n_low].mean() / (p.mean() + 1e-30))
+
+
+def row_lowfreq(frames, level_dn=None):
+    """Low-frequency power ratio of the row-mean profile (shading along columns)."""
+    return _lowfreq_ratio(frames.mean(axis=3))
+
+
+def col_lowfreq(frames, level_dn=None):
+    """Low-frequency power ratio of the column-mean profile (shading along rows)."""
+    return _lowfreq_ratio(frames.mean(axis=2))
+
+
+def psd2d_lowfreq(frames, level_dn=None):
+    """2-D power spectrum: mean power in the low-frequency disk (radius below 1/16 of the
+    Nyquist frequency, DC excluded) over the mean power of all non-DC frequencies."""
+    c = _centered(frames)
+    p = np.abs(np.fft.rfft2(c, axes=(2, 3))) ** 2
+    fy = np.fft.fftfreq(c.shape[2])[:, None]
+    fx = np.fft.rfftfreq(c.shape[3])[None, :]
+    radius = np.sqrt(fy**2 + fx**2) / 0.5
+    low = (radius > 0) & (radius <= 1.0 / _LOW_BAND + 1e-12)
+    if not low.any():
+        return 1.0
+    return float(p[..., low].mean() / (p[..., radius > 0].mean() + 1e-30))
+
+
+def tail_mass(frames, level_dn=None):
+    """Fraction of pixels beyond 5 robust sigma from their frame-channel median."""
+    med, scale = _robust_scale(frames.reshape(frames.shape[0], 4, -1), axis=2)
+    z = np.abs(frames.reshape(frames.shape[0], 4, -1) - med) / scale
+    return float((z > 5.0).mean())
+
+
+def hot_fraction(frames, level_dn=None):
+    """Fraction of pixels whose stack mean lies 8 robust sigma above the channel median
+    (hot or stuck-high pixels). With one frame, the frame itself."""
+    mean_map = frames.mean(axis=0).reshape(4, -1)
+    med, scale = _robust_scale(mean_map, axis=1)
+    return float(((mean_map - med) / scale > 8.0).mean())
+
+
+def ppcc_r2(frames, level_dn=None):
+    """Normal probability-plot R^2 of the first frame's centered pixels (every channel,
+    at most 20000 evenly strided values): below 1 for heavy tails or coarse codes."""
+    x = _centered(frames[:1]).ravel()
+    x = np.sort(x[:: max(1, x.size // 20000)])
+    (_, _), (_, _, r) = sstats.probplot(x, dist="norm")
+    return float(r**2)
+
+
+def missing_codes(frames, level_dn=None):
+    """Histogram comb: fraction of integer codes between the 0.5 and 99.5 percentiles
+    that no pixel takes (values rounded to whole DN)."""
+    v = np.rint(frames).ravel()
+    lo, hi = np.percentile(v, [0.5, 99.5])
+    if hi - lo < 3:
+        return 0.0
+    inside = v[(v >= lo) & (v <= hi)] - lo
+    counts = np.bincount(inside.astype(np.int64), minlength=int(hi - lo) + 1)
+    return float((counts == 0).mean())
+
+
+def clip_low(frames, level_dn=None):
+    """Pile-up at the lowest code: fraction of pixels at the stack minimum (whole DN)."""
+    v = np.rint(frames)
+    return float((v <= v.min()).mean())
+
+
+def mean_dn(frames, level_dn=None):
+    """Mean of all pixels (DN): the black-level error of a bias stack."""
+    return float(frames.mean())
+
+
+# ----------------------------------------------------------------- stack statistics
+def temporal_std(frames, level_dn=None):
+    """Per-pixel std across the stack (DN, rms over pixels)."""
+    return float(np.sqrt(frames.var(axis=0, ddof=1).mean()))
+
+
+def _mean_map(frames):
+    m = frames.mean(axis=0)
+    return m - m.mean(axis=(1, 2), keepdims=True)
+
+
+def fixed_std(frames, level_dn=None):
+    """Robust std (1.4826 MAD) over pixels of the stack-mean map, per channel (DN): white
+    fixed pattern plus temporal noise / sqrt(N); a few hot pixels do not move it."""
+    m = _mean_map(frames).reshape(4, -1)
+    _, scale = _robust_scale(m, axis=1)
+    return _rms(scale)
+
+
+def fixed_col_excess(frames, level_dn=None):
+    """``col_excess`` of the stack-mean map: a fixed column pattern."""
+    return _profile_excess(_mean_map(frames)[None], 2)
+
+
+def frame_means(frames):
+    """(N, 4) per-frame, per-channel means (DN)."""
+    return frames.mean(axis=(2, 3))
+
+
+def frame_mean_std(frames, level_dn=None):
+    """Std across frames of the frame-channel means (DN, rms over channels)."""
+    return _rms(frame_means(frames).std(axis=0, ddof=1))
+
+
+def frame_mean_common_cov(frames, level_dn=None):
+    """Covariance across frames of the means of channel pairs that share neither a sensor
+    row nor a sensor column ((R, B) and (G1, G2)), DN^2: common-mode offsets only."""
+    m = frame_means(frames)
+    c = np.cov(m.T)
+    return float((c[0, 2] + c[1, 3]) / 2.0)
+
+
+def flat_fixed_rel(frames, level_dn=None):
+    """Fixed-pattern std of a flat stack relative to its mean level (dimensionless)."""
+    level = float(np.mean(level_dn)) if level_dn is not None else float(frames.mean())
+    return fixed_std(frames) / max(level, 1e-12)
+
+
+@dataclass(frozen=True)
+class Statistic:
+    name: str
+    fn: Callable
+    min_frames: int = 1
+    kind: str = "any"  # "any", "bias" or "flat"
+    pixel_fraction: bool = False  # resolution: one pixel of the stack
+    base: str = ""  # the base-model parameter it checks ("" when only effects explain it)
+
+    def applies(self, n_frames: int, kind: str) -> bool:
+        return n_frames >= self.min_frames and self.kind in ("any", kind)
+
+    def resolution(self, frames, value: float = 0.0) -> float:
+        """Smallest meaningful difference of this statistic for this stack. A pixel
+        fraction counts pixels of one frame's size n: its floor is the Poisson counting
+        spread ``sqrt(max(value * n, 1)) / n`` of the model's value (this also covers the realization spread of
+        a fixed pattern, which repeated syntheses from one seed do not show). Else 1e-9."""
+        if not self.pixel_fraction:
+            return 1e-9
+        n = frames[0].size
+        return float(np.sqrt(max(value * n, 1.0)) / n)
+
+
+STATISTICS: dict[str, Statistic] = {
+    s.name: s
+    for s in (
+        Statistic("pixel_std", pixel_std, base="read noise scale sigma_TL / sigma_G"),
+        Statistic("ppcc_r2", ppcc_r2, base="read-noise shape (Tukey lambda)"),
+        Statistic("tail_mass", tail_mass, pixel_fraction=True, base="read-noise shape (Tukey lambda)"),
+        Statistic("row_excess", row_excess, base="row noise sigma_r"),
+        Statistic("col_excess", col_excess),
+        Statistic("row_lowfreq", row_lowfreq),
+        Statistic("col_lowfreq", col_lowfreq),
+        Statistic("psd2d_lowfreq", psd2d_lowfreq),
+        Statistic("hot_fraction", hot_fraction, pixel_fraction=True),
+        Statistic("missing_codes", missing_codes, base="ADC codes (a comb means digital gain: no effect models it)"),
+        Statistic("clip_low", clip_low, pixel_fraction=True),
+        Statistic("mean_dn", mean_dn, kind="bias", base="colour bias (black-level error)"),
+        Statistic("temporal_std", temporal_std, min_frames=2, base="read noise scale sigma_TL / sigma_G"),
+        Statistic("fixed_std", fixed_std, min_frames=2),
+        Statistic("fixed_col_excess", fixed_col_excess, min_frames=2),
+        Statistic("frame_mean_std", frame_mean_std, min_frames=3),
+        Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
+        Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),
+    )
+}
+
+
+def frame_statistics(frames, kind: str = "bias", level_dn=None, names=None) -> dict[str, float]:
+    """All statistics that apply to this stack: ``{name: value}``.
+
+    Parameters
+    ----------
+    frames : array (N, 4, h, w)
+        Packed frames in DN (black-subtracted).
+    kind : "bias" or "flat"
+    level_dn : the clean level of a flat stack (DN), scalar or (4,).
+    names : restrict to these statistics.
+    """
+    frames = np.asarray(frames, dtype=np.float64)
+    if frames.ndim != 4 or frames.shape[1] != 4:
+        raise ValueError(f"frames must be packed (N, 4, h, w), got shape {frames.shape}")
+    if min(frames.shape[2:]) < 8:
+        raise ValueError(f"frames must be at least 8x8 per channel, got {frames.shape[2:]}")
+    if kind not in ("bias", "flat"):
+        raise ValueError(f"kind must be 'bias' or 'flat', got {kind!r}")
+    out = {}
+    for name, stat in STATISTICS.items():
+        if names is not None and name not in names:
+            continue
+        if stat.applies(frames.shape[0], kind):
+            out[name] = stat.fn(frames, level_dn)
+    return out

@@ -1,0 +1,182 @@
+"""Calibration: parameter recovery on frames rawaug synthesizes at known parameters, the joint
+fit, stage-2 tables (PMN measurements), the real dark frame, and errors on bad input."""
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from rawaug.calibration import (IsoParameters, calibrate_iso, estimate_gain, estimate_read_noise, estimate_row_noise,
+                                fit_joint, fit_log_linear, read_parameter_table)
+from rawaug.calibration.diagnostics import CalibrationWarning, analyse_bias_frame
+from rawaug.calibration.synthetic import synthesize_iso_set
+from rawaug.effects.read_noise import tukey_lambda_variance
+from rawaug.io import read_frame
+from rawaug.profile import NoiseProfile
+
+DATA = Path(__file__).parent / "data"
+PMN = Path(__file__).parents[1] / "rawaug" / "data" / "measured" / "PMN" / "PMN_noise_params_extracted.json"
+PROFILE = NoiseProfile.load("SonyA7S2")  # levels only: black 512, white 16383
+SHAPE = (800, 256)  # packed (h, w): 1600 sensor rows and 512 pixels per row per bias frame
+N_BIAS = 2
+# Truth: log-linear in K like a real sensor (slopes 0.75 and 0.8), lambda falling with K.
+TRUE_K = (0.5, 1.0, 2.0, 4.0)
+TL_SLOPE, TL_ICPT, R_SLOPE, R_ICPT = 0.75, 1.0, 0.8, -0.6
+TRUE = [dict(iso=k * 1000, k=k, sigma_tl=math.exp(TL_SLOPE * math.log(k) + TL_ICPT),
+             sigma_r=math.exp(R_SLOPE * math.log(k) + R_ICPT), lam=lam) for k, lam in zip(TRUE_K, (0.1, 0.05, 0.0, -0.05))]
+
+
+def _dn(codes):
+    return codes.astype(np.float32) - np.float32(PROFILE.black_level)
+
+
+@pytest.fixture(scope="module")
+def recovered():
+    out = []
+    for i, t in enumerate(TRUE):
+        bias, pairs = synthesize_iso_set(PROFILE, k=t["k"], sigma_tl=t["sigma_tl"], lam=t["lam"], sigma_r=t["sigma_r"],
+                                         shape=SHAPE, n_bias=N_BIAS, flat_levels=(0.03, 0.08, 0.2), seed=i + 1)
+        p = calibrate_iso([_dn(b) for b in bias], [(_dn(a), _dn(b)) for a, b in pairs], t["iso"])
+        out.append((t, p))
+    return out
+
+
+def test_gain_within_3_percent(recovered):
+    for t, p in recovered:
+        assert p.k == pytest.approx(t["k"], rel=0.03), (t, p.k)
+
+
+def test_tukey_lambda_and_sigma_tl(recovered):
+    for t, p in recovered:
+        assert abs(p.lam - t["lam"]) < 0.03, (t, p.lam)
+        assert p.sigma_tl == pytest.approx(t["sigma_tl"], rel=0.05), (t, p.sigma_tl)
+        assert p.extra["r2_tukey"] > p.extra["r2_gauss"] or abs(t["lam"] - 0.14) < 0.05
+
+
+def test_row_noise_within_5_percent_and_the_bound_is_meaningful(recovered):
+    for t, p in recovered:
+        # Standard error of the ML sigma_r: 0.5 sqrt(2/N) (1 + s^2 / (n sigma_r^2)), N row means of n pixels.
+        n_rows, n_pix = N_BIAS * 2 * SHAPE[0], 2 * SHAPE[1]
+        s2 = t["sigma_tl"] ** 2 * tukey_lambda_variance(t["lam"]) + 1 / 12
+        se = 0.5 * math.sqrt(2 / n_rows) * (1 + s2 / (n_pix * t["sigma_r"] ** 2))
+        assert 0.05 > 3 * se, "frames too small for the 5% requirement to be a real test"
+        assert p.sigma_r == pytest.approx(t["sigma_r"], rel=0.05), (t, p.sigma_r)
+
+
+def test_joint_slopes_and_profile(recovered, tmp_path):
+    params = [p for _, p in recovered]
+    prof = fit_joint(params, camera="synthetic", black_level=512, white_level=16383, bit_depth=14, cfa="RGGB")
+    assert abs(prof.tukey_scale.slope - TL_SLOPE) < 0.05
+    assert abs(prof.row_scale.slope - R_SLOPE) < 0.05
+    assert prof.k_min == pytest.approx(0.5, rel=0.03) and prof.k_max == pytest.approx(4.0, rel=0.03)
+    assert prof.k_at_iso(2000) == pytest.approx(2.0, rel=0.03)
+    prof.save(tmp_path / "p.yaml")
+    again = NoiseProfile.load(tmp_path / "p.yaml")
+    assert again.tukey_shape.values == pytest.approx([p.lam for p in sorted(params, key=lambda q: q.k)])
+
+
+def test_row_noise_unbiased_when_small():
+    """sigma_r much smaller than the read noise: the read-noise share of the row means is removed."""
+    rng = np.random.default_rng(5)
+    h, w, sigma_r, sigma_read = 2000, 64, 0.05, 2.0
+    rows = rng.normal(0, sigma_r, size=(2, h))
+    bias = rng.normal(0, sigma_read, size=(4, h, w)) + rows[[0, 0, 1, 1]][:, :, None]
+    est = estimate_row_noise(bias)
+    n = 2 * w
+    naive = math.sqrt(np.mean(est.row_means**2))
+    # Naive std is dominated by sigma_read / sqrt(n) = 0.177; the ML value must not be.
+    assert naive > 3 * sigma_r
+    se_var = math.sqrt(2 / (2 * h)) * (sigma_r**2 + sigma_read**2 / n)
+    assert abs(est.sigma_r**2 - sigma_r**2) < 4 * se_var
+    assert est.read_variance_dn2 == pytest.approx(sigma_read**2, rel=0.02)
+    assert 0 <= est.shapiro_p <= 1
+
+
+def test_read_noise_against_scipy_ppcc_max_on_all_values():
+    x = stats.tukeylambda.rvs(-0.1, size=30_000, random_state=3) * 2.5
+    est = estimate_read_noise(x, max_samples=None)
+    assert est.lam == pytest.approx(stats.ppcc_max(x, brack=(-0.2, 0.0), dist="tukeylambda"), abs=2e-3)
+    assert est.sigma_tl == pytest.approx(2.5, rel=0.03)
+    assert est.r2_tukey > est.r2_gauss
+    g = estimate_read_noise(np.random.default_rng(0).normal(0, 3, 30_000), max_samples=None)
+    assert g.sigma_g == pytest.approx(3, rel=0.02) and abs(g.lam - 0.14) < 0.05  # lambda 0.14 ~ Gaussian
+
+
+def test_fit_log_linear_matches_least_squares():
+    rng = np.random.default_rng(1)
+    k = np.exp(rng.uniform(-2, 2, 12))
+    s = np.exp(0.6 * np.log(k) + 0.3 + rng.normal(0, 0.1, 12))
+    fit = fit_log_linear(k, s)
+    ref = stats.linregress(np.log(k), np.log(s))
+    assert fit.slope == pytest.approx(ref.slope) and fit.intercept == pytest.approx(ref.intercept)
+    resid = np.log(s) - (ref.slope * np.log(k) + ref.intercept)
+    assert fit.residual_std == pytest.approx(np.sqrt(np.sum(resid**2) / 10))
+    with pytest.raises(ValueError, match="positive"):
+        fit_log_linear([1, 2, 3], [1, 0, 2])
+
+
+def test_pmn_table_stage2(tmp_path):
+    params = read_parameter_table(PMN)
+    assert len(params) == 28 and params[0].iso == 50 and params[0].k == pytest.approx(0.047815)
+    assert params[-1].lam == pytest.approx(-0.0910, abs=1e-3) or params[-1].iso == 25600
+    prof = fit_joint(params, camera="SonyA7S2", black_level=512, white_level=16383, bit_depth=14, cfa="RGGB")
+    ref = stats.linregress(np.log([p.k for p in params]), np.log([p.sigma_tl for p in params]))
+    assert prof.tukey_scale.slope == pytest.approx(ref.slope)
+    # CSV round trip with the same numbers.
+    lines = ["iso,K,sigma_TL,sigma_r,lambda,sigma_G"] + [f"{p.iso},{p.k},{p.sigma_tl},{p.sigma_r},{p.lam},{p.sigma_g}" for p in params]
+    (tmp_path / "t.csv").write_text("\n".join(lines))
+    again = fit_joint(read_parameter_table(tmp_path / "t.csv"), camera="x", black_level=512, white_level=16383,
+                      bit_depth=14, cfa="RGGB")
+    assert again.row_scale == prof.row_scale
+
+
+def test_real_dark_frame_anomalies_are_warnings():
+    frame = read_frame(DATA / "InfiniteISP_BlackImage_crop512_y0_x1408_12bits_BGGR.raw", width=512, height=512,
+                       dtype="uint16", cfa="BGGR", black_level=0, white_level=4095)
+    with pytest.warns(CalibrationWarning) as record:
+        result = analyse_bias_frame(frame)
+    text = " ".join(str(w.message) for w in record)
+    for anomaly in ("black-clipped", "missing ADC codes", "constant row", "column(s) with an outlying mean"):
+        assert anomaly in text
+    assert result["quantization_step_dn"] == 1.0
+    assert np.isfinite(result["sigma_tl"]) and result["spectrum"].shape == (512, 512)
+    assert len(result["color_bias_dn"]) == 4
+
+
+# ----------------------------------------------------------------------------- bad input
+def _small_set(seed=0, **kw):
+    args = dict(k=1.0, sigma_tl=2.0, lam=0.0, sigma_r=0.3, shape=(64, 64), n_bias=1, flat_levels=(0.02, 0.05), seed=seed)
+    args.update(kw)
+    bias, pairs = synthesize_iso_set(PROFILE, **args)
+    return [_dn(b) for b in bias], [(_dn(a), _dn(b)) for a, b in pairs]
+
+
+def test_saturated_flat_is_rejected_with_a_clear_error():
+    bias, _ = _small_set()
+    white = np.full((4, 64, 64), PROFILE.span_dn, np.float32)
+    with pytest.raises(ValueError, match="saturated"):
+        calibrate_iso(bias, [(white, white.copy())], 100)
+
+
+def test_too_dark_flat_is_rejected():
+    bias, _ = _small_set()
+    _, dark_pairs = _small_set(seed=3, flat_levels=(0.0, 0.0))
+    with pytest.raises(ValueError, match="too dark to carry shot noise"):
+        calibrate_iso(bias, dark_pairs, 100)
+
+
+def test_frames_of_different_sizes_and_missing_inputs():
+    bias, pairs = _small_set()
+    with pytest.raises(ValueError, match="differ in size"):
+        estimate_gain([(pairs[0][0], pairs[0][1][:, :32])])
+    with pytest.raises(ValueError, match="bias frames differ in size"):
+        calibrate_iso([bias[0], bias[0][:, :32]], pairs, 100)
+    with pytest.raises(ValueError, match="no flat pairs"):
+        calibrate_iso(bias, [], 100)
+    with pytest.raises(ValueError, match="pair"):
+        calibrate_iso(bias, [pairs[0][0]], 100)
+    with pytest.raises(ValueError, match="iso must be"):
+        calibrate_iso(bias, pairs, None)
+    with pytest.raises(ValueError, match=">= 2 ISOs"):
+        fit_joint([IsoParameters(100, 1.0, 2.0, 0.3, 0.0)], camera="x", black_level=0, white_level=1, bit_depth=8, cfa="RGGB")

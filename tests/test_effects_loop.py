@@ -1,0 +1,120 @@
+"""The loop's effects: synthesis statistics (bounds from the sample size), estimation
+round trips and parameter validation."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from rawaug import NoiseProfile, RawNoiseAugment
+from rawaug.effects import black_clip, column_noise, dark_shading, frame_black_level, hot_pixels, prnu
+
+BASE = NoiseProfile.load("SonyA7S2")
+K = 1.0
+
+
+def synth(effects, batch=8, size=64, level_dn=0.0, model="G", seed=0, sigma_g=1.0):
+    prof = BASE
+    for token, params in effects.items():
+        prof = prof.with_effect(token, params)
+    aug = RawNoiseAugment(prof, model=model, ratio=1.0, fixed={"k": K, "sigma_g": sigma_g},
+                          generator=torch.Generator().manual_seed(seed), rank_seeding=False)
+    x = torch.full((batch, 4, size, size), level_dn / prof.span_dn, dtype=torch.float64)
+    return (aug(x) * prof.span_dn).numpy()
+
+
+def test_column_noise_variance_and_sharing():
+    f = synth({"Col": {"seed": 1, "k": [K], "sigma_dn": [2.0], "fixed_dn": [0.0]}}, batch=16, size=64)
+    cols = f.mean(axis=2)  # (B, 4, w)
+    # R and G2 (0, 3) share sensor columns: their column offsets are identical up to read noise / sqrt(h)
+    assert np.corrcoef(cols[:, 0].ravel(), cols[:, 3].ravel())[0, 1] > 0.9
+    assert abs(np.corrcoef(cols[:, 0].ravel(), cols[:, 1].ravel())[0, 1]) < 5 / math.sqrt(cols[:, 0].size)
+    var = cols.var(axis=2, ddof=1).mean() - 1.0 / 64  # minus read noise / h
+    n = 16 * 4 * 64
+    assert abs(var - 4.0) < 5 * 4.0 * math.sqrt(2 / n) * 2  # chi-square spread, channels pairwise shared
+
+
+def test_column_noise_estimate_round_trip():
+    truth = {"seed": 3, "k": [K], "sigma_dn": [0.5], "fixed_dn": [1.0]}
+    meas = synth({"Col": truth}, batch=8, size=128)
+    base = [synth({}, batch=8, size=128, seed=s) for s in range(1, 5)]
+    est = column_noise.estimate(meas, base, K)
+    # fixed part: 2 x 128 column values -> relative std of a variance ~ sqrt(2/256)
+    assert abs(est["fixed_dn"][0] - 1.0) < 0.35
+    assert abs(est["sigma_dn"][0] - 0.5) < 0.1
+
+
+def test_dark_shading_pattern_is_fixed_and_grid_recovered():
+    grid = [[0.0, 2.0], [4.0, 6.0]]
+    p = {"seed": 5, "k": [K], "sigma_dn": [1.5], "shading_dn": [grid]}
+    a, b = synth({"FPN": p}, seed=1, sigma_g=0.5), synth({"FPN": p}, seed=2, sigma_g=0.5)
+    fixed_a, fixed_b = a.mean(axis=0), b.mean(axis=0)
+    assert np.corrcoef(fixed_a.ravel(), fixed_b.ravel())[0, 1] > 0.95  # same pattern in every call
+    est = dark_shading.estimate(a, [synth({}, seed=s, sigma_g=0.5) for s in (3, 4)], K)
+    up_true = dark_shading.upsample_grid(np.array(grid) - np.mean(grid), 64, 64)
+    up_est = dark_shading.upsample_grid(np.array(est["shading_dn"][0]), 64, 64)
+    assert np.abs(up_est - up_true).max() < 0.5
+    assert abs(est["sigma_dn"][0] - 1.5) < 0.15
+
+
+def test_hot_pixels_density_and_estimate():
+    p = {"seed": 7, "density": 2e-3, "log_std": 0.2, "k": [K], "median_dn": [80.0]}
+    f = synth({"Hot": p}, batch=4, size=128)
+    n = 4 * 128 * 128
+    hot, amp = hot_pixels.detect(f)
+    assert abs(hot.sum() - 2e-3 * n) < 5 * math.sqrt(2e-3 * n)
+    est = hot_pixels.estimate(f, [synth({}, batch=4, size=128, seed=9)], K)
+    assert abs(est["density"] - 2e-3) < 5 * math.sqrt(2e-3 / n)
+    assert abs(math.log(est["median_dn"][0] / 80.0)) < 0.1
+
+
+def test_black_clip_piles_up_at_the_floor():
+    f = synth({"Clip": {"floor_dn": -1.0}}, sigma_g=2.0)
+    assert f.min() == -1.0
+    from scipy import stats
+    expected = stats.norm.cdf(-0.5)  # P(N(0, 2^2) + U < -1) ~ P(N(0, 2) < -1)
+    assert abs((f == -1.0).mean() - expected) < 0.02
+    assert black_clip.estimate(np.rint(f), [], K) == {"floor_dn": -1.0}
+
+
+def test_frame_black_level_common_and_per_channel():
+    p = {"k": [K], "sigma_dn": [0.5], "channel_sigma_dn": [0.3]}
+    f = synth({"BLE": p}, batch=200, size=16, sigma_g=0.5)
+    m = f.mean(axis=(2, 3))
+    c = np.cov(m.T)
+    n = m.shape[0]
+    assert abs(frame_black_level.common_covariance(m) - 0.25) < 5 * 0.25 * math.sqrt(2 / n)
+    assert abs(np.diag(c).mean() - 0.34) < 5 * 0.34 * math.sqrt(2 / (4 * n))
+    est = frame_black_level.estimate(f, [synth({}, batch=200, size=16, seed=3, sigma_g=0.5)], K)
+    assert abs(est["sigma_dn"][0] - 0.5) < 0.1 and abs(est["channel_sigma_dn"][0] - 0.3) < 0.1
+
+
+def test_prnu_scales_with_signal_and_estimate():
+    p = {"seed": 11, "sigma": 0.02}
+    level = 2000.0
+    f = synth({"PRNU": p}, batch=8, size=64, level_dn=level, model="P*")
+    est = prnu.estimate(f, [synth({}, batch=8, size=64, level_dn=level, model="P*", seed=s) for s in (1, 2)], K, level_dn=level)
+    assert abs(est["sigma"] - 0.02) < 0.002
+
+
+def test_effects_replay_bit_exactly():
+    prof = BASE.with_effect("BLE", {"k": [K], "sigma_dn": [0.5]}).with_effect(
+        "Col", {"seed": 1, "k": [K], "sigma_dn": [1.0], "fixed_dn": [1.0]})
+    aug = RawNoiseAugment(prof, ratio=1.0, fixed={"k": K})
+    x = torch.zeros(2, 4, 16, 16)
+    y = aug(x)
+    assert torch.equal(y, aug(x, params=aug._params))
+
+
+@pytest.mark.parametrize("token,params,match", [
+    ("Col", {"seed": 1, "k": [1.0], "sigma_dn": [-1.0], "fixed_dn": [0.0]}, "sigma_dn must be >= 0"),
+    ("Col", {"seed": 1, "k": [1.0, 2.0], "sigma_dn": [1.0], "fixed_dn": [0.0, 0.0]}, "one value per k"),
+    ("FPN", {"seed": 1, "k": [1.0], "sigma_dn": [1.0], "shading_dn": [[1.0, 2.0]]}, "2-D grid"),
+    ("Hot", {"seed": 1, "density": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [1.0]}, "density"),
+    ("Clip", {}, "floor_dn"),
+    ("BLE", {"k": [0.0], "sigma_dn": [1.0]}, "k must be > 0"),
+    ("PRNU", {"seed": -1, "sigma": 0.01}, "seed"),
+])
+def test_bad_effect_params_raise(token, params, match):
+    with pytest.raises(ValueError, match=match):
+        BASE.with_effect(token, params)

@@ -1,0 +1,103 @@
+"""The closed loop: undeclared effects are named and their error falls by at least half;
+frames without one get nothing added; parameter tables get their regime change and floor."""
+from importlib import resources
+from pathlib import Path
+
+import json
+import numpy as np
+import pytest
+
+from rawaug import NoiseProfile
+from rawaug.cli import main
+from rawaug.loop import FrameStack, frame_statistics, run_frame_loop, synthesize
+from rawaug.loop.parameters import fit_structure, frame_table_loop, read_frame_table, relation_loop
+
+BASE = NoiseProfile.load("SonyA7S2")
+K = 1.0
+DATA = Path(str(resources.files("rawaug") / "data" / "measured" / "PMN"))
+COL = {"Col": {"seed": 5, "k": [K], "sigma_dn": [0.3], "fixed_dn": [0.5]}}
+FPN = {"FPN": {"seed": 3, "k": [K], "sigma_dn": [0.8], "shading_dn": [[[0, 1, 2, 3], [1, 2, 3, 4], [2, 3, 4, 5], [3, 4, 5, 6]]]}}
+HOT = {"Hot": {"seed": 9, "density": 5e-4, "log_std": 0.3, "k": [K], "median_dn": [60.0]}}
+
+
+def measured_stack(effects, seed=123, n=8, size=128, label="measured"):
+    """A stack from the base profile plus effects the fitted model (BASE) does not have."""
+    prof = BASE
+    for token, params in effects.items():
+        prof = prof.with_effect(token, params)
+    template = FrameStack(np.full((n, 4, size, size), 0.5), K)  # shape only (non-integer: dithered)
+    return FrameStack(synthesize(prof, template, 1, seed)[0].astype(np.float64), K, label=label)
+
+
+@pytest.mark.parametrize("effects", [COL, FPN, HOT, {**COL, **FPN, **HOT}], ids=["Col", "FPN", "Hot", "mixed"])
+def test_loop_names_each_undeclared_effect_and_halves_its_error(effects):
+    result = run_frame_loop([measured_stack(effects)], BASE, n_synth=10, seed=1)
+    assert set(result.added) == set(effects)
+    for step in result.steps:
+        if step.accepted:
+            assert step.error_after <= 0.5 * step.error_before, step
+    final = [s for s in result.steps if s.accepted][-1]  # the battery of the final model
+    assert final.battery_after["rms_z"] < 0.5 * result.steps[0].battery_before["rms_z"]
+    assert not result.unexplained()
+
+
+def test_loop_adds_nothing_without_an_undeclared_effect():
+    result = run_frame_loop([measured_stack({})], BASE, n_synth=10, seed=2)
+    assert result.added == [] and result.steps == []
+
+
+def test_statistics_reject_bad_input():
+    with pytest.raises(ValueError, match=r"\(N, 4, h, w\)"):
+        frame_statistics(np.zeros((4, 16, 16)))
+    with pytest.raises(ValueError, match="kind"):
+        frame_statistics(np.zeros((2, 4, 16, 16)), kind="dark")
+    with pytest.raises(ValueError, match="positive"):
+        FrameStack(np.zeros((2, 4, 16, 16)), k=-1.0)
+
+
+def test_relation_loop_finds_a_planted_jump_and_floor():
+    rng = np.random.default_rng(0)
+    k = np.geomspace(0.05, 20, 24)
+    line = np.where(k < 2.0, 3.0 * k**0.9, 1.2 * k**0.9)
+    sigma = np.sqrt(line**2 + 0.7**2) * np.exp(0.02 * rng.standard_normal(k.size))
+    fit, steps = relation_loop(k, sigma)
+    assert {s["structure"] for s in steps} == {"jump", "floor"}
+    assert 1.5 < fit.break_k < 2.5 and abs(fit.relation.floor_dn - 0.7) < 0.1
+    assert steps[-1]["error_after"] < 0.5 * steps[0]["error_before"]
+    # a clean single line gets no structure
+    _, none = relation_loop(k, 2.0 * k**0.8 * np.exp(0.02 * rng.standard_normal(k.size)))
+    assert none == []
+
+
+def test_relation_fit_rejects_bad_values():
+    with pytest.raises(ValueError, match="positive"):
+        fit_structure([1.0, 2.0, 3.0], [1.0, -1.0, 2.0])
+
+
+def test_sony_table_regime_change_and_floor(tmp_path):
+    out, rep = tmp_path / "p.yaml", tmp_path / "rep"
+    assert main([ "loop", str(DATA / "PMN_noise_params_extracted.json"), "--camera", "SonyA7S2",
+                  "--out", str(out), "--report", str(rep)]) == 0
+    report = json.loads((rep / "report.json").read_text())
+    tl = [s for s in report["steps"] if s["relation"] == "sigma_tl"]
+    assert [s["structure"] for s in tl] == ["jump", "floor"]
+    assert 1.53 < tl[0]["break_k"] < 1.92  # between ISO 1600 and ISO 2000
+    assert tl[-1]["error_after"] < 0.5 * tl[0]["error_before"]
+    prof = NoiseProfile.load(out)
+    assert len(prof.tukey_scale.segments) == 2 and prof.tukey_scale.floor_dn > 0
+    assert (rep / "report.md").read_text().startswith("# rawaug loop")
+
+
+@pytest.mark.parametrize("iso,k", [(100, 0.1366021), (6400, 8.7425333)])
+def test_imx686_per_frame_black_level_error(iso, k):
+    table = read_frame_table(DATA / f"IMX686_iso{iso}_per_frame_bias_fits.csv")
+    result = frame_table_loop(table, 3472 // 2, 4624 // 2, k)
+    assert [s["effect"] for s in result["steps"]] == ["BLE"]
+    step = result["steps"][0]
+    assert step["error_after"] < 0.5 * step["error_before"]
+    assert result["params"]["sigma_dn"][0] > 0
+
+
+def test_cli_frame_table_needs_gain(tmp_path, capsys):
+    code = main(["loop", str(DATA / "IMX686_iso100_per_frame_bias_fits.csv"), "--report", str(tmp_path)])
+    assert code == 2 and "--k" in capsys.readouterr().err
