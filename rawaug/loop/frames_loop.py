@@ -38,6 +38,7 @@ class Step:
     battery_before: dict
     battery_after: dict
     note: str = ""
+    round: int = 0  # loop round (several candidates may be tried in one round)
 
     def to_dict(self):
         return self.__dict__.copy()
@@ -142,7 +143,8 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str = "G*+P*+R+U
             after_b = _battery(new_diags)
             # acceptable if its evidence improved by a fifth or more and nothing new became significant
             ok = after.rel_error <= ACCEPT_FACTOR * evidence.rel_error and after_b["n_significant"] <= before_b["n_significant"]
-            step = Step(token, params, ok, evidence.to_dict(), label, evidence.rel_error, after.rel_error, after.z, before_b, after_b)
+            step = Step(token, params, ok, evidence.to_dict(), label, evidence.rel_error, after.rel_error, after.z, before_b, after_b,
+                        round=step_no)
             trials.append((step, trial, new_diags))
         acceptable = [t for t in trials if t[0].accepted]
         chosen = min(acceptable, key=lambda t: (t[0].battery_after["mean_rel_error"], t[0].battery_after["n_significant"])) if acceptable else None

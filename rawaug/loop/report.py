@@ -52,16 +52,22 @@ def residual_table(rows, title="") -> str:
 
 
 def steps_table(steps) -> str:
-    """Markdown table of loop steps: effect, evidence, error before/after, kept."""
-    out = ["| step | added | evidence | error before | error after | kept |", "|---|---|---|---|---|---|"]
+    """Markdown table of loop steps (one row per candidate tried): round, effect, evidence,
+    error of the evidence before/after, battery mean relative error after (frame loop), kept."""
+    frames = any("battery_after" in _jsonable(s) for s in steps)
+    head = "| step | effect | evidence | error before | error after |" + (" battery after |" if frames else "") + " kept |"
+    out = [head, "|---|---|---|---|---|" + ("---|" if frames else "") + "---|"]
     for i, s in enumerate(steps, 1):
         s = _jsonable(s)
         ev = s.get("evidence")
         if isinstance(ev, dict):
             ev = f"{ev['statistic']} z={ev['z']:.1f} ({s.get('stack', '')})"
         name = s.get("effect") or f"{s.get('relation')}: {s.get('structure')}"
-        out.append(f"| {i} | {name} | {ev} | {s['error_before']:.3f} | {s['error_after']:.3f} | "
-                   f"{'yes' if s.get('accepted', True) else 'no'} |")
+        battery = f" {s['battery_after']['mean_rel_error']:.3f} |" if frames else ""
+        kept = "yes" if s.get("accepted", True) else "no"
+        if s.get("note") and not s.get("accepted", True):
+            kept += f" ({s['note']})"
+        out.append(f"| {s.get('round', i)} | {name} | {ev} | {s['error_before']:.3f} | {s['error_after']:.3f} |{battery} {kept} |")
     return "\n".join(out) + "\n"
 
 
