@@ -1,0 +1,136 @@
+"""The real LightningCLI app (lightning_app/fit.py), in-process: every config with
+``fast_dev_run`` on small crops, test tables, prediction, TensorBoard logging and exact resume."""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from rawaug import NoiseProfile
+from test_train_layouts import make_eld_tree, make_sid_tree
+
+REPO = Path(__file__).resolve().parent.parent
+CONFIGS = sorted((REPO / "configs").glob("*.yaml"))
+
+
+def _fit_main():
+    spec = importlib.util.spec_from_file_location("rawaug_fit_app", REPO / "lightning_app" / "fit.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.main
+
+
+main = _fit_main()
+
+
+@pytest.fixture(scope="module")
+def trees(tmp_path_factory):
+    base = tmp_path_factory.mktemp("trees")
+    sid = make_sid_tree(base / "SID", size=64)
+    eld = make_eld_tree(base / "ELD", scenes=(1,), size=64)
+    profile = NoiseProfile.load("SonyA7S2").with_effect("BLE", {"k": [0.1, 6.0], "sigma_dn": [0.5, 2.0]})  # test values
+    profile.save(base / "loop-profile.yaml")
+    return {"sid": sid, "eld": eld, "profile": base / "loop-profile.yaml"}
+
+
+def _small(out: Path) -> list[str]:
+    return ["--model.base_channels", "4", "--model.crop_size", "16", "--model.results_dir", str(out / "results"),
+            "--trainer.accelerator", "cpu", "--trainer.devices", "1", "--trainer.default_root_dir", str(out),
+            "--trainer.logger.init_args.save_dir", str(out), "--data.init_args.num_workers", "0"]
+
+
+def _layout_overrides(config: Path, trees, out: Path) -> list[str]:
+    text = config.read_text()
+    args = []
+    if "rawaug.train.SIDSony" in text:
+        args += ["--data.init_args.cache_dir", str(out / "cache")]
+        args += [f"--data.init_args.{s}.init_args.root={trees['sid']}" for s in ("train", "val")]
+    if "rawaug.train.ELD" in text:
+        args += [f"--data.init_args.test.init_args.root={trees['eld']}", "--data.init_args.test.init_args.scenes=[1]"]
+    elif "test:" in text:
+        args += [f"--data.init_args.test.init_args.root={trees['sid']}"]
+    if "SonyA7S2-loop" in text:
+        args += ["--model.profile", str(trees["profile"])]
+    return args
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=[c.stem for c in CONFIGS])
+def test_every_config_fits_with_fast_dev_run(config, trees, tmp_path):
+    cli = main(["fit", "--config", str(config), "--trainer.fast_dev_run", "1", *_small(tmp_path), *_layout_overrides(config, trees, tmp_path)])
+    metrics = cli.trainer.callback_metrics
+    assert torch.isfinite(metrics["train/loss"])
+    assert torch.isfinite(metrics["val/psnr"]) and torch.isfinite(metrics["val/psnr_noisy"])
+    assert (tmp_path / "results" / "val_results.csv").is_file()
+
+
+@pytest.mark.parametrize("name", ["sid_GsPsRU", "eld_GsPsRU"])
+def test_test_command_writes_a_table_per_camera_and_ratio(name, trees, tmp_path):
+    config = REPO / "configs" / f"{name}.yaml"
+    main(["test", "--config", str(config), *_small(tmp_path), *_layout_overrides(config, trees, tmp_path)])
+    lines = (tmp_path / "results" / "test_results.csv").read_text().splitlines()
+    assert lines[0] == "camera,ratio,images,psnr_noisy_db,ssim_noisy,psnr_db,ssim"
+    groups = [tuple(line.split(",")[:3]) for line in lines[1:]]
+    if name.startswith("eld"):
+        assert groups == [("SonyA7S2", "100", "3"), ("SonyA7S2", "200", "3")]
+    else:  # Sony_test_list: 10/0.04 = 250 and 10/0.1 = 100
+        assert groups == [("SonyA7S2", "100", "1"), ("SonyA7S2", "250", "1")]
+    assert (tmp_path / "results" / "test_results.md").read_text().startswith("| camera | ratio |")
+
+
+def test_validate_command_scores_the_held_out_scenes(tmp_path):
+    cli = main(["validate", "--config", str(REPO / "configs" / "quickstart.yaml"), *_small(tmp_path), "--model.eval_crop", "64"])
+    metrics = cli.trainer.callback_metrics
+    assert 0 < metrics["val/psnr_noisy"] < 60 and torch.isfinite(metrics["val/psnr"])
+    lines = (tmp_path / "results" / "val_results.csv").read_text().splitlines()
+    assert lines[1].startswith("bundled-scenes,100,2,")
+
+
+def test_predict_writes_denoised_frames(trees, tmp_path):
+    noisy = tmp_path / "noisy"
+    noisy.mkdir()
+    np.save(noisy / "shot.npy", np.random.default_rng(0).integers(512, 700, (48, 64)).astype(np.uint16))
+    args = ["predict", "--config", str(REPO / "configs" / "quickstart.yaml"), *_small(tmp_path),
+            "--data.init_args.predict=rawaug.train.NoisyFolder", f"--data.init_args.predict.root={noisy}",
+            "--data.init_args.predict.ratio=100", "--data.init_args.predict.cfa=RGGB",
+            "--data.init_args.predict.black_level=512", "--data.init_args.predict.white_level=16383",
+            "--trainer.callbacks+=rawaug.train.DenoisedWriter", f"--trainer.callbacks.output_dir={tmp_path / 'out'}"]
+    main(args)
+    out = np.load(tmp_path / "out" / "shot.npy")
+    assert out.shape == (4, 24, 32) and out.dtype == np.float32 and 0 <= out.min() and out.max() <= 1
+
+
+def _quick(out: Path, epochs: int, extra=()) -> list[str]:
+    return ["fit", "--config", str(REPO / "configs" / "quickstart.yaml"), *_small(out), "--model.base_channels", "2",
+            "--data.init_args.batch_size", "2", "--data.init_args.train.init_args.repeat", "1", "--model.eval_crop", "32",
+            "--trainer.max_epochs", str(epochs), "--trainer.check_val_every_n_epoch", "1", "--trainer.log_every_n_steps", "1", *extra]
+
+
+def _weights(ckpt: Path) -> dict:
+    return torch.load(ckpt, map_location="cpu", weights_only=False)["state_dict"]
+
+
+def test_resume_from_checkpoint_is_exact_and_logs_to_tensorboard(tmp_path):
+    straight = main(_quick(tmp_path / "a", 2))
+    main(_quick(tmp_path / "b", 1))
+    first = tmp_path / "b" / "version_0" / "checkpoints" / "last.ckpt"
+    assert first.is_file()
+    resumed = main(_quick(tmp_path / "c", 2, ["--ckpt_path", str(first)]))
+    assert resumed.trainer.global_step == straight.trainer.global_step == 4
+    a = _weights(tmp_path / "a" / "version_0" / "checkpoints" / "last.ckpt")
+    c = _weights(tmp_path / "c" / "version_0" / "checkpoints" / "last.ckpt")
+    one_epoch = _weights(first)
+    assert a.keys() == c.keys()
+    assert any(not torch.equal(a[k], one_epoch[k]) for k in a)  # the second epoch changed the weights
+    for k in a:
+        torch.testing.assert_close(c[k], a[k], rtol=0, atol=1e-7)
+    # TensorBoard: scalars and the noisy/denoised/target grid
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(tmp_path / "a" / "version_0"), size_guidance={"images": 0})
+    events.Reload()
+    tags = events.Tags()
+    assert {"train/loss", "val/psnr", "val/psnr_noisy", "val/ssim"} <= set(tags["scalars"])
+    assert "val/noisy_denoised_target" in tags["images"]
