@@ -25,7 +25,8 @@ from rawaug.loop.parameters import frame_table_loop, parameter_loop, read_frame_
 from rawaug.loop.report import residual_table, steps_table
 
 DATA = Path(str(resources.files("rawaug") / "data" / "measured" / "PMN"))
-DARK = "/work/shared/data/frames/InfiniteISP/BlackImage_1920x1080_12bits_BGGR.raw"
+# the real dark frame lives in shared/ beside the checkout (not copied whole into the project)
+DARK = Path(__file__).resolve().parents[2].parent / "shared/data/frames/InfiniteISP/BlackImage_1920x1080_12bits_BGGR.raw"
 IMX686_K = {100: 0.1366021, 6400: 8.7425333}  # PMN_noise_params_extracted.json, IMX686_specific
 
 
