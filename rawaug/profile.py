@@ -32,15 +32,15 @@ from __future__ import annotations
 
 import copy
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 import yaml
 
+from .atomic import write_text_atomic
 from .bayer import CFA_PATTERNS
+from .validate import finite as _finite
 
 FORMAT_NAME = "rawaug.noise-profile"
 FORMAT_VERSION = 1
@@ -53,16 +53,6 @@ def _require(mapping, key, where):
     if key not in mapping:
         raise ValueError(f"profile is missing required field '{where}.{key}'")
     return mapping[key]
-
-
-def _finite(value, where):
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where} must be a number, got {value!r}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"{where} must be finite, got {value}")
-    return value
 
 
 def _positive(value, where):
@@ -312,18 +302,7 @@ class NoiseProfile:
 
     def save(self, path) -> None:
         """Write the profile as YAML, atomically (temp file in the same folder, then rename)."""
-        path = Path(path)
-        text = yaml.safe_dump(self.to_dict(), sort_keys=False)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w") as f:
-                f.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        write_text_atomic(path, yaml.safe_dump(self.to_dict(), sort_keys=False))
 
     # ---------------------------------------------------------------- helpers
     @property

@@ -33,7 +33,8 @@ import testcam  # noqa: E402
 
 from rawaug import NoiseProfile  # noqa: E402
 from rawaug.io import read_frame  # noqa: E402
-from rawaug.train.metrics import evaluate, write_text_atomic  # noqa: E402
+from rawaug.atomic import write_text_atomic  # noqa: E402
+from rawaug.train.metrics import evaluate  # noqa: E402
 
 SCENES = Path(__file__).resolve().parents[2] / "rawaug" / "data" / "scenes"
 TRAIN_SCENES = ["Indoor1_1024x1024.npz", "Outdoor1_1024x1024.npz", "Outdoor2_1024x1024.npz", "Outdoor3_1024x1024.npz"]

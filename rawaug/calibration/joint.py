@@ -17,6 +17,7 @@ import numpy as np
 
 from ..effects.read_noise import tukey_lambda_variance
 from ..profile import KTable, LogLinear, NoiseProfile
+from ..validate import finite
 
 
 @dataclass
@@ -85,13 +86,7 @@ def _pick(row: dict, key: str, where: str, required=True):
 
 
 def _number(value, name, where):
-    try:
-        out = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: {name} must be a number, got {value!r}") from None
-    if not math.isfinite(out):
-        raise ValueError(f"{where}: {name} must be finite, got {value!r}")
-    return out
+    return finite(value, f"{where}: {name}")
 
 
 def _row_to_params(row: dict, where: str, iso=None) -> IsoParameters:

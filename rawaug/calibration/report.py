@@ -9,24 +9,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-
-def _atomic_write(path: Path, write) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+from ..atomic import atomic_write
 
 
 def _jsonable(value):
@@ -44,7 +31,7 @@ def _jsonable(value):
 
 
 def _save_figure(fig, path: Path):
-    _atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png", bbox_inches="tight"))
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png", bbox_inches="tight"))
 
 
 def _plt():
@@ -198,9 +185,9 @@ def write_report(report_dir, profile, params, *, inputs=None, warnings_list=(), 
         "figures": figures,
     }
     text = json.dumps(_jsonable(data), indent=2)
-    _atomic_write(out / "report.json", lambda tmp: Path(tmp).write_text(text))
+    atomic_write(out / "report.json", lambda tmp: Path(tmp).write_text(text))
     md = _markdown(profile, params, figures, warnings_list)
-    _atomic_write(out / "report.md", lambda tmp: Path(tmp).write_text(md))
+    atomic_write(out / "report.md", lambda tmp: Path(tmp).write_text(md))
     return out / "report.md"
 
 

@@ -55,6 +55,14 @@ class DrawContext:
         z = torch.randn(self.n_draw, device=self.device, generator=self.generator, dtype=torch.float64)
         return z.expand(self.batch) if self.n_draw == 1 else z
 
+    def scale(self, relation, fixed_key: str) -> torch.Tensor:
+        """A noise scale (DN) per sample: ``fixed[fixed_key]`` if the user fixed it, else drawn
+        from the profile's log-linear relation on K (paper Eq. 7)."""
+        value = self.fixed.get(fixed_key)
+        if value is not None:
+            return as_sample(value, self.batch, self.device)
+        return log_linear_draw(relation, torch.log(self.k), self)
+
     def nearest(self, table) -> torch.Tensor:
         """A KTable's record nearest each drawn K (shared when same_on_batch)."""
         values = nearest_in_k(table, self.k[: self.n_draw], self.generator)

@@ -13,22 +13,12 @@ cached on the device once.
 """
 from __future__ import annotations
 
-import math
 
 import torch
 
-from .base import nearest_in_k
 from ..profile import KTable
-
-
-def _number(value, where):
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where} must be a number, got {value!r}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"{where} must be finite, got {value}")
-    return value
+from ..validate import finite as _number
+from .base import nearest_in_k
 
 
 def validate_records(token: str, params, keys: tuple[str, ...], nonnegative: tuple[str, ...] = ()) -> None:

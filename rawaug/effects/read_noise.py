@@ -5,7 +5,7 @@ import math
 
 import torch
 
-from .base import READ, NoiseEffect, as_sample, log_linear_draw, per_sample, register
+from .base import READ, NoiseEffect, as_sample, per_sample, register
 
 # Smallest tail probability drawn: float32 uniforms come in steps of 2**-24, so u == 0 is
 # replaced by 2**-26; this keeps every sample finite for lambda < 0 at a bias below 1e-7.
@@ -46,10 +46,8 @@ class TukeyLambdaReadNoise(NoiseEffect):
     param_keys = ("read_noise.sigma_tl", "read_noise.lambda")
 
     def draw(self, ctx):
-        log_k = torch.log(ctx.k)
-        sigma = ctx.fixed.get("sigma_tl")
+        sigma = ctx.scale(self.profile.tukey_scale, "sigma_tl")
         lam = ctx.fixed.get("lambda")
-        sigma = as_sample(sigma, ctx.batch, ctx.device) if sigma is not None else log_linear_draw(self.profile.tukey_scale, log_k, ctx)
         lam = as_sample(lam, ctx.batch, ctx.device) if lam is not None else ctx.nearest(self.profile.tukey_shape)
         return {"read_noise.sigma_tl": sigma, "read_noise.lambda": lam}
 
@@ -68,12 +66,7 @@ class GaussianReadNoise(NoiseEffect):
     param_keys = ("read_noise.sigma_g",)
 
     def draw(self, ctx):
-        sigma = ctx.fixed.get("sigma_g")
-        if sigma is None:
-            sigma = log_linear_draw(self.profile.gaussian_scale, torch.log(ctx.k), ctx)
-        else:
-            sigma = as_sample(sigma, ctx.batch, ctx.device)
-        return {"read_noise.sigma_g": sigma}
+        return {"read_noise.sigma_g": ctx.scale(self.profile.gaussian_scale, "sigma_g")}
 
     def forward(self, signal_dn, clean_dn, params, generator):
         z = torch.randn(signal_dn.shape, device=signal_dn.device, generator=generator, dtype=signal_dn.dtype)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from .base import BANDING, NoiseEffect, as_sample, log_linear_draw, per_sample, register
+from .base import BANDING, NoiseEffect, per_sample, register
 
 
 @register
@@ -16,12 +16,7 @@ class RowNoise(NoiseEffect):
     param_keys = ("row_noise.sigma_r",)
 
     def draw(self, ctx):
-        sigma = ctx.fixed.get("sigma_r")
-        if sigma is None:
-            sigma = log_linear_draw(self.profile.row_scale, torch.log(ctx.k), ctx)
-        else:
-            sigma = as_sample(sigma, ctx.batch, ctx.device)
-        return {"row_noise.sigma_r": sigma}
+        return {"row_noise.sigma_r": ctx.scale(self.profile.row_scale, "sigma_r")}
 
     def forward(self, signal_dn, clean_dn, params, generator):
         b, _, h, _ = signal_dn.shape

@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from ..atomic import write_text_atomic
 
 
 def _jsonable(v):
@@ -24,19 +24,6 @@ def _jsonable(v):
     if hasattr(v, "to_dict"):
         return _jsonable(v.to_dict())
     return v
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def residual_table(rows, title="") -> str:
@@ -74,5 +61,5 @@ def steps_table(steps) -> str:
 def write_report(folder, report: dict, markdown: str) -> None:
     """Write ``report.json`` (``report``) and ``report.md`` (``markdown``) into ``folder``."""
     folder = Path(folder)
-    _atomic_text(folder / "report.json", json.dumps(_jsonable(report), indent=2))
-    _atomic_text(folder / "report.md", markdown)
+    write_text_atomic(folder / "report.json", json.dumps(_jsonable(report), indent=2))
+    write_text_atomic(folder / "report.md", markdown)

@@ -1,27 +1,16 @@
 """Read each raw file once: packed, normalized arrays cached in memory and optionally on disk."""
 from __future__ import annotations
 
+import os
 import hashlib
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_write
+
 from ..io import read_frame
-
-
-def _atomic_save(path: Path, write) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 class FrameCache:
@@ -80,5 +69,5 @@ class FrameCache:
             with open(tmp, "wb") as f:
                 np.save(f, array)
 
-        _atomic_save(self.cache_dir / f"{key}.npy", save_array)
-        _atomic_save(self.cache_dir / f"{key}.json", lambda tmp: Path(tmp).write_text(json.dumps(meta)))
+        atomic_write(self.cache_dir / f"{key}.npy", save_array)
+        atomic_write(self.cache_dir / f"{key}.json", lambda tmp: Path(tmp).write_text(json.dumps(meta)))

@@ -5,12 +5,13 @@ from __future__ import annotations
 import csv
 import io
 import os
-import tempfile
 from collections import defaultdict
 from pathlib import Path
 
 import torch
 from kornia.metrics import ssim as _kornia_ssim
+
+from ..atomic import write_text_atomic
 
 
 def _check_pair(output: torch.Tensor, target: torch.Tensor) -> None:
@@ -117,16 +118,4 @@ class ResultsTable:
             write_text_atomic(path, text)
         return paths
 
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and ``os.replace``."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
