@@ -262,6 +262,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default="runs/ablation", help="output folder (reused: finished steps are skipped)")
     parser.add_argument("--scale", choices=sorted(SCALES), default="cpu")
     parser.add_argument("--rows", nargs="*", default=None, help="subset of rows to run")
+    parser.add_argument("--collect", action="store_true", help="only tabulate the runs already finished in --out (no training)")
     args = parser.parse_args(argv)
     scale = SCALES[args.scale]
     out = Path(args.out)
@@ -278,10 +279,13 @@ def main(argv=None) -> int:
         if row not in order:
             raise ValueError(f"unknown row {row!r}; rows: {order}")
         for seed in scale["seeds"]:
+            done = out / "runs" / f"{row.replace('*', 's').replace('+', '_').replace(' ', '_')}_seed{seed}" / "test_results.csv"
+            if args.collect and not done.exists():
+                continue
             rows += read_results(train_and_test(row, seed, out, data, profiles, scale), row, seed)
             print(f"[{time.time() - start:6.0f} s] {row} seed {seed}: " + ", ".join(f"x{r['ratio']} {r['psnr_db']:.2f} dB" for r in rows[-4:] if r["row"] == row and r["seed"] == seed))
     full_order = (["BM3D", "A-BM3D"] if scale["bm3d"] else []) + order
-    if scale["bm3d"]:
+    if scale["bm3d"] and (not args.collect or (out / "bm3d_results.json").exists()):
         rows += bm3d_rows(out, data, profiles)
         print(f"[{time.time() - start:6.0f} s] BM3D and A-BM3D done")
     md, table = summarize(rows, [r for r in full_order if any(x["row"] == r for x in rows)])
