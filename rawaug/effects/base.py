@@ -15,6 +15,7 @@ which statistic of a measured frame shows them. Register new effects with
 """
 from __future__ import annotations
 
+import functools
 import zlib
 from dataclasses import dataclass
 from typing import ClassVar
@@ -137,15 +138,21 @@ def log_linear_draw(relation, log_k: torch.Tensor, ctx: DrawContext) -> torch.Te
     return sigma
 
 
+@functools.lru_cache(maxsize=64)
+def _table_tensors(table, device: str):
+    """(log K, values) of a KTable on a device, built once (not on every forward call)."""
+    log_ks = torch.log(torch.tensor(table.k, dtype=torch.float64, device=device))
+    return log_ks, torch.tensor(table.values, dtype=torch.float64, device=device)
+
+
 def nearest_in_k(table, k: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
     """Per-sample value of a KTable at the record nearest the drawn K (in log K). Records
     measured at the same K (several frames per ISO) are tied: one is drawn uniformly."""
-    ks = torch.tensor(table.k, dtype=torch.float64, device=k.device)
-    dist = (torch.log(ks)[None, :] - torch.log(k)[:, None]).abs()
+    log_ks, values = _table_tensors(table, str(k.device))
+    dist = (log_ks[None, :] - torch.log(k)[:, None]).abs()
     tied = dist <= dist.min(dim=1, keepdim=True).values + 1e-9
     if generator is None:
         idx = tied.to(torch.int8).argmax(dim=1)
     else:
         idx = torch.multinomial(tied.to(torch.float64), 1, generator=generator).squeeze(1)
-    values = torch.tensor(table.values, dtype=torch.float64, device=k.device)
     return values[idx]
