@@ -196,8 +196,8 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         work = input.to(torch.float32) if input.dtype in (torch.float16, torch.bfloat16) else input
         span = self.profile.span_dn
         ratio = per_sample(params["ratio"].to(work.device)).to(work.dtype)
-        clean_dn = work * (span / ratio)
-        signal = clean_dn
+        signal = work * (span / ratio)  # DN at the sensor; the working tensor every stage updates
+        clean_dn = signal.clone() if any(e.uses_clean for e in self.effects) else None
         seed = int(params["seed"].reshape(-1)[0])
         for effect in self.effects:
             gen = torch.Generator(device=work.device)
@@ -205,7 +205,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
             signal = effect(signal, clean_dn, params, gen)
         if self.clip_white:
             signal = torch.clamp(signal, max=span)
-        return (signal * (ratio / span)).to(input.dtype)
+        return (signal * (ratio / span) if signal.requires_grad else signal.mul_(ratio / span)).to(input.dtype)
 
     def __getstate__(self):
         state = self.__dict__.copy()

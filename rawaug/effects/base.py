@@ -7,6 +7,10 @@ An effect is a small ``nn.Module`` with
 * ``draw(ctx)``: its per-sample scalar parameters, on the device, given the drawn gain K;
 * ``forward(signal_dn, clean_dn, params, generator)``: the batch after this stage, in DN
   at the sensor (black-subtracted, before the low-light ratio is multiplied back).
+  ``signal_dn`` is the pipeline's own working tensor: an effect may update it in place
+  (``writable``, ``add_noise``) and return it. ``clean_dn`` (the noiseless signal) is passed
+  only to effects that set ``uses_clean = True``, else it is None: copying it costs as much
+  as drawing a noise component on the CPU.
 
 Effects found by the closed loop also carry ``validate_params`` (for their
 ``profile.effects`` entry) and, in their own module, how they are estimated and
@@ -78,6 +82,7 @@ class NoiseEffect(nn.Module):
     token: ClassVar[str] = ""
     order: ClassVar[int] = 0
     param_keys: ClassVar[tuple[str, ...]] = ()  # keys this effect records in params
+    uses_clean: ClassVar[bool] = False  # forward reads clean_dn
 
     def __init__(self, profile):
         super().__init__()
@@ -103,6 +108,27 @@ def effect_seed(seed: int, token: str) -> int:
     """Independent generator seed for one effect: replaying or removing one effect never
     changes the noise another draws (ablation rows share their common noise)."""
     return (seed * 1_000_003 + zlib.crc32(token.encode())) % (2**63 - 1)
+
+
+def writable(signal_dn: torch.Tensor, clean_dn: torch.Tensor) -> torch.Tensor:
+    """Where an effect writes its output: ``signal_dn`` itself (the pipeline's working tensor),
+    or a new contiguous tensor where it cannot be overwritten. On the CPU a fresh 32 MB
+    tensor costs more in page faults than the noise drawn into it."""
+    if signal_dn is clean_dn or not signal_dn.is_contiguous() or signal_dn.requires_grad:
+        return torch.empty(signal_dn.shape, dtype=signal_dn.dtype, device=signal_dn.device)
+    return signal_dn
+
+
+def add_noise(signal_dn: torch.Tensor, clean_dn: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+    """``signal_dn + noise``, in place when the pipeline owns ``signal_dn`` and no gradient flows."""
+    if writable(signal_dn, clean_dn) is signal_dn and not noise.requires_grad:
+        return signal_dn.add_(noise)
+    return signal_dn + noise
+
+
+def key_from(generator: torch.Generator) -> int:
+    """A 64-bit stream key for the counter-based CPU kernels, drawn from the effect's generator."""
+    return int(torch.randint(0, 2**63 - 1, (1,), generator=generator, dtype=torch.int64).item())
 
 
 def as_sample(value, batch, device, dtype=torch.float64):

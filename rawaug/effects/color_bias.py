@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import torch
 
-from .base import OFFSET, NoiseEffect, per_sample, register
+from .base import OFFSET, NoiseEffect, add_noise, per_sample, register
 
 
 @register
@@ -23,4 +23,4 @@ class ColorBias(NoiseEffect):
         return {"color_bias.dn": bias}
 
     def forward(self, signal_dn, clean_dn, params, generator):
-        return signal_dn + per_sample(params["color_bias.dn"]).to(signal_dn.dtype)
+        return add_noise(signal_dn, clean_dn, per_sample(params["color_bias.dn"]).to(signal_dn.dtype))

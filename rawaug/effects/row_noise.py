@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from .base import BANDING, NoiseEffect, per_sample, register
+from .base import BANDING, NoiseEffect, add_noise, per_sample, register
 
 
 @register
@@ -23,4 +23,4 @@ class RowNoise(NoiseEffect):
         # (B, 2, H, 1): sensor rows 2i (R, G1) and 2i+1 (B, G2).
         rows = torch.randn((b, 2, h, 1), device=signal_dn.device, generator=generator, dtype=signal_dn.dtype)
         rows = rows * per_sample(params["row_noise.sigma_r"]).to(signal_dn.dtype)
-        return signal_dn + rows[:, (0, 0, 1, 1)]
+        return add_noise(signal_dn, clean_dn, rows[:, (0, 0, 1, 1)])

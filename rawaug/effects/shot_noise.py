@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import torch
 
-from .base import SHOT, NoiseEffect, per_sample, register
+from .. import cpu
+from .base import SHOT, NoiseEffect, add_noise, key_from, per_sample, register, writable
 
 
 @register
@@ -14,9 +15,13 @@ class PoissonShotNoise(NoiseEffect):
     order = SHOT
 
     def forward(self, signal_dn, clean_dn, params, generator):
+        if cpu.handles(signal_dn):
+            from ..cpu.poisson import poisson_dn
+
+            return poisson_dn(signal_dn, writable(signal_dn, clean_dn), params["k"], key_from(generator))
         k = per_sample(params["k"])
         electrons = torch.clamp(signal_dn / k, min=0.0)
-        return torch.poisson(electrons, generator=generator) * k
+        return torch.poisson(electrons, generator=generator).mul_(k)
 
 
 @register
@@ -27,6 +32,10 @@ class GaussianShotNoise(NoiseEffect):
     order = SHOT
 
     def forward(self, signal_dn, clean_dn, params, generator):
+        if cpu.handles(signal_dn):
+            from ..cpu.quantile_table import add_signal_scaled
+
+            return add_signal_scaled(signal_dn, writable(signal_dn, clean_dn), params["k"], key_from(generator))
         k = per_sample(params["k"])
         z = torch.randn(signal_dn.shape, device=signal_dn.device, generator=generator, dtype=signal_dn.dtype)
-        return signal_dn + torch.sqrt(k * torch.clamp(signal_dn, min=0.0)) * z
+        return add_noise(signal_dn, clean_dn, torch.sqrt(k * torch.clamp(signal_dn, min=0.0)) * z)
