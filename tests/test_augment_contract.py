@@ -17,7 +17,7 @@ def clean(batch=2, size=16, dtype=torch.float32, device="cpu"):
 
 @pytest.mark.parametrize("model", MODELS)
 @pytest.mark.parametrize("device", DEVICES)
-def test_module_contract(model, device):
+def test_module_contract(model, device, samplers):
     aug = RawNoiseAugment("SonyA7S2", model=model)
     x = clean(device=device)
     before = x.clone()

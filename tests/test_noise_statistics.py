@@ -10,6 +10,7 @@ from rawaug import NoiseProfile, RawNoiseAugment
 from rawaug.effects import tukey_lambda_icdf, tukey_lambda_variance
 
 SPAN = NoiseProfile.load("SonyA7S2").span_dn
+pytestmark = pytest.mark.usefixtures("samplers")
 
 
 def synth_dn(model, clean_dn, batch=16, size=64, seed=0, **fixed):

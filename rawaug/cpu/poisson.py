@@ -1,11 +1,16 @@
-"""Exact Poisson sampling for shot noise (P*), counter-based.
+"""Exact Poisson sampling for shot noise (P*), counter-based, with few unpredictable branches.
 
-lambda = L + d with L on a grid of step 1/4 below 64 electrons: Poisson(lambda) =
-Poisson(L) + Poisson(d). Poisson(L) is the inversion of its CDF table (scipy's, in
-float64, over every count whose tail mass exceeds 2**-60, so no 53-bit uniform can reach
-outside it) through a guide table of power-of-two size whose cells mostly map to a single
-count; Poisson(d) is 0 whenever the second uniform is below 1 - d <= exp(-d), else exact
-sequential inversion. Above the grid: Hormann's PTRS (1993), as NumPy does.
+lambda = C + L + d with C on a coarse grid (step 64, below 4096 electrons), L on a fine grid
+(step 1/8, below 64) and d < 1/8: Poisson(lambda) = Poisson(C) + Poisson(L) + Poisson(d).
+Poisson(C) and Poisson(L) invert their CDF tables (scipy's, float64, over every count whose
+tail mass exceeds 2**-60, so no 53-bit uniform reaches outside them) through a guide table
+of 8x as many cells, most of which hold a single count: one lookup, and a short search in
+the others. Poisson(d) is 0 without a second draw in all but about d of the draws (see
+``_small_poisson``), else exact inversion. Above 4096 electrons: Hormann's PTRS (1993), as
+NumPy does.
+
+A mispredicted branch costs more than arithmetic here: it discards the overlapped work of
+the following elements. Hence tables and rare branches rather than rejection loops.
 """
 from __future__ import annotations
 
@@ -16,22 +21,23 @@ import numpy as np
 import torch
 from numba import njit
 
-from .counter import GOLDEN, U64, derived_key, draw, mix64, unit
+from .counter import GOLDEN, U64, draw, mix64, unit
 from .parallel import rows_of, run
 
-GRID_STEP = 0.25
-TABLE_MAX = 64.0  # electrons; PTRS above
+GRID_STEP = 0.125  # a power of two, so lambda / GRID_STEP is exact
+TABLE_MAX = 64.0  # electrons: the fine grid's range and the coarse grid's step (a power of two)
+COARSE_MAX = 4096.0  # electrons; PTRS above
 _TAIL = 2.0**-60
+_SPARE_BITS = U64(2047)  # the low 11 bits of a draw, which unit() leaves unused
+_STREAM2, _STREAM3 = U64(0xD1B54A32D192ED03), U64(0xABC98388FB8FAC03)  # keys of the other uniforms
 
 
-@functools.lru_cache(maxsize=1)
-def tables():
-    """(cdf, cdf_offset, guide, guide_offset, guide_size, k_min) for L = 0, 1/4, ..., 63.75."""
+def _table_set(lams):
+    """(cdf, cdf_offset, guide, guide_offset, guide_size, k_min) for Poisson(L), L in ``lams``."""
     from scipy import stats
 
     cdfs, guides, k_mins = [], [], []
-    for i in range(int(TABLE_MAX / GRID_STEP)):
-        lam = i * GRID_STEP
+    for lam in lams:
         if lam == 0.0:
             k_min, cdf = 0, np.ones(1)
         else:
@@ -44,7 +50,7 @@ def tables():
                 raise AssertionError(f"Poisson table for {lam} starts inside its lower tail")
             k_min, cdf = int(counts[inside]), cdf[inside : last + 1].copy()
             cdf[-1] = 1.0
-        size = 1 << int(math.ceil(math.log2(4 * len(cdf))))
+        size = 1 << int(math.ceil(math.log2(8 * len(cdf))))
         lo = np.searchsorted(cdf, np.arange(size) / size, side="left")
         hi = np.searchsorted(cdf, np.arange(1, size + 1) / size, side="left")
         cdfs.append(cdf)
@@ -55,13 +61,52 @@ def tables():
             np.array([float(len(g)) for g in guides]), np.array(k_mins, dtype=np.int64))
 
 
+@functools.lru_cache(maxsize=1)
+def tables():
+    """The fine tables (L = 0, 1/8, ..., 63.875) and the coarse ones (C = 0, 64, ..., 4032)."""
+    fine = _table_set([i * GRID_STEP for i in range(int(TABLE_MAX / GRID_STEP))])
+    coarse = _table_set([i * TABLE_MAX for i in range(int(COARSE_MAX / TABLE_MAX))])
+    return fine, coarse
+
+
+@njit(inline="always")
+def _table_count(z, j, t):
+    """Poisson count of table ``j`` of the set ``t`` for the uniform in the top 53 bits of ``z``."""
+    cdf, cdf_off, guide, guide_off, guide_size, k_min = t
+    u = unit(z)
+    o = cdf_off[j]
+    c = guide[guide_off[j] + int(u * guide_size[j])]
+    if c < 0:  # a cell holding a step of the CDF: search from its first count
+        c = -c - 1
+        while cdf[o + c] < u:
+            c += 1
+    return c + k_min[j]
+
+
+@njit(inline="always")
+def _small_poisson(d, spare, key_rest, g):
+    """Poisson(d), d < GRID_STEP, by inversion of V = (c + w) / 2**11, c the 11 bits of the
+    fine-table draw that its uniform leaves unused. Below c = (1 - d) 2**11, V < 1 - d <=
+    exp(-d): the count is 0 and w (a second draw) is not needed; that is all but ~d of draws."""
+    c = float(spare)
+    if c < math.floor((1.0 - d) * 2048.0):
+        return 0
+    v = (c + unit(draw(key_rest, g))) * (1.0 / 2048.0)
+    p = math.exp(-d)
+    f = p
+    n = 0
+    while v > f and n < 64:
+        n += 1
+        p *= d / n
+        f += p
+    return n
+
+
 @njit(inline="always")
 def _ptrs(lam, state):
     slam = math.sqrt(lam)
-    loglam = math.log(lam)
     b = 0.931 + 2.53 * slam
     a = -0.059 + 0.02483 * b
-    invalpha = 1.1239 + 1.1328 / (b - 3.4)
     vr = 0.9277 - 3.6224 / (b - 2.0)
     while True:
         state += GOLDEN
@@ -74,51 +119,39 @@ def _ptrs(lam, state):
             return k
         if k < 0.0 or (us < 0.013 and v > us):
             continue
-        if math.log(v) + math.log(invalpha) - math.log(a / (us * us) + b) <= -lam + k * loglam - math.lgamma(k + 1.0):
+        invalpha = 1.1239 + 1.1328 / (b - 3.4)
+        if math.log(v) + math.log(invalpha) - math.log(a / (us * us) + b) <= -lam + k * math.log(lam) - math.lgamma(k + 1.0):
             return k
 
 
 @njit(nogil=True, cache=True)
-def _poisson(x, out, gain, key, key2, g0, cdf, cdf_off, guide, guide_off, guide_size, k_min):
+def _poisson(x, out, gain, key, g0, fine, coarse):
+    key_fine, key_rest, key_coarse = key, mix64(key ^ _STREAM2), mix64(key ^ _STREAM3)
     inv_gain = 1.0 / gain
-    inv_step = 1.0 / GRID_STEP
     for i in range(x.size):
         lam = x[i] * inv_gain
         if not lam > 0.0:
             out[i] = 0.0
             continue
         g = g0 + i
-        if lam < TABLE_MAX:
-            j = int(lam * inv_step)
-            rest = lam - j * GRID_STEP
-            u = unit(draw(key, g))
-            c = guide[guide_off[j] + int(u * guide_size[j])]
-            if c < 0:
-                c = -c - 1
-                o = cdf_off[j]
-                while cdf[o + c] < u:
-                    c += 1
-            count = c + k_min[j]
-            if rest > 0.0:
-                v = unit(draw(key2, g))
-                if v >= 1.0 - rest:  # else Poisson(rest) = 0, as exp(-rest) >= 1 - rest
-                    p = math.exp(-rest)
-                    f = p
-                    n = 0
-                    while v > f and n < 64:
-                        n += 1
-                        p *= rest / n
-                        f += p
-                    count += n
+        if lam < COARSE_MAX:
+            count = 0
+            if lam >= TABLE_MAX:
+                j = int(lam * (1.0 / TABLE_MAX))
+                count = _table_count(draw(key_coarse, g), j, coarse)
+                lam -= j * TABLE_MAX  # exact
+            j = int(lam * (1.0 / GRID_STEP))
+            z = draw(key_fine, g)
+            count += _table_count(z, j, fine) + _small_poisson(lam - j * GRID_STEP, z & _SPARE_BITS, key_rest, g)
             out[i] = count * gain
         else:
-            out[i] = _ptrs(lam, mix64(key2 + U64(g) * GOLDEN)) * gain
+            out[i] = _ptrs(lam, mix64(key_rest + U64(g) * GOLDEN)) * gain
 
 
 def poisson_dn(signal_dn: torch.Tensor, out: torch.Tensor, gain: torch.Tensor, key: int) -> torch.Tensor:
     """``gain[b] * Poisson(signal_dn / gain[b])`` (DN in, DN out); negative signal counts 0 electrons."""
     x, o = rows_of(signal_dn, out)
     k = gain.detach().to("cpu", torch.float64).numpy()
-    n, key1, key2, t = x.shape[1], U64(key), U64(derived_key(key, 1)), tables()
-    run(lambda b, lo, hi: _poisson(x[b, lo:hi], o[b, lo:hi], k[b], key1, key2, b * n + lo, *t), x.shape[0], n)
+    n, key, (fine, coarse) = x.shape[1], U64(key), tables()
+    run(lambda b, lo, hi: _poisson(x[b, lo:hi], o[b, lo:hi], k[b], key, b * n + lo, fine, coarse), x.shape[0], n)
     return out
