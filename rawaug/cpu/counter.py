@@ -18,7 +18,6 @@ _M2 = U64(0x94D049BB133111EB)
 _S11, _S27, _S30, _S31, _S63 = U64(11), U64(27), U64(30), U64(31), U64(63)
 LOW63 = U64(0x7FFFFFFFFFFFFFFF)
 _INV53 = 1.0 / 9007199254740992.0  # 2**-53
-_MASK = (1 << 64) - 1
 
 
 @njit(inline="always")
@@ -57,10 +56,3 @@ def leading_zeros(typingctx, x):
 
     return sig, codegen
 
-
-def derived_key(key: int, stream: int) -> int:
-    """An independent second stream of the same key (Python-side SplitMix64 finalizer)."""
-    z = (key ^ (stream * 0xD1B54A32D192ED03)) & _MASK
-    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
-    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK
-    return z ^ (z >> 31)
