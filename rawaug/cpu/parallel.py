@@ -5,6 +5,7 @@ import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 
+import numpy as np
 import torch
 
 _pool: ThreadPoolExecutor | None = None
@@ -51,6 +52,21 @@ def run(piece_fn, batch: int, n: int) -> None:
         return
     for future in [_executor(len(work)).submit(job, pieces) for pieces in work]:
         future.result()
+
+
+def for_each_row(kernel, signal: torch.Tensor, out: torch.Tensor, per_sample: torch.Tensor, key: int,
+                 *constants, tables=None) -> torch.Tensor:
+    """Run ``kernel(x, out, per_sample[b], key, g0, [tables[b],] *constants)`` over the pieces
+    of every sample's flattened row (``g0``: the piece's first global element index); returns ``out``."""
+    x, o = rows_of(signal, out)
+    values = per_sample.detach().to("cpu", torch.float64).reshape(-1).numpy()
+    n, key = x.shape[1], np.uint64(key)
+    if tables is None:
+        run(lambda b, lo, hi: kernel(x[b, lo:hi], o[b, lo:hi], values[b], key, b * n + lo, *constants), x.shape[0], n)
+    else:
+        run(lambda b, lo, hi: kernel(x[b, lo:hi], o[b, lo:hi], values[b], key, b * n + lo, tables[b], *constants),
+            x.shape[0], n)
+    return out
 
 
 def rows_of(signal: torch.Tensor, out: torch.Tensor):

@@ -22,7 +22,7 @@ import torch
 from numba import njit
 
 from .counter import GOLDEN, U64, draw, mix64, unit
-from .parallel import rows_of, run
+from .parallel import for_each_row
 
 GRID_STEP = 0.125  # a power of two, so lambda / GRID_STEP is exact
 TABLE_MAX = 64.0  # electrons: the fine grid's range and the coarse grid's step (a power of two)
@@ -145,13 +145,9 @@ def _poisson(x, out, gain, key, g0, fine, coarse):
             count += _table_count(z, j, fine) + _small_poisson(lam - j * GRID_STEP, z & _SPARE_BITS, key_rest, g)
             out[i] = count * gain
         else:
-            out[i] = _ptrs(lam, mix64(key_rest + U64(g) * GOLDEN)) * gain
+            out[i] = _ptrs(lam, draw(key_rest, g)) * gain
 
 
 def poisson_dn(signal_dn: torch.Tensor, out: torch.Tensor, gain: torch.Tensor, key: int) -> torch.Tensor:
     """``gain[b] * Poisson(signal_dn / gain[b])`` (DN in, DN out); negative signal counts 0 electrons."""
-    x, o = rows_of(signal_dn, out)
-    k = gain.detach().to("cpu", torch.float64).numpy()
-    n, key, (fine, coarse) = x.shape[1], U64(key), tables()
-    run(lambda b, lo, hi: _poisson(x[b, lo:hi], o[b, lo:hi], k[b], key, b * n + lo, fine, coarse), x.shape[0], n)
-    return out
+    return for_each_row(_poisson, signal_dn, out, gain, key, *tables())

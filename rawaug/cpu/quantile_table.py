@@ -17,7 +17,7 @@ import torch
 from numba import njit
 
 from .counter import I64, LOW63, U64, draw, leading_zeros
-from .parallel import rows_of, run
+from .parallel import for_each_row
 
 MANTISSA_BITS = 10
 _ROW = (1 << MANTISSA_BITS) + 1
@@ -55,13 +55,13 @@ def symmetric(table, z):
 
 
 @njit(nogil=True, cache=True)
-def _add_scaled(x, out, sigma, table, key, g0):
+def _add_scaled(x, out, sigma, key, g0, table):
     for i in range(x.size):
         out[i] = x[i] + sigma * symmetric(table, draw(key, g0 + i))
 
 
 @njit(nogil=True, cache=True)
-def _add_signal_scaled(x, out, gain, table, key, g0):
+def _add_signal_scaled(x, out, gain, key, g0, table):
     for i in range(x.size):
         level = x[i] if x[i] > 0.0 else 0.0
         out[i] = x[i] + np.sqrt(gain * level) * symmetric(table, draw(key, g0 + i))
@@ -81,17 +81,9 @@ def normal_table() -> np.ndarray:
 
 def add_scaled(signal: torch.Tensor, out: torch.Tensor, sigma: torch.Tensor, tables: list[np.ndarray], key: int) -> torch.Tensor:
     """``signal + sigma[b] * X`` with X drawn from ``tables[b]``; written into ``out`` (which may be the input)."""
-    x, o = rows_of(signal, out)
-    s = sigma.detach().to("cpu", torch.float64).numpy()
-    n, k = x.shape[1], U64(key)
-    run(lambda b, lo, hi: _add_scaled(x[b, lo:hi], o[b, lo:hi], s[b], tables[b], k, b * n + lo), x.shape[0], n)
-    return out
+    return for_each_row(_add_scaled, signal, out, sigma, key, tables=tables)
 
 
 def add_signal_scaled(signal: torch.Tensor, out: torch.Tensor, gain: torch.Tensor, key: int) -> torch.Tensor:
     """``signal + sqrt(gain[b] * max(signal, 0)) * Z``, Z standard normal; written into ``out`` (which may be the input)."""
-    x, o = rows_of(signal, out)
-    g = gain.detach().to("cpu", torch.float64).numpy()
-    n, k, table = x.shape[1], U64(key), normal_table()
-    run(lambda b, lo, hi: _add_signal_scaled(x[b, lo:hi], o[b, lo:hi], g[b], table, k, b * n + lo), x.shape[0], n)
-    return out
+    return for_each_row(_add_signal_scaled, signal, out, gain, key, normal_table())

@@ -110,18 +110,22 @@ def effect_seed(seed: int, token: str) -> int:
     return (seed * 1_000_003 + zlib.crc32(token.encode())) % (2**63 - 1)
 
 
+def _overwritable(signal_dn: torch.Tensor, clean_dn) -> bool:
+    return signal_dn is not clean_dn and signal_dn.is_contiguous() and not signal_dn.requires_grad
+
+
 def writable(signal_dn: torch.Tensor, clean_dn: torch.Tensor) -> torch.Tensor:
     """Where an effect writes its output: ``signal_dn`` itself (the pipeline's working tensor),
     or a new contiguous tensor where it cannot be overwritten. On the CPU a fresh 32 MB
     tensor costs more in page faults than the noise drawn into it."""
-    if signal_dn is clean_dn or not signal_dn.is_contiguous() or signal_dn.requires_grad:
-        return torch.empty(signal_dn.shape, dtype=signal_dn.dtype, device=signal_dn.device)
-    return signal_dn
+    if _overwritable(signal_dn, clean_dn):
+        return signal_dn
+    return torch.empty(signal_dn.shape, dtype=signal_dn.dtype, device=signal_dn.device)
 
 
 def add_noise(signal_dn: torch.Tensor, clean_dn: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
     """``signal_dn + noise``, in place when the pipeline owns ``signal_dn`` and no gradient flows."""
-    if writable(signal_dn, clean_dn) is signal_dn and not noise.requires_grad:
+    if _overwritable(signal_dn, clean_dn) and not noise.requires_grad:
         return signal_dn.add_(noise)
     return signal_dn + noise
 
