@@ -1,22 +1,26 @@
-"""Throughput of RawNoiseAugment (G*+P*+R+U) against the reference way of synthesizing.
+"""Throughput of RawNoiseAugment (G*+P*+R+U, the fused kernel) against two references.
 
-The reference is how the published ELD/PMN code draws noise: one image at a time on the
-CPU, NumPy Poisson and ``scipy.stats.tukeylambda.rvs``. Both synthesize the same model with
-the same per-sample parameters (those rawaug drew), side by side in this process, timed
-alternately; the ratio is printed, never asserted. Two clean batches (8, 4, 512, 512):
+* the per-image reference: how the published ELD/PMN code draws noise, one image at a time
+  on the CPU, NumPy Poisson and ``scipy.stats.tukeylambda.rvs``;
+* the torch-ops path: the same chain as separate torch operations (``torch.poisson``, the
+  Tukey inverse CDF as elementwise ops, ``torch.randn`` rows, ``torch.rand``), which is what
+  rawaug ran on every device before the fused kernel.
+
+All synthesize the same model with the same per-sample parameters (those rawaug drew),
+side by side in this process, timed alternately; ratios are printed, never asserted. Two
+clean batches (8, 4, 512, 512):
 
 * ``flat``: uniform [0, 0.2] at K = 1, ratio 200 (0 to 16 electrons), fixed parameters;
 * ``scenes``: the bundled real scenes, parameters drawn from the SonyA7S2 profile
   (K over its whole range, ratio 100-300).
 
-``rawaug (torch samplers)`` is the same module with ``RAWAUG_CPU_KERNELS=0``: the path
-every non-CPU device takes, here on the CPU.
-
     python benchmarks/bench_augment.py [--repeats 5]
 
-On a CUDA device it also prints the fraction of the memory-bandwidth bound reached
-(reading clean + writing noisy, against a measured device-to-device copy of the same
-bytes) and the cost relative to one U-Net training step.
+On a CUDA device it also prints, for the fused kernel and the torch-ops path: the fraction
+of the memory-bandwidth bound (a device copy of the same bytes over the augmentation's
+time) at (8, 4, 512, 512) and (32, 4, 512, 512); the share of one SID U-Net training step
+(32 wide, Adam) at (1, 4, 512, 512) in fp32 and bf16 autocast and at (8, 4, 256, 256);
+kernel launches per call (torch profiler) and host synchronizations per call.
 """
 from __future__ import annotations
 
@@ -29,27 +33,27 @@ import numpy as np
 import torch
 from scipy import stats
 
-from rawaug import RawNoiseAugment, cpu
+from rawaug import RawNoiseAugment
 from rawaug.bayer import pack
+from rawaug.distributions import tukey_lambda_icdf
 from rawaug.io import read_frame
 
 FIXED = {"k": 1.0, "sigma_tl": 2.0, "lambda": 0.05, "sigma_r": 0.5, "ratio": 200.0}
 SCENES = Path(__file__).resolve().parents[1] / "rawaug" / "data" / "scenes"
 
 
-def reference_batch(clean: np.ndarray, span: float, params: dict, rng: np.random.Generator) -> np.ndarray:
+def reference_batch(clean: np.ndarray, span: float, p: dict, rng: np.random.Generator) -> np.ndarray:
     """Per-image NumPy/SciPy synthesis of G*+P*+R+U, as the published code does it."""
-    p = {key: value.numpy() for key, value in params.items() if key != "seed"}
     out = np.empty_like(clean)
     for i, img in enumerate(clean):
         k, ratio = p["k"][i], p["ratio"][i]
         dn = img * span / ratio
         noisy = rng.poisson(np.maximum(dn / k, 0)).astype(np.float32) * k
-        tl = stats.tukeylambda.rvs(p["read_noise.lambda"][i], scale=p["read_noise.sigma_tl"][i], size=dn.shape, random_state=rng)
+        tl = stats.tukeylambda.rvs(p["lambda"][i], scale=p["sigma_tl"][i], size=dn.shape, random_state=rng)
         noisy += tl.astype(np.float32)
-        rows = rng.standard_normal((2, dn.shape[1], 1)).astype(np.float32) * p["row_noise.sigma_r"][i]
+        rows = rng.standard_normal((2, dn.shape[1], 1)).astype(np.float32) * p["sigma_r"][i]
         noisy += rows[[0, 0, 1, 1]]
-        step = p["quantization.step_dn"][i]
+        step = p["step_dn"][i]
         noisy += rng.uniform(-0.5 * step, 0.5 * step, dn.shape).astype(np.float32)
         out[i] = noisy * ratio / span
     return out
@@ -80,59 +84,96 @@ def alternate(fns: dict, repeats: int) -> dict:
     return {name: statistics.median(t) for name, t in times.items()}
 
 
-def torch_samplers(fn):
-    def run():
-        previous = cpu.use_cpu_kernels(False)
-        try:
-            return fn()
-        finally:
-            cpu.use_cpu_kernels(previous)
-    return run
+def torch_ops(clean: torch.Tensor, span: float, p: dict, generator: torch.Generator | None = None) -> torch.Tensor:
+    """G*+P*+R+U as separate torch operations on clean's device (the pre-fused path)."""
+    col = lambda name: p[name].to(clean.device, torch.float32).view(-1, 1, 1, 1)  # noqa: E731
+    k, ratio = col("k"), col("ratio")
+    dn = clean * (span / ratio)
+    noisy = torch.poisson(torch.clamp(dn / k, min=0.0), generator=generator) * k
+    u = torch.rand(clean.shape, device=clean.device, generator=generator)
+    noisy += tukey_lambda_icdf(u, col("lambda")) * col("sigma_tl")
+    rows = torch.randn((clean.shape[0], 2, clean.shape[2], 1), device=clean.device, generator=generator) * col("sigma_r")
+    noisy += rows[:, (0, 0, 1, 1)]
+    noisy += (torch.rand(clean.shape, device=clean.device, generator=generator) - 0.5) * col("step_dn")
+    return noisy * (ratio / span)
 
 
 def cpu_comparison(name, clean, aug, threads, repeats):
     torch.set_num_threads(threads)
     aug(clean)
     params = dict(aug._params)
+    named = {key: value.cpu() for key, value in aug.sample_parameters(params).items()}
     megapixels = clean.numel() / 1e6
     rng = np.random.default_rng(0)
     clean_np = clean.numpy()
+    span = aug.profile.span_dn
     t = alternate({
-        "reference": lambda: reference_batch(clean_np, aug.profile.span_dn, params, rng),
-        "kernels": lambda: aug(clean, params=params),
-        "torch": torch_samplers(lambda: aug(clean, params=params)),
+        "reference": lambda: reference_batch(clean_np, span, {key: v.numpy() for key, v in named.items()}, rng),
+        "fused": lambda: aug(clean, params=params),
+        "torch": lambda: torch_ops(clean, span, named),
     }, repeats)
     print(f"CPU, {threads} thread(s), {name} batch {tuple(clean.shape)} = {megapixels:.1f} MP")
     print(f"  reference (per image, NumPy Poisson + scipy tukeylambda.rvs): {megapixels / t['reference']:8.2f} MP/s")
-    print(f"  rawaug (torch samplers):                                     {megapixels / t['torch']:8.2f} MP/s"
+    print(f"  torch-ops path (torch.poisson, elementwise Tukey, randn, rand): {megapixels / t['torch']:8.2f} MP/s"
           f"  ratio {t['reference'] / t['torch']:.1f}x")
-    print(f"  rawaug RawNoiseAugment G*+P*+R+U:                            {megapixels / t['kernels']:8.2f} MP/s"
-          f"  ratio {t['reference'] / t['kernels']:.1f}x (target >= 5x)")
-    return t["reference"] / t["kernels"]
+    print(f"  rawaug fused kernel G*+P*+R+U:                                 {megapixels / t['fused']:8.2f} MP/s"
+          f"  ratio {t['reference'] / t['fused']:.1f}x (target >= 10x per thread)")
+    return t["reference"] / t["fused"]
 
 
-def gpu_report(batch, size, repeats):
-    device = torch.device("cuda")
-    sync = torch.cuda.synchronize
-    aug = RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", fixed=FIXED, check_finite=False)
-    clean = torch.rand(batch, 4, size, size, device=device) * 0.2
-    megapixels = clean.numel() / 1e6
-
-    def timed(fn, n):
+def _cuda_timed(fn, n):
+    fn()
+    torch.cuda.synchronize()
+    start = time.perf_counter()
+    for _ in range(n):
         fn()
-        sync()
-        start = time.perf_counter()
-        for _ in range(n):
-            fn()
-        sync()
-        return (time.perf_counter() - start) / n
+    torch.cuda.synchronize()
+    return (time.perf_counter() - start) / n
 
-    t_aug = timed(lambda: aug(clean), repeats * 5)
-    dst = torch.empty_like(clean)
-    t_copy = timed(lambda: dst.copy_(clean), repeats * 5)  # reads and writes the same bytes
-    print(f"GPU {torch.cuda.get_device_name()}, batch {tuple(clean.shape)}")
-    print(f"  rawaug: {megapixels / t_aug:10.1f} MP/s ({t_aug * 1e3:.2f} ms)")
-    print(f"  copy of the same bytes: {t_copy * 1e3:.3f} ms -> fraction of bandwidth bound: {t_copy / t_aug:.1%} (target >= 30%)")
+
+def _launches(fn) -> int:
+    from torch.profiler import ProfilerActivity, profile
+
+    fn()
+    torch.cuda.synchronize()
+    with profile(activities=[ProfilerActivity.CUDA]) as prof:
+        fn()
+        torch.cuda.synchronize()
+    return sum(1 for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA)
+
+
+def _syncs(fn) -> int:
+    import warnings
+
+    torch.cuda.set_sync_debug_mode("warn")
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            fn()
+    finally:
+        torch.cuda.set_sync_debug_mode(0)
+    return sum("synchroniz" in str(w.message) for w in caught)
+
+
+def gpu_report(repeats):
+    device = torch.device("cuda")
+    aug = RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", fixed=FIXED)
+    print(f"GPU {torch.cuda.get_device_name()}")
+    for batch in (8, 32):
+        clean = torch.rand(batch, 4, 512, 512, device=device) * 0.2
+        aug(clean)
+        params = dict(aug._params)
+        named = aug.sample_parameters(params)
+        dst = torch.empty_like(clean)
+        t_copy = _cuda_timed(lambda: dst.copy_(clean), repeats * 10)
+        t_fused = _cuda_timed(lambda: aug(clean), repeats * 10)
+        t_ops = _cuda_timed(lambda: torch_ops(clean, aug.profile.span_dn, named), repeats * 10)
+        print(f"  batch {tuple(clean.shape)}: copy {t_copy * 1e3:.3f} ms; fused {t_fused * 1e3:.3f} ms "
+              f"({t_copy / t_fused:.1%} of the bandwidth bound, target >= 30% at batch 32); "
+              f"torch ops {t_ops * 1e3:.3f} ms ({t_copy / t_ops:.1%})")
+    clean = torch.rand(8, 4, 512, 512, device=device) * 0.2
+    print(f"  kernel launches per call: fused {_launches(lambda: aug(clean))} (target <= 3)")
+    print(f"  host synchronizations per call: fused {_syncs(lambda: aug(clean))} (target 0)")
     try:
         from rawaug.train.unet import UNet
     except ImportError:
@@ -140,16 +181,21 @@ def gpu_report(batch, size, repeats):
         return
     net = UNet().to(device)
     opt = torch.optim.Adam(net.parameters(), lr=1e-4)
-    noisy = aug(clean)
+    for shape, dtype in (((1, 4, 512, 512), None), ((1, 4, 512, 512), torch.bfloat16), ((8, 4, 256, 256), None)):
+        clean = torch.rand(shape, device=device) * 0.2
+        noisy = aug(clean)
 
-    def step():
-        opt.zero_grad(set_to_none=True)
-        loss = (net(noisy) - clean).abs().mean()
-        loss.backward()
-        opt.step()
+        def step():
+            opt.zero_grad(set_to_none=True)
+            with torch.autocast("cuda", dtype=dtype or torch.float32, enabled=dtype is not None):
+                loss = (net(noisy) - clean).abs().mean()
+            loss.backward()
+            opt.step()
 
-    t_step = timed(step, repeats * 3)
-    print(f"  U-Net training step: {t_step * 1e3:.1f} ms -> augmentation is {t_aug / t_step:.1%} of it (target < 5%)")
+        t_step = _cuda_timed(step, repeats * 3)
+        t_aug = _cuda_timed(lambda: aug(clean), repeats * 10)
+        print(f"  U-Net step {shape} {'bf16' if dtype else 'fp32'}: {t_step * 1e3:.2f} ms; augmentation "
+              f"{t_aug * 1e3:.3f} ms = {t_aug / t_step:.1%} of it (target < 5%)")
 
 
 def main(argv=None):
@@ -157,18 +203,19 @@ def main(argv=None):
     parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--size", type=int, default=512)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=None, help="one thread count (default: 1, 2 and all)")
     args = parser.parse_args(argv)
     flat = torch.rand(args.batch, 4, args.size, args.size, generator=torch.Generator().manual_seed(0)) * 0.2
     workloads = {
-        "flat": (flat, RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", fixed=FIXED, check_finite=False)),
+        "flat": (flat, RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", fixed=FIXED)),
         "scenes": (scene_batch(args.batch, args.size),
-                   RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", check_finite=False, generator=torch.Generator().manual_seed(0))),
+                   RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", generator=torch.Generator().manual_seed(0))),
     }
-    for threads in sorted({1, torch.get_num_threads()}):
+    for threads in sorted({1, 2, torch.get_num_threads()} if args.threads is None else {args.threads}):
         for name, (clean, aug) in workloads.items():
             cpu_comparison(name, clean, aug, threads, args.repeats)
     if torch.cuda.is_available():
-        gpu_report(args.batch, args.size, args.repeats)
+        gpu_report(args.repeats)
     else:
         print("GPU: no CUDA device here, GPU figures not measured")
 

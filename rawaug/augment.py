@@ -1,15 +1,19 @@
 """RawNoiseAugment: the ELD noise formation model as a kornia-style batch augmentation."""
 from __future__ import annotations
 
+import math
 import os
-from typing import Any
 
 import torch
 from kornia.augmentation import IntensityAugmentationBase2D
 
+from .cpu.poisson import stream_keys as shot_streams
 from .effects import EFFECTS
-from .effects.base import DrawContext, as_sample, effect_seed, per_sample
+from .effects.base import DrawContext, as_sample
+from .engine import layout as L
+from .engine.backend import synthesize_op
 from .profile import NoiseProfile
+from .rng import stream_key, torch_unit
 
 PAPER_MODELS = ("G", "G+P", "G+P*", "G*+P*", "G*+P*+R", "G*+P*+R+U")
 _EXCLUSIVE = ({"G", "G*"}, {"P", "P*"})
@@ -39,11 +43,53 @@ def _rank() -> int:
 
 
 def _range(value, name):
-    lo, hi = (value, value) if isinstance(value, (int, float)) else tuple(value)
-    lo, hi = float(lo), float(hi)
-    if not 0 < lo <= hi:
-        raise ValueError(f"{name} must be a positive number or a (low, high) pair with 0 < low <= high, got {value!r}")
+    try:
+        lo, hi = (value, value) if isinstance(value, (int, float)) else tuple(value)
+        lo, hi = float(lo), float(hi)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a positive number or a (low, high) pair, got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+        raise ValueError(f"{name} must be a finite positive number or a (low, high) pair with 0 < low <= high, got {value!r}")
     return lo, hi
+
+
+# Keys of ``fixed=``: what each fixes, and the values it takes.
+FIXED_KEYS = {
+    "k": "system gain K, DN/e- (> 0)",
+    "ratio": "low-light ratio (> 0)",
+    "sigma_tl": "Tukey-lambda read-noise scale, DN (>= 0)",
+    "lambda": "Tukey-lambda shape, in [-1, 1]",
+    "sigma_g": "Gaussian read-noise sigma, DN (>= 0)",
+    "sigma_r": "row-noise sigma, DN (>= 0)",
+    "step_dn": "quantization step, DN (> 0)",
+    "color_bias_dn": "per-channel black-level error, DN (4 values R, G1, B, G2)",
+}
+
+
+def check_fixed(fixed) -> dict:
+    """Validate ``fixed=``: known keys, finite values in range (errors name the value)."""
+    if fixed is None:
+        return {}
+    if not isinstance(fixed, dict):
+        raise ValueError(f"fixed must be a mapping of parameter name -> value, got {type(fixed).__name__}")
+    out = {}
+    for key, value in fixed.items():
+        if key not in FIXED_KEYS:
+            raise ValueError(f"unknown fixed parameter {key!r}; known: " + ", ".join(f"{k} ({v})" for k, v in FIXED_KEYS.items()))
+        values = torch.as_tensor(value, dtype=torch.float64).reshape(-1)
+        if key == "color_bias_dn" and values.numel() % 4:
+            raise ValueError(f"fixed color_bias_dn must hold 4 values per sample (R, G1, B, G2), got {value!r}")
+        if values.numel() == 0 or not bool(torch.isfinite(values).all()):
+            raise ValueError(f"fixed {key} must be finite, got {value!r}")
+        lo = float(values.min())
+        if key in ("k", "ratio", "step_dn") and lo <= 0:
+            raise ValueError(f"fixed {key} must be > 0 ({FIXED_KEYS[key]}), got {value!r}")
+        if key.startswith("sigma") and lo < 0:
+            raise ValueError(f"fixed {key} must be >= 0 ({FIXED_KEYS[key]}), got {value!r}")
+        if key == "lambda" and not (-1.0 <= lo and float(values.max()) <= 1.0):
+            raise ValueError(f"fixed lambda must be in [-1, 1], got {value!r}")
+        out[key] = value
+    return out
 
 
 class RawNoiseAugment(IntensityAugmentationBase2D):
@@ -77,7 +123,9 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         generator: optional ``torch.Generator`` for the per-call seed.
         rank_seeding: offset the seed by the distributed rank, so DDP ranks seeded alike by
             ``seed_everything`` still draw different noise.
-        check_finite: refuse NaN/Inf inputs (costs one device sync per call).
+        check_finite: refuse NaN/Inf inputs. ``None`` (default): where it is free (the CPU
+            kernel counts them as it reads; on CUDA they come out as NaN, no sync); ``True``:
+            also on CUDA (one device sync per call); ``False``: never.
 
     ``aug(x, params=aug._params)`` replays a call bit-exactly: ``_params`` holds the seed
     and the per-sample scalars, never a noise map.
@@ -98,7 +146,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         keepdim: bool = False,
         generator: torch.Generator | None = None,
         rank_seeding: bool = True,
-        check_finite: bool = True,
+        check_finite: bool | None = None,
     ) -> None:
         super().__init__(p=p, same_on_batch=same_on_batch, keepdim=keepdim)
         if not 0.0 <= float(p) <= 1.0:
@@ -108,22 +156,27 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         tokens = parse_model(model)
         if include_profile_effects:
             tokens += [t for t in self.profile.effects if t not in tokens]
-        effects = [EFFECTS[t](self.profile) for t in tokens]
-        self.effects = torch.nn.ModuleList(sorted(effects, key=lambda e: e.order))
+        self.effects = sorted((EFFECTS[t](self.profile) for t in tokens), key=lambda e: e.order)
+        self._flags = sum(e.flag for e in self.effects) | (L.CLIP_WHITE if clip_white else 0)
+        grids = [g for g in (e.grids() for e in self.effects) if g is not None]
+        self._grids = grids[0] if grids else torch.zeros(1, 1, 1, dtype=torch.float64)
         self.ratio = _range(ratio, "ratio")
         if iso is not None:
             k = self.profile.k_at_iso(iso)
         self.k_range = _range(k, "k") if k is not None else (self.profile.k_min, self.profile.k_max)
-        self.fixed = dict(fixed or {})
+        self.fixed = check_fixed(fixed)
         self.clip_white = bool(clip_white)
         self.generator = generator
         self.rank_seeding = bool(rank_seeding)
-        self.check_finite = bool(check_finite)
+        self.check_finite = None if check_finite is None else bool(check_finite)
 
     # ------------------------------------------------------------------ parameters
     def _new_seed(self) -> int:
+        """The call seed, a host int from a CPU generator: no device synchronization."""
         gen = self.generator
-        if gen is not None:
+        if gen is not None and gen.device.type == "cpu":
+            seed = int(torch.randint(0, 2**62, (1,), generator=gen).item())
+        elif gen is not None:
             seed = int(torch.randint(0, 2**62, (1,), generator=gen, device=gen.device).item())
         else:
             seed = int(torch.randint(0, 2**62, (1,)).item())
@@ -132,34 +185,34 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         return seed
 
     def draw_parameters(self, batch: int, device: torch.device | str = "cpu", seed: int | None = None) -> dict:
-        """All per-sample parameters of one call, drawn on ``device`` from one seed."""
+        """All per-sample parameters of one call as ``values`` (B, P) float64 on ``device``
+        (columns: ``rawaug.engine.layout.COLUMNS``), drawn counter-based from one seed."""
         seed = self._new_seed() if seed is None else int(seed)
-        gen = torch.Generator(device=device)
-        gen.manual_seed(effect_seed(seed, "parameters"))
+        device = torch.device(device)
         n = 1 if self.same_on_batch else batch
-
-        def uniform():
-            u = torch.rand(n, device=device, generator=gen, dtype=torch.float64)
-            return u.expand(batch) if n == 1 else u
-
-        gate = self._gate(batch, seed)
-        lo, hi = torch.log(torch.tensor(self.k_range, dtype=torch.float64, device=device))
-        k = torch.exp(lo + (hi - lo) * uniform())
-        if "k" in self.fixed:
-            k = as_sample(self.fixed["k"], batch, device)
-        ratio = self.ratio[0] + (self.ratio[1] - self.ratio[0]) * uniform()
-        if "ratio" in self.fixed:
-            ratio = as_sample(self.fixed["ratio"], batch, device)
-        ctx = DrawContext(self.profile, k, batch, n, gen, self.fixed)
-        params: dict[str, Any] = {"seed": torch.tensor([seed], dtype=torch.int64), "batch_prob": gate, "k": k, "ratio": ratio}
+        ctx = DrawContext(self.profile, torch.ones(batch, dtype=torch.float64, device=device), batch, n, seed, self.fixed)
+        lo, hi = math.log(self.k_range[0]), math.log(self.k_range[1])
+        k = torch.exp(lo + (hi - lo) * ctx.uniform("k")) if "k" not in self.fixed else as_sample(self.fixed["k"], batch, device)
+        ratio = (self.ratio[0] + (self.ratio[1] - self.ratio[0]) * ctx.uniform("ratio") if "ratio" not in self.fixed
+                 else as_sample(self.fixed["ratio"], batch, device))
+        ctx.k = k
+        values = torch.zeros(batch, L.N_COLUMNS, dtype=torch.float64, device=device)
+        values[:, L.COLUMN["k"]] = k
+        values[:, L.COLUMN["ratio"]] = ratio
         for effect in self.effects:
-            params.update(effect.draw(ctx))
-        return params
+            for name, column in effect.draw(ctx).items():
+                values[:, L.COLUMN[name]] = column
+        return {"seed": torch.tensor([seed], dtype=torch.int64), "batch_prob": self._gate(batch, seed), "values": values}
+
+    def sample_parameters(self, params: dict) -> dict[str, torch.Tensor]:
+        """The (B,) per-sample parameters of a call by name (``k``, ``ratio`` and the columns
+        of this model's effects)."""
+        names = ["k", "ratio"] + [c for e in self.effects for c in e.columns]
+        return {name: params["values"][:, L.COLUMN[name]] for name in names}
 
     def _gate(self, batch: int, seed: int) -> torch.Tensor:
         """Per-sample apply/skip decision, (B,) bool on the CPU (kornia blends with it)."""
-        gen = torch.Generator().manual_seed(effect_seed(seed, "gate"))
-        u = torch.rand(1 if self.same_on_batch else batch, generator=gen, dtype=torch.float64)
+        u = torch_unit(stream_key(seed, "gate"), torch.arange(1 if self.same_on_batch else batch))
         return (u < self.p).expand(batch) if self.same_on_batch else u < self.p
 
     def forward_parameters(self, batch_shape) -> dict:
@@ -167,6 +220,14 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         gate here; ``apply_transform`` draws the rest on the input's device from the seed."""
         seed = self._new_seed()
         return {"seed": torch.tensor([seed], dtype=torch.int64), "batch_prob": self._gate(batch_shape[0], seed)}
+
+    def _stream_keys(self, seed: int) -> torch.Tensor:
+        keys = [stream_key(seed, "stream:" + name) for name in L.STREAMS]
+        keys[L.STREAM["shot_rest"]], keys[L.STREAM["shot_coarse"]] = shot_streams(keys[L.STREAM["shot"]])[1:]
+        for effect in self.effects:
+            for slot, key in effect.pattern_streams().items():
+                keys[L.STREAM[slot]] = key
+        return torch.tensor(keys, dtype=torch.int64)
 
     # ------------------------------------------------------------------ checks
     def _check_input(self, x) -> None:
@@ -176,7 +237,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
             raise TypeError(f"input must be a floating-point tensor (normalized [0, 1]), got dtype {x.dtype}")
         if x.ndim not in (3, 4) or x.shape[-3] != 4:
             raise ValueError(f"input must be packed Bayer of shape (B, 4, H, W) or (4, H, W), got {tuple(x.shape)}")
-        if self.check_finite and x.numel() and not bool(torch.isfinite(x).all()):
+        if self.check_finite is True and x.device.type != "cpu" and x.numel() and not bool(torch.isfinite(x).all()):
             raise ValueError("input holds NaN or Inf values; expected finite normalized intensities")
 
     # ------------------------------------------------------------------ kornia hooks
@@ -188,24 +249,22 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         return super().forward(input, params=params, **kwargs)
 
     def apply_transform(self, input, params, flags, transform=None) -> torch.Tensor:
-        if "k" not in params:  # container path: finish the (deterministic) draws on the device
+        if "values" not in params:  # container path: finish the (deterministic) draws on the device
             drawn = self.draw_parameters(input.shape[0], input.device, seed=int(params["seed"].reshape(-1)[0]))
             params = {**drawn, **params}
-        if params["ratio"].shape[0] != input.shape[0]:
-            raise ValueError(f"params were drawn for {params['ratio'].shape[0]} samples, got a batch of {input.shape[0]}")
-        work = input.to(torch.float32) if input.dtype in (torch.float16, torch.bfloat16) else input
-        span = self.profile.span_dn
-        ratio = per_sample(params["ratio"].to(work.device)).to(work.dtype)
-        signal = work * (span / ratio)  # DN at the sensor; the working tensor every stage updates
-        clean_dn = signal.clone() if any(e.uses_clean for e in self.effects) else None
-        seed = int(params["seed"].reshape(-1)[0])
-        for effect in self.effects:
-            gen = torch.Generator(device=work.device)
-            gen.manual_seed(effect_seed(seed, effect.token))
-            signal = effect(signal, clean_dn, params, gen)
-        if self.clip_white:
-            signal = torch.clamp(signal, max=span)
-        return (signal * (ratio / span) if signal.requires_grad else signal.mul_(ratio / span)).to(input.dtype)
+        values = params["values"]
+        if values.shape[0] != input.shape[0]:
+            raise ValueError(f"params were drawn for {values.shape[0]} samples, got a batch of {input.shape[0]}")
+        work = input.detach()
+        if work.dtype not in (torch.float32, torch.float64):
+            work = work.to(torch.float32)  # half inputs: computed in float32, rounded once at the end
+        keys = self._stream_keys(int(params["seed"].reshape(-1)[0]))
+        noisy = synthesize_op(work.contiguous(), values.to(work.device), keys, float(self.profile.span_dn), self._flags, self._grids,
+                             self.check_finite is not False)
+        noisy = noisy.to(input.dtype)
+        if input.requires_grad:  # straight-through: d noisy / d clean = d E[noisy] / d clean = 1
+            noisy = noisy + (input - input.detach())
+        return noisy
 
     def __getstate__(self):
         state = self.__dict__.copy()

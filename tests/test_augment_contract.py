@@ -39,8 +39,11 @@ def test_module_contract(model, device, samplers):
 def test_params_hold_scalars_not_noise_maps():
     aug = RawNoiseAugment("SonyA7S2", model="G*+P*+R+U+C")
     aug(clean(batch=3, size=64))
-    for key, value in aug._params.items():
-        assert value.numel() <= 3 * 4, f"{key} stores {value.numel()} values"
+    from rawaug.engine.layout import N_COLUMNS
+
+    assert set(aug._params) == {"seed", "batch_prob", "values"}
+    assert aug._params["values"].shape == (3, N_COLUMNS)  # (B, P) scalars
+    assert aug._params["seed"].numel() == 1 and aug._params["batch_prob"].numel() == 3
 
 
 @pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16, torch.float32, torch.float64])

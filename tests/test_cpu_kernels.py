@@ -1,5 +1,6 @@
-"""The numba CPU kernels, tested directly: distribution against scipy, exactness of the
-tables, independence of the counter-based streams, thread-count invariance."""
+"""The noise kernels, tested through the engine: distribution against scipy, exactness of
+the tables, independence of the counter-based streams, thread-count invariance, and the
+numba and Triton kernels drawing the same noise from the same seed."""
 import math
 
 import numpy as np
@@ -8,20 +9,40 @@ import torch
 from numba import njit
 from scipy import stats
 
-from rawaug import RawNoiseAugment, cpu
-from rawaug.cpu import parallel
-from rawaug.cpu.poisson import COARSE_MAX, GRID_STEP, TABLE_MAX, poisson_dn, tables
-from rawaug.cpu.quantile_table import add_scaled, add_signal_scaled, normal_table, symmetric, tukey_lambda_table
-from rawaug.cpu.uniform import add_uniform
-from rawaug.effects.read_noise import tukey_lambda_upper_quantile
+from rawaug.cpu.counter import draw
+from rawaug.cpu.poisson import COARSE_MAX, GRID_STEP, TABLE_MAX, stream_keys, tables
+from rawaug.cpu.quantile_table import symmetric, tukey_lambda_table
+from rawaug.distributions import tukey_lambda_upper_quantile
+from rawaug.engine import backend
+from rawaug.engine import layout as L
+from rawaug.rng import bits_at, stream_key, torch_bits
 
 P_MIN = 1e-3  # a correct sampler fails each goodness-of-fit test at this rate
 
 
+def run_stages(flags, dn, columns=None, seed=1, which="numba", grids=None):
+    """The fused kernel on DN values (span 1, ratio 1: the kernel's DN in and out)."""
+    dn = torch.as_tensor(dn, dtype=torch.float64)
+    if dn.ndim == 2:
+        dn = dn.reshape(dn.shape[0], 4, 1, -1)
+    b = dn.shape[0]
+    values = torch.zeros(b, L.N_COLUMNS, dtype=torch.float64)
+    values[:, L.COLUMN["k"]] = 1.0
+    values[:, L.COLUMN["ratio"]] = 1.0
+    for name, value in (columns or {}).items():
+        values[:, L.COLUMN[name]] = torch.as_tensor(value, dtype=torch.float64)
+    keys = [stream_key(seed, name) for name in L.STREAMS]
+    keys[L.STREAM["shot_rest"]], keys[L.STREAM["shot_coarse"]] = stream_keys(keys[L.STREAM["shot"]])[1:]
+    grids = torch.zeros(1, 1, 1, dtype=torch.float64) if grids is None else grids
+    previous = backend.set_backend(which)
+    try:
+        return backend.run(dn.contiguous(), values, torch.tensor(keys), 1.0, flags, grids)
+    finally:
+        backend.set_backend(previous)
+
+
 def draw_counts(lam, n=200_000, key=1):
-    x = torch.full((2, n // 2), lam, dtype=torch.float64)
-    out = poisson_dn(x, torch.empty_like(x), torch.ones(2, dtype=torch.float64), key)
-    return out.numpy().ravel()
+    return run_stages(L.SHOT_POISSON, torch.full((2, n // 2), float(lam)), seed=key).numpy().ravel()
 
 
 def chi_square_p(counts, lam):
@@ -60,8 +81,7 @@ def test_poisson_of_a_continuous_range_of_lambda_is_poisson_per_pixel():
     # variable, randomized within its jump, is U(0, 1) exactly when every draw is right.
     rng = np.random.default_rng(0)
     lam = np.concatenate([rng.uniform(0.0, 80.0, 300_000), rng.uniform(80.0, 5000.0, 100_000)])
-    x = torch.from_numpy(lam.reshape(4, -1).copy())
-    counts = poisson_dn(x, torch.empty_like(x), torch.ones(4, dtype=torch.float64), 99).numpy().ravel()
+    counts = run_stages(L.SHOT_POISSON, lam.reshape(4, -1), seed=99).numpy().ravel()
     v = rng.random(counts.size)
     pit = stats.poisson.cdf(counts - 1, lam) + v * stats.poisson.pmf(counts, lam)
     assert stats.kstest(pit, "uniform").pvalue > P_MIN
@@ -69,8 +89,8 @@ def test_poisson_of_a_continuous_range_of_lambda_is_poisson_per_pixel():
 
 def test_poisson_gain_units_and_non_positive_signal():
     gain = torch.tensor([0.5, 4.0], dtype=torch.float64)
-    x = torch.tensor([[-3.0, 0.0, 10.0], [-1.0, 0.0, 1e-9]], dtype=torch.float64)
-    out = poisson_dn(x, torch.empty_like(x), gain, 5)
+    x = torch.tensor([[-3.0, 0.0, 10.0, 7.0], [-1.0, 0.0, 1e-9, 30.0]], dtype=torch.float64)
+    out = run_stages(L.SHOT_POISSON, x, {"k": gain}).reshape(2, 4)
     assert out[:, :2].eq(0).all()  # no electrons below zero signal
     electrons = out / gain[:, None]
     assert torch.equal(electrons, electrons.round())  # whole electrons, times K
@@ -123,86 +143,73 @@ def test_tukey_table_matches_the_exact_quantile(lam):
 
 @pytest.mark.parametrize("lam", [-0.3, -0.1, 0.0, 0.14, 0.5])
 def test_tukey_lambda_kernel_matches_scipy(lam):
-    x = torch.zeros(2, 150_000, dtype=torch.float64)
-    sigma = torch.tensor([1.0, 3.0], dtype=torch.float64)
-    out = add_scaled(x, torch.empty_like(x), sigma, [tukey_lambda_table(lam)] * 2, 17).numpy()
-    assert stats.kstest(out[0], stats.tukeylambda(lam).cdf).pvalue > P_MIN
-    assert stats.kstest(out[1], stats.tukeylambda(lam, scale=3.0).cdf).pvalue > P_MIN
+    out = run_stages(L.READ_TUKEY, torch.zeros(2, 150_000), {"sigma_tl": [1.0, 3.0], "lambda": lam}, seed=17).reshape(2, -1)
+    assert stats.kstest(out[0].numpy(), stats.tukeylambda(lam).cdf).pvalue > P_MIN
+    assert stats.kstest(out[1].numpy(), stats.tukeylambda(lam, scale=3.0).cdf).pvalue > P_MIN
 
 
-def test_gaussian_kernels_match_scipy():
-    x = torch.zeros(1, 300_000, dtype=torch.float64)
-    z = add_scaled(x, torch.empty_like(x), torch.ones(1, dtype=torch.float64), [normal_table()], 21).numpy().ravel()
+def test_gaussian_stages_match_scipy():
+    z = run_stages(L.READ_GAUSS, torch.zeros(1, 300_000), {"sigma_g": 1.0}, seed=21).numpy().ravel()
     assert stats.kstest(z, "norm").pvalue > P_MIN
-    level = torch.full((1, 300_000), 40.0, dtype=torch.float64)
-    shot = add_signal_scaled(level, torch.empty_like(level), torch.tensor([2.0], dtype=torch.float64), 22).numpy().ravel()
+    shot = run_stages(L.SHOT_GAUSS, torch.full((1, 300_000), 40.0), {"k": 2.0}, seed=22).numpy().ravel()
     assert stats.kstest(shot, stats.norm(40.0, math.sqrt(80.0)).cdf).pvalue > P_MIN
 
 
-def test_uniform_kernel_matches_scipy():
-    x = torch.zeros(1, 300_000)
-    u = add_uniform(x, torch.empty_like(x), torch.tensor([2.0], dtype=torch.float64), 4).numpy().ravel()
+def test_uniform_stage_matches_scipy():
+    u = run_stages(L.QUANT, torch.zeros(1, 300_000), {"step_dn": 2.0}, seed=4).numpy().ravel()
     assert u.min() >= -1.0 and u.max() <= 1.0
     assert stats.kstest(u, stats.uniform(-1.0, 2.0).cdf).pvalue > P_MIN
 
 
 def test_neighbouring_elements_and_streams_are_uncorrelated():
     n = 400_000
-    x = torch.zeros(1, n, dtype=torch.float64)
-    one = torch.ones(1, dtype=torch.float64)
-    a = add_uniform(x, torch.empty_like(x), one, 1).numpy().ravel()
-    b = add_uniform(x, torch.empty_like(x), one, 2).numpy().ravel()
+    a = run_stages(L.QUANT, torch.zeros(1, n), {"step_dn": 1.0}, seed=1).numpy().ravel()
+    b = run_stages(L.QUANT, torch.zeros(1, n), {"step_dn": 1.0}, seed=2).numpy().ravel()
+    g = run_stages(L.READ_GAUSS, torch.zeros(1, n), {"sigma_g": 1.0}, seed=1).numpy().ravel()
     bound = 5 / math.sqrt(n)  # 5 standard errors of a correlation coefficient
     assert abs(np.corrcoef(a[:-1], a[1:])[0, 1]) < bound
     assert abs(np.corrcoef(a, b)[0, 1]) < bound
-    # (the Poisson kernel's parts draw from one key's independent streams: a dependence
-    # between them would show in test_poisson_matches_scipy, whose lambdas all use them)
+    assert abs(np.corrcoef(a, g)[0, 1]) < bound  # two stages of one call: different streams
 
 
-def test_same_key_replays_and_thread_count_does_not_matter():
+def test_same_seed_replays_and_thread_count_does_not_matter():
     x = torch.rand(3, 4, 160, 160, generator=torch.Generator().manual_seed(0)) * 50
-    gain = torch.tensor([0.7, 1.0, 2.0], dtype=torch.float64)
+    cols = {"k": [0.7, 1.0, 2.0], "sigma_tl": 1.5, "lambda": 0.1, "sigma_r": 0.4, "step_dn": 1.0}
+    flags = L.SHOT_POISSON | L.READ_TUKEY | L.ROW | L.QUANT
     previous = torch.get_num_threads()
     try:
         results = []
         for threads in (1, 2, 3):
             torch.set_num_threads(threads)
-            results.append(poisson_dn(x, torch.empty_like(x), gain, 8))
+            results.append(run_stages(flags, x, cols, seed=8))
     finally:
         torch.set_num_threads(previous)
     assert torch.equal(results[0], results[1]) and torch.equal(results[0], results[2])
-    assert not torch.equal(results[0], poisson_dn(x, torch.empty_like(x), gain, 9))
+    assert not torch.equal(results[0], run_stages(flags, x, cols, seed=9))
 
 
-@pytest.mark.parametrize("batch,n,threads", [(1, 10, 4), (3, 100_000, 2), (8, 65_536, 7), (5, 1_000_003, 3), (0, 10, 2)])
-def test_thread_segments_cover_every_element_once(batch, n, threads):
-    seen = np.zeros(batch * n, dtype=np.int64)
-    for pieces in parallel.segments(batch, n, threads):
-        for b, start, stop in pieces:
-            assert 0 <= start < stop <= n
-            seen[b * n + start : b * n + stop] += 1
-    assert (seen == 1).all()
+def test_counter_hash_is_the_same_on_host_torch_and_numba():
+    key = stream_key(5, "x")
+    counters = [0, 1, 2**40 + 3]
+    host = [bits_at(key, c) for c in counters]
+    assert [v & (2**64 - 1) for v in torch_bits(key, torch.tensor(counters)).tolist()] == host
+    assert [int(_draw(np.uint64(key), c)) for c in counters] == host
 
 
-def test_kernels_write_in_place_and_refuse_a_wrong_output():
-    x = torch.zeros(2, 1000)
-    out = add_uniform(x, x, torch.ones(2, dtype=torch.float64), 3)
-    assert out is x and x.abs().sum() > 0
-    with pytest.raises(ValueError, match="contiguous"):
-        add_uniform(x, torch.empty(2, 999), torch.ones(2, dtype=torch.float64), 3)
+@njit
+def _draw(key, g):
+    return draw(key, g)
 
 
-def test_switching_the_kernels_off_uses_torch_samplers():
-    aug = RawNoiseAugment("SonyA7S2", model="G*+P*+R+U")
-    x = torch.rand(2, 4, 32, 32)
-    y = aug(x)
-    previous = cpu.use_cpu_kernels(False)
-    try:
-        assert not cpu.handles(x)
-        z = aug(x, params=aug._params)  # same parameters, torch's noise
-    finally:
-        cpu.use_cpu_kernels(previous)
-    assert cpu.handles(x) == previous
-    assert not torch.equal(y, z)
-    assert torch.equal(aug(x, params=aug._params), y)
-    assert not cpu.handles(x.requires_grad_())  # gradients flow through torch's path only
+def test_run_ranges_cover_every_row_once():
+    from rawaug.cpu.parallel import run_ranges
+
+    for rows, threads in [(1, 4), (7, 2), (1000, 3), (5, 8)]:
+        seen = np.zeros(rows, dtype=np.int64)
+
+        def mark(r0, r1):
+            seen[r0:r1] += 1
+            return r1 - r0
+
+        assert run_ranges(mark, rows, 1 << 17, threads) == rows
+        assert (seen == 1).all()

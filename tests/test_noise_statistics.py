@@ -7,7 +7,7 @@ import torch
 from scipy import stats
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import tukey_lambda_icdf, tukey_lambda_variance
+from rawaug.distributions import tukey_lambda_icdf, tukey_lambda_variance
 
 SPAN = NoiseProfile.load("SonyA7S2").span_dn
 pytestmark = pytest.mark.usefixtures("samplers")
@@ -133,15 +133,15 @@ def test_parameter_sampling_follows_the_joint_model():
     profile = NoiseProfile.load("NikonD850")
     aug = RawNoiseAugment(profile, model="G*+P*+R", generator=torch.Generator().manual_seed(3))
     n = 4000
-    params = aug.draw_parameters(n, "cpu", seed=11)
+    params = aug.sample_parameters(aug.draw_parameters(n, "cpu", seed=11))
     log_k = params["k"].log().numpy()
     lo, hi = math.log(profile.k_min), math.log(profile.k_max)
     assert stats.kstest(log_k, stats.uniform(lo, hi - lo).cdf).pvalue > 1e-3
     rel = profile.tukey_scale
-    z = (params["read_noise.sigma_tl"].log().numpy() - (rel.slope * log_k + rel.intercept)) / rel.residual_std
+    z = (params["sigma_tl"].log().numpy() - (rel.slope * log_k + rel.intercept)) / rel.residual_std
     assert stats.kstest(z, "norm").pvalue > 1e-3
     rel = profile.row_scale
-    z = (params["row_noise.sigma_r"].log().numpy() - (rel.slope * log_k + rel.intercept)) / rel.residual_std
+    z = (params["sigma_r"].log().numpy() - (rel.slope * log_k + rel.intercept)) / rel.residual_std
     assert stats.kstest(z, "norm").pvalue > 1e-3
     ratio = params["ratio"].numpy()
     assert stats.kstest(ratio, stats.uniform(100, 200).cdf).pvalue > 1e-3
@@ -149,7 +149,7 @@ def test_parameter_sampling_follows_the_joint_model():
     ks = np.array(profile.tukey_shape.k)
     dist = np.abs(np.log(ks)[None, :] - log_k[:, None])
     tied = dist <= dist.min(axis=1, keepdims=True) + 1e-9
-    lam = params["read_noise.lambda"].numpy()
+    lam = params["lambda"].numpy()
     allowed = np.where(tied, np.array(profile.tukey_shape.values)[None, :], np.nan)
     assert np.all(np.any(np.isclose(allowed, lam[:, None]), axis=1))
 

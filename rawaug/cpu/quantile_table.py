@@ -17,7 +17,6 @@ import torch
 from numba import njit
 
 from .counter import I64, LOW63, U64, draw, leading_zeros
-from .parallel import for_each_row
 
 MANTISSA_BITS = 10
 _ROW = (1 << MANTISSA_BITS) + 1
@@ -54,22 +53,9 @@ def symmetric(table, z):
     return q * (1.0 - 2.0 * float(I64(z >> _SIGN)))  # top bit: the lower tail (no branch)
 
 
-@njit(nogil=True, cache=True)
-def _add_scaled(x, out, sigma, key, g0, table):
-    for i in range(x.size):
-        out[i] = x[i] + sigma * symmetric(table, draw(key, g0 + i))
-
-
-@njit(nogil=True, cache=True)
-def _add_signal_scaled(x, out, gain, key, g0, table):
-    for i in range(x.size):
-        level = x[i] if x[i] > 0.0 else 0.0
-        out[i] = x[i] + np.sqrt(gain * level) * symmetric(table, draw(key, g0 + i))
-
-
 @functools.lru_cache(maxsize=128)
 def tukey_lambda_table(lam: float) -> np.ndarray:
-    from ..effects.read_noise import tukey_lambda_upper_quantile
+    from ..distributions import tukey_lambda_upper_quantile
 
     return build_table(lambda t: tukey_lambda_upper_quantile(t, torch.tensor(lam, dtype=torch.float64)))
 
@@ -77,13 +63,3 @@ def tukey_lambda_table(lam: float) -> np.ndarray:
 @functools.lru_cache(maxsize=1)
 def normal_table() -> np.ndarray:
     return build_table(lambda t: -torch.special.ndtri(t))
-
-
-def add_scaled(signal: torch.Tensor, out: torch.Tensor, sigma: torch.Tensor, tables: list[np.ndarray], key: int) -> torch.Tensor:
-    """``signal + sigma[b] * X`` with X drawn from ``tables[b]``; written into ``out`` (which may be the input)."""
-    return for_each_row(_add_scaled, signal, out, sigma, key, tables=tables)
-
-
-def add_signal_scaled(signal: torch.Tensor, out: torch.Tensor, gain: torch.Tensor, key: int) -> torch.Tensor:
-    """``signal + sqrt(gain[b] * max(signal, 0)) * Z``, Z standard normal; written into ``out`` (which may be the input)."""
-    return for_each_row(_add_signal_scaled, signal, out, gain, key, normal_table())

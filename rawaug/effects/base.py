@@ -1,31 +1,32 @@
-"""The effect unit: one physical noise stage, synthesized on a batch on the device.
+"""The effect unit: one physical noise stage.
 
-An effect is a small ``nn.Module`` with
+An effect is a small class with
 
 * ``token``: its name in model strings (``"G*+P*+R+U"``) and in ``profile.effects``;
 * ``order``: where it acts along photons -> electrons -> voltage -> DN;
-* ``draw(ctx)``: its per-sample scalar parameters, on the device, given the drawn gain K;
-* ``forward(signal_dn, clean_dn, params, generator)``: the batch after this stage, in DN
-  at the sensor (black-subtracted, before the low-light ratio is multiplied back).
-  ``signal_dn`` is the pipeline's own working tensor: an effect may update it in place
-  (``writable``, ``add_noise``) and return it. ``clean_dn`` (the noiseless signal) is passed
-  only to effects that set ``uses_clean = True``, else it is None: copying it costs as much
-  as drawing a noise component on the CPU.
+* ``flag``: its stage in the fused kernels (``rawaug.engine.layout``); the stage itself,
+  what it does to one value given its parameters and random numbers, is written in its
+  module's docstring and, once per backend, in ``rawaug/cpu/fused.py`` and
+  ``rawaug/gpu/fused.py`` under the same flag;
+* ``draw(ctx)``: its per-sample parameters, ``{column: (B,) tensor}`` on the device,
+  given the drawn gain K (no host round trip);
+* ``pattern_streams()``: keys of its fixed patterns (the same in every call, keyed by the
+  profile's seed and the pixel position), and ``grids()`` where it needs a small table.
 
 Effects found by the closed loop also carry ``validate_params`` (for their
-``profile.effects`` entry) and, in their own module, how they are estimated and
-which statistic of a measured frame shows them. Register new effects with
-``@register``; ``RawNoiseAugment`` then uses them by token.
+``profile.effects`` entry) and, in their own module, ``estimate`` (from measured frames)
+and ``STATISTICS`` (which statistic of a measured frame shows them). ``@register`` makes an
+effect available by its token to ``RawNoiseAugment`` and to the loop.
 """
 from __future__ import annotations
 
 import functools
-import zlib
 from dataclasses import dataclass
 from typing import ClassVar
 
 import torch
-from torch import nn
+
+from ..rng import stream_key, torch_normal, torch_unit
 
 EFFECTS: dict[str, type["NoiseEffect"]] = {}
 
@@ -43,22 +44,31 @@ def register(cls):
 
 @dataclass
 class DrawContext:
-    """What an effect needs to draw its per-sample parameters."""
+    """What an effect needs to draw its per-sample parameters: all draws are counter-based
+    (``rawaug.rng``) on the device of ``k``, keyed by the call seed and a purpose."""
 
     profile: "object"  # NoiseProfile
-    k: torch.Tensor  # (B,) system gain, DN per electron
+    k: torch.Tensor  # (B,) system gain, DN per electron, float64
     batch: int  # B
     n_draw: int  # B, or 1 when same_on_batch
-    generator: torch.Generator
+    seed: int
     fixed: dict  # user-fixed parameter values by key
 
     @property
     def device(self):
         return self.k.device
 
-    def normal(self):
-        z = torch.randn(self.n_draw, device=self.device, generator=self.generator, dtype=torch.float64)
-        return z.expand(self.batch) if self.n_draw == 1 else z
+    def _counter(self):
+        return torch.arange(self.n_draw, device=self.device)
+
+    def _expand(self, t):
+        return t.expand((self.batch,) + t.shape[1:]) if self.n_draw == 1 else t
+
+    def uniform(self, purpose: str) -> torch.Tensor:
+        return self._expand(torch_unit(stream_key(self.seed, "parameter:" + purpose), self._counter()))
+
+    def normal(self, purpose: str) -> torch.Tensor:
+        return self._expand(torch_normal(stream_key(self.seed, "parameter:" + purpose), self._counter()))
 
     def scale(self, relation, fixed_key: str) -> torch.Tensor:
         """A noise scale (DN) per sample: ``fixed[fixed_key]`` if the user fixed it, else drawn
@@ -66,33 +76,31 @@ class DrawContext:
         value = self.fixed.get(fixed_key)
         if value is not None:
             return as_sample(value, self.batch, self.device)
-        return log_linear_draw(relation, torch.log(self.k), self)
+        return log_linear_draw(relation, torch.log(self.k), self.normal(fixed_key))
 
-    def nearest(self, table) -> torch.Tensor:
-        """A KTable's record nearest each drawn K (shared when same_on_batch)."""
-        values = nearest_in_k(table, self.k[: self.n_draw], self.generator)
-        return values.expand((self.batch,) + values.shape[1:]) if self.n_draw == 1 else values
-
-    def uniform(self):
-        u = torch.rand(self.n_draw, device=self.device, generator=self.generator, dtype=torch.float64)
-        return u.expand(self.batch) if self.n_draw == 1 else u
+    def nearest(self, table, purpose: str) -> torch.Tensor:
+        """A KTable's record nearest each drawn K; ties (frames of one ISO) drawn uniformly."""
+        return nearest_in_k(table, self.k, self.uniform(purpose))
 
 
-class NoiseEffect(nn.Module):
+class NoiseEffect:
     token: ClassVar[str] = ""
     order: ClassVar[int] = 0
-    param_keys: ClassVar[tuple[str, ...]] = ()  # keys this effect records in params
-    uses_clean: ClassVar[bool] = False  # forward reads clean_dn
+    flag: ClassVar[int] = 0  # stage flag of rawaug.engine.layout
+    columns: ClassVar[tuple[str, ...]] = ()  # parameter columns this effect fills
 
     def __init__(self, profile):
-        super().__init__()
         self.profile = profile
 
     def draw(self, ctx: DrawContext) -> dict[str, torch.Tensor]:
         return {}
 
-    def forward(self, signal_dn, clean_dn, params, generator):  # pragma: no cover - abstract
-        raise NotImplementedError
+    def pattern_streams(self) -> dict[str, int]:
+        """Stream keys of fixed patterns, by stream slot: the same in every call."""
+        return {}
+
+    def grids(self) -> torch.Tensor | None:
+        return None
 
     @classmethod
     def validate_params(cls, params) -> None:
@@ -100,39 +108,13 @@ class NoiseEffect(nn.Module):
         if params not in (None, {}) and not isinstance(params, dict):
             raise ValueError(f"effect {cls.token!r} parameters must be a mapping, got {params!r}")
 
-    def extra_repr(self):
-        return f"token={self.token!r}"
+    def __repr__(self):
+        return f"{type(self).__name__}(token={self.token!r})"
 
 
-def effect_seed(seed: int, token: str) -> int:
-    """Independent generator seed for one effect: replaying or removing one effect never
-    changes the noise another draws (ablation rows share their common noise)."""
-    return (seed * 1_000_003 + zlib.crc32(token.encode())) % (2**63 - 1)
-
-
-def _overwritable(signal_dn: torch.Tensor, clean_dn) -> bool:
-    return signal_dn is not clean_dn and signal_dn.is_contiguous() and not signal_dn.requires_grad
-
-
-def writable(signal_dn: torch.Tensor, clean_dn: torch.Tensor) -> torch.Tensor:
-    """Where an effect writes its output: ``signal_dn`` itself (the pipeline's working tensor),
-    or a new contiguous tensor where it cannot be overwritten. On the CPU a fresh 32 MB
-    tensor costs more in page faults than the noise drawn into it."""
-    if _overwritable(signal_dn, clean_dn):
-        return signal_dn
-    return torch.empty(signal_dn.shape, dtype=signal_dn.dtype, device=signal_dn.device)
-
-
-def add_noise(signal_dn: torch.Tensor, clean_dn: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
-    """``signal_dn + noise``, in place when the pipeline owns ``signal_dn`` and no gradient flows."""
-    if _overwritable(signal_dn, clean_dn) and not noise.requires_grad:
-        return signal_dn.add_(noise)
-    return signal_dn + noise
-
-
-def key_from(generator: torch.Generator) -> int:
-    """A 64-bit stream key for the counter-based CPU kernels, drawn from the effect's generator."""
-    return int(torch.randint(0, 2**63 - 1, (1,), generator=generator, dtype=torch.int64).item())
+def pattern_key(seed: int, token: str, part: str = "") -> int:
+    """Stream key of a fixed pattern: the profile's seed for it, the effect and the part."""
+    return stream_key(seed, f"pattern:{token}:{part}")
 
 
 def as_sample(value, batch, device, dtype=torch.float64):
@@ -145,44 +127,44 @@ def as_sample(value, batch, device, dtype=torch.float64):
     return t
 
 
-def per_sample(t: torch.Tensor, ndim: int = 4) -> torch.Tensor:
-    """(B,) or (B, C) -> broadcastable against (B, C, H, W), float32."""
-    t = t.to(torch.float32)
-    return t.reshape(t.shape + (1,) * (ndim - t.ndim))
-
-
-def log_linear_draw(relation, log_k: torch.Tensor, ctx: DrawContext) -> torch.Tensor:
+def log_linear_draw(relation, log_k: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
     """sigma = exp(slope * log K + intercept + residual_std * z), per segment, with floor."""
     pieces = relation.pieces()
     slope = torch.full_like(log_k, pieces[0][1])
     intercept = torch.full_like(log_k, pieces[0][2])
     resid = torch.full_like(log_k, pieces[0][3])
     for k_from, s, b, r in pieces[1:]:
-        above = log_k >= torch.log(torch.tensor(k_from, dtype=log_k.dtype, device=log_k.device))
+        above = log_k >= _log(k_from)
         slope = torch.where(above, s, slope)
         intercept = torch.where(above, b, intercept)
         resid = torch.where(above, r, resid)
-    sigma = torch.exp(slope * log_k + intercept + resid * ctx.normal())
+    sigma = torch.exp(slope * log_k + intercept + resid * z)
     if relation.floor_dn:
         sigma = torch.sqrt(sigma**2 + relation.floor_dn**2)
     return sigma
 
 
+def _log(v: float) -> float:
+    import math
+
+    return math.log(v) if v > 0 else -math.inf
+
+
 @functools.lru_cache(maxsize=64)
 def _table_tensors(table, device: str):
-    """(log K, values) of a KTable on a device, built once (not on every forward call)."""
-    log_ks = torch.log(torch.tensor(table.k, dtype=torch.float64, device=device))
-    return log_ks, torch.tensor(table.values, dtype=torch.float64, device=device)
+    """(log K, values) of a KTable on a device, built once (not on every call)."""
+    log_ks = torch.log(torch.tensor(table.k, dtype=torch.float64)).to(device)
+    return log_ks, torch.tensor(table.values, dtype=torch.float64).to(device)
 
 
-def nearest_in_k(table, k: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-    """Per-sample value of a KTable at the record nearest the drawn K (in log K). Records
-    measured at the same K (several frames per ISO) are tied: one is drawn uniformly."""
+def nearest_in_k(table, k: torch.Tensor, u: torch.Tensor | None = None) -> torch.Tensor:
+    """Per-sample value of a KTable at the record nearest the drawn K (in log K). Records at
+    the same K (several frames per ISO) are tied: ``u`` (uniform per sample) picks one by
+    index arithmetic; without it, the first."""
     log_ks, values = _table_tensors(table, str(k.device))
     dist = (log_ks[None, :] - torch.log(k)[:, None]).abs()
     tied = dist <= dist.min(dim=1, keepdim=True).values + 1e-9
-    if generator is None:
-        idx = tied.to(torch.int8).argmax(dim=1)
-    else:
-        idx = torch.multinomial(tied.to(torch.float64), 1, generator=generator).squeeze(1)
+    rank = torch.zeros_like(k, dtype=torch.int64) if u is None else (u * tied.sum(dim=1)).to(torch.int64)
+    order = tied.to(torch.int64).cumsum(dim=1) - 1
+    idx = ((order == rank[:, None]) & tied).to(torch.int8).argmax(dim=1)
     return values[idx]

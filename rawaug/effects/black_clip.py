@@ -17,8 +17,7 @@ model predicts.
 from __future__ import annotations
 
 import numpy as np
-import torch
-
+from ..engine import layout as L
 from .base import CLIP, NoiseEffect, register
 from .k_records import _number
 
@@ -29,9 +28,11 @@ STATISTICS = ("clip_low",)
 class BlackClip(NoiseEffect):
     token = "Clip"
     order = CLIP
+    flag = L.CLIP
+    columns = ("clip_floor",)
 
-    def forward(self, signal_dn, clean_dn, params, generator):
-        return torch.clamp(signal_dn, min=float(self.profile.effects[self.token]["floor_dn"]))
+    def draw(self, ctx):
+        return {"clip_floor": ctx.k.new_full((ctx.k.shape[0],), float(self.profile.effects[self.token]["floor_dn"]))}
 
     @classmethod
     def validate_params(cls, params):

@@ -1,9 +1,13 @@
-"""Colour bias: the per-channel black-level error (mean of a bias frame), in DN."""
+"""Colour bias: the per-channel black-level error (mean of a bias frame), in DN.
+
+Stage (DN): ``s -> s + bias[channel]``.
+"""
 from __future__ import annotations
 
 import torch
 
-from .base import OFFSET, NoiseEffect, add_noise, per_sample, register
+from ..engine import layout as L
+from .base import OFFSET, NoiseEffect, register
 
 
 @register
@@ -12,15 +16,13 @@ class ColorBias(NoiseEffect):
 
     token = "C"
     order = OFFSET
-    param_keys = ("color_bias.dn",)
+    flag = L.BIAS
+    columns = ("bias_r", "bias_g1", "bias_b", "bias_g2")
 
     def draw(self, ctx):
         fixed = ctx.fixed.get("color_bias_dn")
         if fixed is not None:
             bias = torch.as_tensor(fixed, dtype=torch.float64, device=ctx.device).reshape(-1, 4).expand(ctx.batch, 4)
         else:
-            bias = ctx.nearest(self.profile.color_bias)
-        return {"color_bias.dn": bias}
-
-    def forward(self, signal_dn, clean_dn, params, generator):
-        return add_noise(signal_dn, clean_dn, per_sample(params["color_bias.dn"]).to(signal_dn.dtype))
+            bias = ctx.nearest(self.profile.color_bias, "color_bias")
+        return dict(zip(self.columns, bias.unbind(dim=1)))

@@ -13,7 +13,7 @@ Profile entry (per-K records, nearest record in log K)::
 
 Detected by the statistics ``col_excess`` (per-frame column-mean variance over what
 independent pixels give) and ``fixed_col_excess`` (the same on the stack mean), see
-``rawaug.loop.statistics``.
+``rawaug.statistics``.
 Estimated by ``estimate``: the excess of those two statistics over the current model.
 With a single frame the fixed and temporal parts cannot be told apart; all of the
 excess is then recorded as temporal (``sigma_dn``).
@@ -21,37 +21,27 @@ excess is then recorded as temporal (``sigma_dn``).
 from __future__ import annotations
 
 import numpy as np
-import torch
-
-from .base import BANDING, NoiseEffect, per_sample, register
-from .k_records import check_seed, fixed_normal, validate_records, value_at_k
+from ..engine import layout as L
+from ..statistics import line_mean_variance
+from .base import BANDING, NoiseEffect, pattern_key, register
+from .k_records import check_seed, validate_records, value_at_k
 
 STATISTICS = ("col_excess", "fixed_col_excess")
-_COLUMN_SET = (0, 1, 1, 0)  # packed channel -> which of the two sensor columns of a tile
 
 
 @register
 class ColumnNoise(NoiseEffect):
     token = "Col"
     order = BANDING
-    param_keys = ("column_noise.sigma_dn", "column_noise.fixed_dn")
+    flag = L.COL
+    columns = ("col_sigma", "col_fixed")
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        return {
-            "column_noise.sigma_dn": value_at_k(p, "sigma_dn", ctx.k),
-            "column_noise.fixed_dn": value_at_k(p, "fixed_dn", ctx.k),
-        }
+        return {"col_sigma": value_at_k(p, "sigma_dn", ctx.k), "col_fixed": value_at_k(p, "fixed_dn", ctx.k)}
 
-    def forward(self, signal_dn, clean_dn, params, generator):
-        b, _, _, w = signal_dn.shape
-        p = self.profile.effects[self.token]
-        dtype = signal_dn.dtype
-        temporal = torch.randn((b, 2, 1, w), device=signal_dn.device, generator=generator, dtype=dtype)
-        fixed = fixed_normal(p["seed"], (2, 1, w), signal_dn.device).to(dtype)[None]
-        cols = temporal * per_sample(params["column_noise.sigma_dn"]).to(dtype)
-        cols = cols + fixed * per_sample(params["column_noise.fixed_dn"]).to(dtype)
-        return signal_dn + cols[:, _COLUMN_SET]
+    def pattern_streams(self):
+        return {"col_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
 
     @classmethod
     def validate_params(cls, params):
@@ -62,8 +52,6 @@ class ColumnNoise(NoiseEffect):
 def _column_parts(frames):
     """(temporal variance, fixed variance) of column means, DN^2, averaged over channels,
     from neighbouring-column differences (smooth shading does not count)."""
-    from ..loop.statistics import line_mean_variance
-
     mean_map = frames.mean(axis=0)
     fixed_var = float(line_mean_variance(mean_map, 1).mean())
     if frames.shape[0] < 2:

@@ -20,7 +20,7 @@ Both are per-K records (nearest record in log K)::
     FPN: {seed: 11, k: [K, ...], sigma_dn: [..], shading_dn: [[[..gw..], ..gh..], ...]}
 
 Detected by ``fixed_std`` (stack-mean spread), ``psd2d_lowfreq``, ``row_lowfreq`` and
-``col_lowfreq`` (smooth shading), see ``rawaug.loop.statistics``. Estimated by
+``col_lowfreq`` (smooth shading), see ``rawaug.statistics``. Estimated by
 ``estimate``: grid = least-squares fit of the upsampled grid to the stack-mean map; sigma = the excess spread of the
 map minus its shading (robust, so hot pixels do not count) over the current model. A single frame cannot separate a white
 fixed pattern from temporal noise: then only the shading is estimated (``sigma_dn`` 0).
@@ -31,8 +31,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .base import DARK, NoiseEffect, per_sample, register
-from .k_records import check_seed, fixed_normal, record_index, validate_records, value_at_k
+from ..engine import layout as L
+from ..statistics import fixed_std
+from .base import DARK, NoiseEffect, pattern_key, register
+from .k_records import check_seed, record_index, validate_records, value_at_k
 
 STATISTICS = ("fixed_std", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
 MAX_GRID = 8
@@ -55,20 +57,18 @@ def upsample_grid(grid, h: int, w: int):
 class DarkShading(NoiseEffect):
     token = "FPN"
     order = DARK
-    param_keys = ("dark_shading.sigma_dn", "dark_shading.record")
+    flag = L.FPN
+    columns = ("fpn_sigma", "fpn_record")
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        return {"dark_shading.sigma_dn": value_at_k(p, "sigma_dn", ctx.k), "dark_shading.record": record_index(p, ctx.k)}
+        return {"fpn_sigma": value_at_k(p, "sigma_dn", ctx.k), "fpn_record": record_index(p, ctx.k).to(torch.float64)}
 
-    def forward(self, signal_dn, clean_dn, params, generator):
-        _, _, h, w = signal_dn.shape
-        p = self.profile.effects[self.token]
-        dtype = signal_dn.dtype
-        white = fixed_normal(p["seed"], (4, h, w), signal_dn.device).to(dtype)[None]
-        grids = _grids(p).to(signal_dn.device)[params["dark_shading.record"].to(signal_dn.device)]  # (B, gh, gw)
-        shading = upsample_grid(grids, h, w).to(dtype)[:, None]
-        return signal_dn + white * per_sample(params["dark_shading.sigma_dn"]).to(dtype) + shading
+    def pattern_streams(self):
+        return {"fpn_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
+
+    def grids(self):
+        return torch.tensor(self.profile.effects[self.token]["shading_dn"], dtype=torch.float64)  # (records, gh, gw)
 
     @classmethod
     def validate_params(cls, params):
@@ -108,8 +108,6 @@ def shading_grid(frames) -> np.ndarray:
 def _white_var(frames, grid):
     """Robust variance (``fixed_std`` squared) of the stack-mean map once the shading grid
     is removed, DN^2: hot pixels do not count here."""
-    from ..loop.statistics import fixed_std
-
     return fixed_std(frames - upsample_grid(grid, *frames.shape[2:])[None, None]) ** 2
 
 

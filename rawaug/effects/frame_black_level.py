@@ -22,7 +22,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .base import OFFSET, NoiseEffect, per_sample, register
+from ..engine import layout as L
+from .base import OFFSET, NoiseEffect, register
 from .k_records import validate_records, value_at_k
 
 STATISTICS = ("frame_mean_common_cov", "frame_mean_std")
@@ -32,20 +33,13 @@ STATISTICS = ("frame_mean_common_cov", "frame_mean_std")
 class FrameBlackLevel(NoiseEffect):
     token = "BLE"
     order = OFFSET
-    param_keys = ("frame_black_level.sigma_dn", "frame_black_level.channel_sigma_dn")
+    flag = L.BLE
+    columns = ("ble_sigma", "ble_channel_sigma")
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
         channel = value_at_k(p, "channel_sigma_dn", ctx.k) if "channel_sigma_dn" in p else torch.zeros_like(ctx.k)
-        return {"frame_black_level.sigma_dn": value_at_k(p, "sigma_dn", ctx.k), "frame_black_level.channel_sigma_dn": channel}
-
-    def forward(self, signal_dn, clean_dn, params, generator):
-        b, c = signal_dn.shape[:2]
-        dtype = signal_dn.dtype
-        z = torch.randn((b, 1 + c, 1, 1), device=signal_dn.device, generator=generator, dtype=dtype)
-        offset = z[:, :1] * per_sample(params["frame_black_level.sigma_dn"]).to(dtype)
-        offset = offset + z[:, 1:] * per_sample(params["frame_black_level.channel_sigma_dn"]).to(dtype)
-        return signal_dn + offset
+        return {"ble_sigma": value_at_k(p, "sigma_dn", ctx.k), "ble_channel_sigma": channel}
 
     @classmethod
     def validate_params(cls, params):

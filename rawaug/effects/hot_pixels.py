@@ -23,10 +23,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
-
-from .base import DARK, NoiseEffect, per_sample, register
-from .k_records import _number, check_seed, fixed_normal, fixed_uniform, validate_records, value_at_k
+from ..engine import layout as L
+from .base import DARK, NoiseEffect, pattern_key, register
+from .k_records import _number, check_seed, validate_records, value_at_k
 
 STATISTICS = ("hot_fraction", "tail_mass")
 THRESHOLD_SIGMA = 8.0
@@ -36,19 +35,18 @@ THRESHOLD_SIGMA = 8.0
 class HotPixels(NoiseEffect):
     token = "Hot"
     order = DARK
-    param_keys = ("hot_pixels.median_dn",)
+    flag = L.HOT
+    columns = ("hot_density", "hot_median", "hot_log_std")
 
     def draw(self, ctx):
-        return {"hot_pixels.median_dn": value_at_k(self.profile.effects[self.token], "median_dn", ctx.k)}
-
-    def forward(self, signal_dn, clean_dn, params, generator):
-        _, c, h, w = signal_dn.shape
         p = self.profile.effects[self.token]
-        dtype = signal_dn.dtype
-        where = fixed_uniform(p["seed"], (c, h, w), signal_dn.device) < float(p["density"])
-        spread = torch.exp(float(p["log_std"]) * fixed_normal(p["seed"] + 1, (c, h, w), signal_dn.device))
-        amplitude = torch.where(where, spread, torch.zeros_like(spread)).to(dtype)[None]
-        return signal_dn + amplitude * per_sample(params["hot_pixels.median_dn"]).to(dtype)
+        n = ctx.k.shape[0]
+        return {"hot_density": ctx.k.new_full((n,), float(p["density"])), "hot_median": value_at_k(p, "median_dn", ctx.k),
+                "hot_log_std": ctx.k.new_full((n,), float(p["log_std"]))}
+
+    def pattern_streams(self):
+        seed = self.profile.effects[self.token]["seed"]
+        return {"hot_where": pattern_key(seed, self.token, "where"), "hot_size": pattern_key(seed, self.token, "size")}
 
     @classmethod
     def validate_params(cls, params):

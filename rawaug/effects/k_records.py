@@ -8,15 +8,14 @@ Effects whose size depends on ISO store one record per calibrated gain::
 and a synthesized sample uses the record nearest its drawn K (in log K), as the ELD
 profiles do for ``tukey_shape`` and ``color_bias``. A fixed pattern (a sensor's
 per-pixel or per-column offsets) is the same realization in every frame and every call:
-it is drawn on the CPU from the profile's seed (so it is identical on every device) and
-cached on the device once.
+it is keyed by the profile's seed and the pixel position (``rawaug.rng``), so it is
+identical on every device and nothing is stored.
 """
 from __future__ import annotations
 
-
 import torch
 
-from ..profile import KTable
+from ..relations import KTable
 from ..validate import finite as _number
 from .base import nearest_in_k
 
@@ -69,32 +68,6 @@ def merge_records(records: list[dict]) -> dict:
             else:
                 out.setdefault(key, val)
     return out
-
-
-_PATTERNS: dict = {}
-_MAX_CACHED = 64  # patterns kept per process (one per seed, size and device)
-
-
-def _cache(key, make):
-    if key not in _PATTERNS:
-        if len(_PATTERNS) >= _MAX_CACHED:
-            _PATTERNS.clear()
-        _PATTERNS[key] = make()
-    return _PATTERNS[key]
-
-
-def fixed_normal(seed: int, shape: tuple[int, ...], device) -> torch.Tensor:
-    """A standard-normal fixed pattern of ``shape``, the same on every device and call."""
-    gen = lambda: torch.Generator().manual_seed(int(seed))  # noqa: E731
-    return _cache(("normal", int(seed), tuple(shape), str(device)),
-                  lambda: torch.randn(shape, generator=gen(), dtype=torch.float32).to(device))
-
-
-def fixed_uniform(seed: int, shape: tuple[int, ...], device) -> torch.Tensor:
-    """A U(0, 1) fixed pattern of ``shape``, the same on every device and call."""
-    gen = lambda: torch.Generator().manual_seed(int(seed))  # noqa: E731
-    return _cache(("uniform", int(seed), tuple(shape), str(device)),
-                  lambda: torch.rand(shape, generator=gen(), dtype=torch.float32).to(device))
 
 
 def check_seed(token: str, params: dict) -> None:

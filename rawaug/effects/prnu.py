@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import PHOTON, NoiseEffect, register
-from .k_records import _number, check_seed, fixed_normal
+from ..engine import layout as L
+from ..statistics import fixed_std
+from .base import PHOTON, NoiseEffect, pattern_key, register
+from .k_records import _number, check_seed
 
 STATISTICS = ("flat_fixed_rel",)
 
@@ -27,12 +29,14 @@ STATISTICS = ("flat_fixed_rel",)
 class PhotoResponseNonUniformity(NoiseEffect):
     token = "PRNU"
     order = PHOTON
+    flag = L.PRNU
+    columns = ("prnu_sigma",)
 
-    def forward(self, signal_dn, clean_dn, params, generator):
-        _, c, h, w = signal_dn.shape
-        p = self.profile.effects[self.token]
-        gain = fixed_normal(p["seed"], (c, h, w), signal_dn.device).to(signal_dn.dtype)[None]
-        return signal_dn * (1.0 + float(p["sigma"]) * gain)
+    def draw(self, ctx):
+        return {"prnu_sigma": ctx.k.new_full((ctx.k.shape[0],), float(self.profile.effects[self.token]["sigma"]))}
+
+    def pattern_streams(self):
+        return {"prnu_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
 
     @classmethod
     def validate_params(cls, params):
@@ -46,8 +50,6 @@ class PhotoResponseNonUniformity(NoiseEffect):
 
 def _fixed_var(frames):
     """Robust fixed-pattern variance of a stack (``fixed_std`` squared), DN^2."""
-    from ..loop.statistics import fixed_std
-
     return fixed_std(frames) ** 2
 
 

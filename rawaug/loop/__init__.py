@@ -11,4 +11,4 @@ physical effect, add the effect, and report the error before and after.
 """
 from .diagnose import FrameStack, Residual, battery_error, diagnose, synthesize  # noqa: F401
 from .frames_loop import LoopResult, Step, run_frame_loop  # noqa: F401
-from .statistics import STATISTICS, frame_statistics  # noqa: F401
+from ..statistics import STATISTICS, frame_statistics  # noqa: F401

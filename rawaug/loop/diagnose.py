@@ -1,7 +1,7 @@
 """Residual diagnosis on frames: measured stack against repeated syntheses of the model.
 
 For a measured stack (N frames at gain K), the model synthesizes ``n_synth`` stacks of the
-same size and count; every statistic of ``rawaug.loop.statistics`` gets
+same size and count; every statistic of ``rawaug.statistics`` gets
 
 * ``z = (measured - mean of syntheses) / spread of syntheses`` (significance), and
 * ``rel_error = |measured - mean| / max(|measured|, 3 spread, resolution)`` (error figure:
@@ -20,7 +20,7 @@ import torch
 from ..augment import RawNoiseAugment, parse_model
 from ..profile import NoiseProfile
 from .registry import effects_for
-from .statistics import STATISTICS, frame_statistics
+from ..statistics import STATISTICS, frame_statistics
 
 
 @dataclass
@@ -97,23 +97,39 @@ def synthesis_fixed(profile: NoiseProfile, stack: FrameStack) -> dict:
     return fixed
 
 
+def sensor_realization(profile: NoiseProfile, index: int) -> NoiseProfile:
+    """The profile with every fixed pattern re-drawn (index 0: the profile's own patterns).
+    A profile describes a population of sensors; a measured stack is one of them, so the
+    spread of the syntheses must include the pattern-to-pattern spread, not only frame noise."""
+    if index == 0 or not any(isinstance(p, dict) and "seed" in p for p in profile.effects.values()):
+        return profile
+    data = profile.to_dict()
+    for params in data["effects"].values():
+        if isinstance(params, dict) and "seed" in params:
+            params["seed"] = (int(params["seed"]) + 1_000_003 * index) % (2**31)
+    return NoiseProfile.from_dict(data)
+
+
 def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int, model: str = "G*+P*+R+U") -> np.ndarray:
     """``n_synth`` stacks like ``stack`` from the model (base ``model`` + colour bias +
-    every effect in the profile): array (n_synth, N, 4, h, w) in DN, float32. Integer
-    measured codes get rounded syntheses (the ADC rounds) instead of the ``U`` dither."""
+    every effect in the profile), each from its own realization of the fixed patterns
+    (``sensor_realization``): array (n_synth, N, 4, h, w) in DN, float32. Integer measured
+    codes get rounded syntheses (the ADC rounds) instead of the ``U`` dither."""
     tokens = [t for t in parse_model(model) if not (t == "U" and stack.integer)]
     if "C" not in tokens:
         tokens.append("C")
-    aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed=synthesis_fixed(profile, stack),
-                          generator=torch.Generator().manual_seed(int(seed)), rank_seeding=False)
     n, _, h, w = stack.frames_dn.shape
     level = 0.0 if stack.kind == "bias" else float(np.mean(stack.level_dn))
-    clean = torch.full((n_synth * n, 4, h, w), level / profile.span_dn, dtype=torch.float32)
-    with torch.no_grad():
-        out = aug(clean) * profile.span_dn
-    if stack.integer:
-        out = torch.round(out)
-    return out.numpy().reshape(n_synth, n, 4, h, w)
+    clean = torch.full((n, 4, h, w), level / profile.span_dn, dtype=torch.float32)
+    generator = torch.Generator().manual_seed(int(seed))
+    out = np.empty((n_synth, n, 4, h, w), dtype=np.float32)
+    for i in range(n_synth):
+        aug = RawNoiseAugment(sensor_realization(profile, i), model="+".join(tokens), ratio=1.0,
+                              fixed=synthesis_fixed(profile, stack), generator=generator, rank_seeding=False)
+        with torch.no_grad():
+            frames = aug(clean) * profile.span_dn
+        out[i] = (torch.round(frames) if stack.integer else frames).numpy()
+    return out
 
 
 def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float = 0.1) -> list[Residual]:

@@ -1,14 +1,16 @@
 """Candidate effects of the closed loop: statistic -> effect -> estimator.
 
-Adding an effect to the loop means writing one module in ``rawaug/effects`` (with a
-registered ``NoiseEffect``, ``STATISTICS`` and ``estimate``) and listing it here.
+There is one registry, ``rawaug.effects.EFFECTS``: every registered effect whose module
+also defines ``STATISTICS`` (what shows it) and ``estimate`` (how it is measured) is a
+candidate. Adding an effect to the loop is writing that one module and registering it.
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from types import ModuleType
 
-from ..effects import black_clip, column_noise, dark_shading, frame_black_level, hot_pixels, prnu
+from ..effects import EFFECTS
 
 
 @dataclass(frozen=True)
@@ -28,17 +30,16 @@ class Candidate:
         return self.module.estimate(frames, synthesized, k, **kw)
 
 
-CANDIDATES: dict[str, Candidate] = {
-    c.token: c
-    for c in (
-        Candidate("Col", column_noise),
-        Candidate("FPN", dark_shading),
-        Candidate("Hot", hot_pixels),
-        Candidate("Clip", black_clip),
-        Candidate("BLE", frame_black_level),
-        Candidate("PRNU", prnu),
-    )
-}
+def _candidates() -> dict[str, Candidate]:
+    out = {}
+    for token, cls in EFFECTS.items():
+        module = sys.modules[cls.__module__]
+        if hasattr(module, "estimate") and hasattr(module, "STATISTICS"):
+            out[token] = Candidate(token, module)
+    return out
+
+
+CANDIDATES: dict[str, Candidate] = _candidates()
 
 
 def effects_for(statistic: str) -> list[str]:

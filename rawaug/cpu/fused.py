@@ -1,0 +1,149 @@
+"""The whole noise chain in one pass over a CPU batch (numba).
+
+Each element is read once, taken through every enabled stage in physical order (the
+flags of ``rawaug.engine.layout``) and written once. Every random number is
+``rawaug.rng``'s counter hash of its stream key and the element's index, so the result
+does not depend on how rows are split over threads and equals the Triton kernel's.
+Gaussian and Tukey-lambda values come from the quantile tables of ``quantile_table``
+(the Triton kernel evaluates the same quantiles in registers).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..engine import layout as L
+from .counter import draw, unit
+from .poisson import COARSE_MAX, GRID_STEP, SPARE_BITS, TABLE_MAX, _ptrs, _small_poisson, _table_count
+from .quantile_table import symmetric
+
+_K, _PRNU = L.COLUMN["k"], L.COLUMN["prnu_sigma"]
+_TL, _G, _R = L.COLUMN["sigma_tl"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
+_CS, _CF = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"]
+_FS, _FR = L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
+_HD, _HM, _HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
+_Q, _B0 = L.COLUMN["step_dn"], L.COLUMN["bias_r"]
+_BS, _BC, _CL = L.COLUMN["ble_sigma"], L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"]
+_RATIO = L.COLUMN["ratio"]
+_ROW = L.STREAM["row"]
+_BLE = L.STREAM["ble"]
+_PRNU_PATTERN = L.STREAM["prnu_pattern"]
+_SHOT = L.STREAM["shot"]
+_SHOT_REST = L.STREAM["shot_rest"]
+_SHOT_COARSE = L.STREAM["shot_coarse"]
+_FPN_PATTERN = L.STREAM["fpn_pattern"]
+_HOT_WHERE = L.STREAM["hot_where"]
+_HOT_SIZE = L.STREAM["hot_size"]
+_READ = L.STREAM["read"]
+_COL = L.STREAM["col"]
+_COL_PATTERN = L.STREAM["col_pattern"]
+_QUANT = L.STREAM["quant"]
+_ROW_SET = np.array(L.ROW_SET, dtype=np.int64)
+_COL_SET = np.array(L.COLUMN_SET, dtype=np.int64)
+
+
+@njit(inline="always")
+def shading_at(grids, record, y, x, h, w):
+    """Bilinear upsampling (align_corners=False, edge-clamped) of grid ``record`` at (y, x)."""
+    gh, gw = grids.shape[1], grids.shape[2]
+    sy = min(max((y + 0.5) * gh / h - 0.5, 0.0), gh - 1.0)
+    sx = min(max((x + 0.5) * gw / w - 0.5, 0.0), gw - 1.0)
+    y0, x0 = int(sy), int(sx)
+    y1, x1 = min(y0 + 1, gh - 1), min(x0 + 1, gw - 1)
+    fy, fx = sy - y0, sx - x0
+    top = grids[record, y0, x0] * (1.0 - fx) + grids[record, y0, x1] * fx
+    bottom = grids[record, y1, x0] * (1.0 - fx) + grids[record, y1, x1] * fx
+    return top * (1.0 - fy) + bottom * fy
+
+
+@njit(nogil=True, cache=True)
+def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read_index, normal, fine, coarse, grids):
+    """Rows ``r0 .. r1`` of the (B * 4 * H) rows of a (B, 4, H, W) batch, flattened; returns
+    the count of non-finite clean values met (their outputs are NaN)."""
+    bad = 0
+    stages = flags
+    for r in range(r0, r1):
+        b = r // (4 * h)
+        c = (r // h) % 4
+        y = r % h
+        v = values[b]
+        k = v[_K]
+        scale_in = span / v[_RATIO]
+        scale_out = v[_RATIO] / span
+        row_set, col_set = _ROW_SET[c], _COL_SET[c]
+        line = 0.0  # offsets shared by the whole row
+        if stages & L.ROW:
+            line += v[_R] * symmetric(normal, draw(keys[_ROW], (b * 2 + row_set) * h + y))
+        if stages & L.BIAS:
+            line += v[_B0 + c]
+        if stages & L.BLE:
+            line += v[_BS] * symmetric(normal, draw(keys[_BLE], b * 5))
+            line += v[_BC] * symmetric(normal, draw(keys[_BLE], b * 5 + 1 + c))
+        table = read_tables[read_index[b]]
+        key_fine, key_rest, key_coarse = keys[_SHOT], keys[_SHOT_REST], keys[_SHOT_COARSE]
+        record = int(v[_FR])
+        g0 = r * w
+        p0 = (c * h + y) * w
+        for x in range(w):
+            g = g0 + x
+            p = p0 + x
+            s = clean[g] * scale_in
+            if not math.isfinite(s):
+                bad += 1
+            if stages & L.PRNU:
+                s *= 1.0 + v[_PRNU] * symmetric(normal, draw(keys[_PRNU_PATTERN], p))
+            if stages & L.SHOT_POISSON:  # the body of rawaug.cpu.poisson._poisson, inlined (see there)
+                lam = s / k
+                if not math.isfinite(lam):
+                    pass  # NaN/Inf pass through (counted above)
+                elif not lam > 0.0:
+                    s = 0.0
+                elif lam < COARSE_MAX:
+                    count = 0
+                    if lam >= TABLE_MAX:
+                        j = int(lam * (1.0 / TABLE_MAX))
+                        count = _table_count(draw(key_coarse, g), j, coarse)
+                        lam -= j * TABLE_MAX  # exact
+                    j = int(lam * (1.0 / GRID_STEP))
+                    z = draw(key_fine, g)
+                    count += _table_count(z, j, fine) + _small_poisson(lam - j * GRID_STEP, z & SPARE_BITS, key_rest, g)
+                    s = count * k
+                else:
+                    s = _ptrs(lam, draw(key_rest, g)) * k
+            elif stages & L.SHOT_GAUSS:
+                s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
+            if stages & L.FPN:
+                s += v[_FS] * symmetric(normal, draw(keys[_FPN_PATTERN], p)) + shading_at(grids, record, y, x, h, w)
+            if stages & L.HOT:
+                if unit(draw(keys[_HOT_WHERE], p)) < v[_HD]:
+                    s += v[_HM] * math.exp(v[_HL] * symmetric(normal, draw(keys[_HOT_SIZE], p)))
+            if stages & L.READ_TUKEY:
+                s += v[_TL] * symmetric(table, draw(keys[_READ], g))
+            elif stages & L.READ_GAUSS:
+                s += v[_G] * symmetric(normal, draw(keys[_READ], g))
+            if stages & L.COL:
+                s += v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
+                s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], col_set * w + x))
+            if stages & L.QUANT:
+                s += (unit(draw(keys[_QUANT], g)) - 0.5) * v[_Q]
+            s += line
+            if stages & L.CLIP:
+                s = max(s, v[_CL])
+            if stages & L.CLIP_WHITE:
+                s = min(s, span)
+            out[g] = s * scale_out
+    return bad
+
+
+def synthesize(clean, out, values, flags, keys, span, read_tables, read_index, normal, fine, coarse, grids, threads=1):
+    """Run the fused chain over a (B, 4, H, W) NumPy batch into ``out`` (may be ``clean``);
+    returns the count of non-finite clean values."""
+    from .parallel import run_ranges
+
+    b, _, h, w = clean.shape
+    x, o = clean.reshape(-1), out.reshape(-1)
+    keys = np.asarray(keys, dtype=np.uint64)
+    return run_ranges(lambda r0, r1: _rows(x, o, values, np.int64(flags), keys, float(span), h, w, r0, r1, read_tables,
+                                    read_index, normal, fine, coarse, grids), b * 4 * h, w, threads)

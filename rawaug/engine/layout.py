@@ -1,0 +1,51 @@
+"""What the fused kernels read: stage flags, parameter columns and stream slots.
+
+Plain constants, imported by the effects (which fill them), the CPU and Triton kernels
+(which read them) and the engine (which packs them). One column per scalar a stage needs
+per sample; one stream slot per random stream a stage draws from.
+"""
+from __future__ import annotations
+
+# Stage flags, in physical order (photons -> electrons -> voltage -> DN).
+PRNU = 1 << 0  # pixel gain map on the photo signal
+SHOT_POISSON = 1 << 1  # P*
+SHOT_GAUSS = 1 << 2  # P
+FPN = 1 << 3  # dark shading + white fixed pattern
+HOT = 1 << 4  # hot pixels
+READ_TUKEY = 1 << 5  # G*
+READ_GAUSS = 1 << 6  # G
+ROW = 1 << 7  # R
+COL = 1 << 8  # column noise
+QUANT = 1 << 9  # U
+BIAS = 1 << 10  # C
+BLE = 1 << 11  # frame black-level error
+CLIP = 1 << 12  # black clipping
+CLIP_WHITE = 1 << 13  # clipping at white
+
+COLUMNS = (
+    "k", "ratio",
+    "prnu_sigma",
+    "sigma_tl", "lambda", "sigma_g",
+    "sigma_r",
+    "col_sigma", "col_fixed",
+    "fpn_sigma", "fpn_record",
+    "hot_density", "hot_median", "hot_log_std",
+    "step_dn",
+    "bias_r", "bias_g1", "bias_b", "bias_g2",
+    "ble_sigma", "ble_channel_sigma",
+    "clip_floor",
+)
+COLUMN = {name: i for i, name in enumerate(COLUMNS)}
+N_COLUMNS = len(COLUMNS)
+
+# Random stream slots (one 63-bit key each, per call or per fixed pattern).
+STREAMS = (
+    "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
+    "prnu_pattern", "fpn_pattern", "hot_where", "hot_size", "col_pattern",
+)
+STREAM = {name: i for i, name in enumerate(STREAMS)}
+N_STREAMS = len(STREAMS)
+
+# Packed (R, G1, B, G2): which of a 2x2 tile's sensor rows / columns a channel lies on.
+ROW_SET = (0, 0, 1, 1)
+COLUMN_SET = (0, 1, 1, 0)

@@ -1,0 +1,129 @@
+"""The whole noise chain in one Triton kernel: each element of clean is read once and its
+noisy value written once; the stages are the CPU kernel's (``rawaug.cpu.fused``), in the
+same order, from the same counter streams. ``FLAGS`` is a compile-time constant, so the
+stages a model does not use are not in its kernel."""
+from __future__ import annotations
+
+import triton
+import triton.language as tl
+
+from ..engine import layout as L
+from .counter import draw, normal_upper, tail_of, tukey_upper, unit
+from .poisson import poisson_count
+
+C_K, C_RATIO, C_PRNU = L.COLUMN["k"], L.COLUMN["ratio"], L.COLUMN["prnu_sigma"]
+C_TL, C_LAM, C_G, C_R = L.COLUMN["sigma_tl"], L.COLUMN["lambda"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
+C_CS, C_CF, C_FS, C_FR = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"], L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
+C_HD, C_HM, C_HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
+C_Q, C_B0, C_BS, C_BC, C_CL = (L.COLUMN["step_dn"], L.COLUMN["bias_r"], L.COLUMN["ble_sigma"],
+                               L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"])
+S = L.STREAM
+K_SHOT, K_SHOT_REST, K_SHOT_COARSE, K_READ = S["shot"], S["shot_rest"], S["shot_coarse"], S["read"]
+K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
+K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
+                                                         S["hot_size"], S["col_pattern"])
+
+
+@triton.jit
+def _normal(z):
+    t, sign = tail_of(z)
+    return (sign * normal_upper(t)).to(tl.float64)
+
+
+@triton.jit
+def _key(keys_ptr, slot: tl.constexpr):
+    return tl.load(keys_ptr + slot).to(tl.uint64, bitcast=True)
+
+
+@triton.jit
+def _col(v_ptr, col: tl.constexpr):
+    return tl.load(v_ptr + col)
+
+
+@triton.jit
+def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
+                 f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                 c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin,
+                 grids_ptr, GH, GW,
+                 FLAGS: tl.constexpr, P: tl.constexpr, BLOCK: tl.constexpr):
+    plane = tl.program_id(1)  # b * 4 + c
+    b = plane // 4
+    c = plane % 4
+    idx = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
+    hw = H.to(tl.int64) * W
+    live = idx < hw
+    y = idx // W
+    x = idx % W
+    g = (plane.to(tl.int64) * hw + idx).to(tl.uint64)
+    p = (c.to(tl.int64) * hw + idx).to(tl.uint64)
+    row_set = c // 2
+    col_set = tl.where((c == 0) | (c == 3), 0, 1)
+    v = values_ptr + b.to(tl.int64) * P
+    k = _col(v, C_K)
+    ratio = _col(v, C_RATIO)
+    scale_in = span / ratio
+    s = tl.load(clean_ptr + plane.to(tl.int64) * hw + idx, mask=live, other=0.0).to(tl.float64) * scale_in
+    if FLAGS & 1:  # PRNU
+        s *= 1.0 + _col(v, C_PRNU) * _normal(draw(_key(keys_ptr, K_PRNU), p))
+    if FLAGS & 2:  # P*
+        lam = s / k
+        counted = k * poisson_count(lam, _key(keys_ptr, K_SHOT), _key(keys_ptr, K_SHOT_REST), _key(keys_ptr, K_SHOT_COARSE), g,
+                              f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                              c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live)
+        s = tl.where((lam == lam) & (tl.abs(lam) < float("inf")), counted, s)  # NaN/Inf pass through
+    elif FLAGS & 4:  # P
+        s += tl.sqrt(k * tl.maximum(s, 0.0)) * _normal(draw(_key(keys_ptr, K_SHOT), g))
+    if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading
+        gh = GH.to(tl.float64)
+        gw = GW.to(tl.float64)
+        sy = tl.minimum(tl.maximum((y.to(tl.float64) + 0.5) * gh / H - 0.5, 0.0), gh - 1.0)
+        sx = tl.minimum(tl.maximum((x.to(tl.float64) + 0.5) * gw / W - 0.5, 0.0), gw - 1.0)
+        y0 = sy.to(tl.int64)
+        x0 = sx.to(tl.int64)
+        y1 = tl.minimum(y0 + 1, GH - 1)
+        x1 = tl.minimum(x0 + 1, GW - 1)
+        fy = sy - y0.to(tl.float64)
+        fx = sx - x0.to(tl.float64)
+        base = grids_ptr + _col(v, C_FR).to(tl.int64) * GH * GW
+        top = tl.load(base + y0 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y0 * GW + x1, mask=live, other=0.0) * fx
+        bottom = tl.load(base + y1 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y1 * GW + x1, mask=live, other=0.0) * fx
+        s += _col(v, C_FS) * _normal(draw(_key(keys_ptr, K_FPN), p)) + (top * (1.0 - fy) + bottom * fy)
+    if FLAGS & 16:  # hot pixels
+        hot = unit(draw(_key(keys_ptr, K_HOT_WHERE), p)) < _col(v, C_HD)
+        size = _col(v, C_HM) * tl.exp(_col(v, C_HL) * _normal(draw(_key(keys_ptr, K_HOT_SIZE), p)))
+        s += tl.where(hot, size, 0.0)
+    if FLAGS & 32:  # G*
+        t, sign = tail_of(draw(_key(keys_ptr, K_READ), g))
+        s += _col(v, C_TL) * (sign * tukey_upper(t, _col(v, C_LAM).to(tl.float32))).to(tl.float64)
+    elif FLAGS & 64:  # G
+        s += _col(v, C_G) * _normal(draw(_key(keys_ptr, K_READ), g))
+    if FLAGS & 256:  # column noise: per frame and fixed
+        s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
+        s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), (col_set.to(tl.int64) * W + x).to(tl.uint64)))
+    if FLAGS & 512:  # U
+        s += (unit(draw(_key(keys_ptr, K_QUANT), g)) - 0.5) * _col(v, C_Q)
+    line = 0.0
+    if FLAGS & 128:  # R: one offset per sensor row
+        line += _col(v, C_R) * _normal(draw(_key(keys_ptr, K_ROW), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
+    if FLAGS & 1024:  # C
+        line += tl.load(v + C_B0 + c)
+    if FLAGS & 2048:  # BLE
+        line += _col(v, C_BS) * _normal(draw(_key(keys_ptr, K_BLE), (b * 5).to(tl.uint64) + tl.zeros_like(g)))
+        line += _col(v, C_BC) * _normal(draw(_key(keys_ptr, K_BLE), (b * 5 + 1 + c).to(tl.uint64) + tl.zeros_like(g)))
+    s += line
+    if FLAGS & 4096:  # black clip
+        s = tl.maximum(s, _col(v, C_CL))
+    if FLAGS & 8192:  # white clip
+        s = tl.minimum(s, span)
+    tl.store(out_ptr + plane.to(tl.int64) * hw + idx, (s * (ratio / span)).to(out_ptr.dtype.element_ty), mask=live)
+
+
+def launch(clean, out, values, keys, span, flags, fine, coarse, grids, block: int = 1024):
+    """One launch over a contiguous (B, 4, H, W) batch; tables and grids on clean's device."""
+    b, _, h, w = clean.shape
+    if b == 0 or h * w == 0:
+        return out
+    grid = (triton.cdiv(h * w, block), b * 4)
+    fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2],
+                       FLAGS=int(flags), P=values.shape[1], BLOCK=block)
+    return out

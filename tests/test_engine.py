@@ -1,0 +1,165 @@
+"""The fused engine's contract: one seed -> the same noise on every backend, validated
+fixed parameters, defined gradients, torch.compile, and (on CUDA) no host sync, few
+launches, CUDA-graph capture."""
+import numpy as np
+import pytest
+import torch
+
+from rawaug import NoiseProfile, RawNoiseAugment
+from rawaug.engine import backend
+from rawaug.engine.backend import synthesize_op
+
+triton = pytest.importorskip("triton")
+CUDA = torch.cuda.is_available()
+
+LOOP_EFFECTS = {
+    "Col": {"seed": 7, "k": [1.0, 3.0], "sigma_dn": [0.5, 0.9], "fixed_dn": [0.7, 1.1]},
+    "FPN": {"seed": 11, "k": [1.0, 3.0], "sigma_dn": [0.4, 0.6], "shading_dn": [[[0.0, 1.0], [2.0, -1.0]], [[1.0, 0.5], [0.0, 3.0]]]},
+    "Hot": {"seed": 13, "density": 0.01, "log_std": 0.5, "k": [1.0], "median_dn": [50.0]},
+    "Clip": {"floor_dn": -3.0},
+    "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
+    "PRNU": {"seed": 17, "sigma": 0.02},
+}
+
+
+def every_effect_profile():
+    profile = NoiseProfile.load("SonyA7S2")
+    for token, params in LOOP_EFFECTS.items():
+        profile = profile.with_effect(token, params)
+    return profile
+
+
+def both(aug, x):
+    """(numba output, Triton output) of one call, replayed from the same parameters."""
+    previous = backend.set_backend("numba")
+    try:
+        a = aug(x)
+        backend.set_backend("triton")
+        b = aug(x, params=aug._params)
+    finally:
+        backend.set_backend(previous)
+    return a, b
+
+
+@pytest.mark.parametrize("model", ["G*+P*+R+U+C", "G+P+R+U", "G*+P*", "G"])
+@pytest.mark.parametrize("ratio", [1.0, 150.0])
+def test_numba_and_triton_draw_the_same_noise(model, ratio):
+    # signal from 0 to 1 (up to ~15000 DN: every Poisson regime, PTRS included at ratio 1)
+    x = torch.rand(3, 4, 24, 40, generator=torch.Generator().manual_seed(0)) * torch.tensor([1e-4, 1e-2, 0.3, 1.0]).view(1, 4, 1, 1)
+    aug = RawNoiseAugment(every_effect_profile(), model=model, ratio=ratio)
+    a, b = both(aug, x)
+    assert not torch.equal(a, x)
+    # equal within 1e-5 relative; near zero within 1e-6 of white (cancellation in float32)
+    np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-5, atol=1e-6)
+
+
+def test_poisson_counts_are_equal_on_both_backends():
+    lam = torch.cat([torch.linspace(0, 70, 400), torch.linspace(70, 4096, 400), torch.linspace(4000, 20000, 224)])
+    aug = RawNoiseAugment("SonyA7S2", model="P*", ratio=1.0, fixed={"k": 1.0})
+    x = (lam / aug.profile.span_dn).reshape(1, 4, 16, 16).float()
+    a, b = both(aug, x)
+    ca, cb = a * aug.profile.span_dn, b * aug.profile.span_dn
+    assert torch.equal(ca.round(), cb.round())
+    assert torch.allclose(ca, ca.round(), atol=1e-2)  # whole electrons
+
+
+def test_parameters_are_counter_based_per_sample():
+    aug = RawNoiseAugment(every_effect_profile(), model="G*+P*+R+U+C")
+    wide = aug.draw_parameters(6, "cpu", seed=42)["values"]
+    narrow = aug.draw_parameters(2, "cpu", seed=42)["values"]
+    assert torch.equal(wide[:2], narrow)  # sample b's parameters depend on (seed, b) only
+    assert not torch.equal(wide[0], wide[1])
+
+
+@pytest.mark.parametrize("fixed, match", [
+    ({"sigma_TL": 2.0}, "unknown fixed parameter 'sigma_TL'.*sigma_tl"),
+    ({"k": 0}, "k must be > 0"),
+    ({"ratio": -1}, "ratio must be > 0"),
+    ({"k": float("nan")}, "k must be finite"),
+    ({"lambda": 3.7}, r"lambda must be in \[-1, 1\], got 3.7"),
+    ({"sigma_r": -0.1}, "sigma_r must be >= 0"),
+    ({"color_bias_dn": [1, 2, 3]}, "4 values"),
+])
+def test_fixed_parameters_are_validated(fixed, match):
+    with pytest.raises(ValueError, match=match):
+        RawNoiseAugment("SonyA7S2", fixed=fixed)
+
+
+@pytest.mark.parametrize("ratio", [float("inf"), float("nan"), (100, float("inf")), 0.0])
+def test_ratio_must_be_finite_and_positive(ratio):
+    with pytest.raises(ValueError, match="ratio must be a finite positive number"):
+        RawNoiseAugment("SonyA7S2", ratio=ratio)
+
+
+def test_gradient_is_straight_through_and_noise_unchanged(samplers):
+    aug = RawNoiseAugment("SonyA7S2")  # G*+P*+R+U: P* has no derivative of its own
+    x = torch.rand(2, 4, 16, 16)
+    y = aug(x)
+    xg = x.clone().requires_grad_(True)
+    yg = aug(xg, params=aug._params)
+    assert torch.equal(yg.detach(), y)  # the same noise with or without grad
+    (yg * torch.arange(yg.numel()).reshape(yg.shape)).sum().backward()
+    assert torch.equal(xg.grad, torch.arange(yg.numel(), dtype=torch.float32).reshape(yg.shape))
+
+
+def test_non_finite_input_is_refused_without_a_separate_pass():
+    x = torch.rand(2, 4, 8, 8)
+    x[1, 2, 3, 4] = float("nan")
+    with pytest.raises(ValueError, match="1 NaN or Inf"):
+        RawNoiseAugment("SonyA7S2")(x)
+    assert torch.isnan(RawNoiseAugment("SonyA7S2", check_finite=False)(x)[1, 2, 3, 4])
+
+
+def test_compiled_operator_equals_eager():
+    aug = RawNoiseAugment(every_effect_profile(), model="G*+P*+R+U+C")
+    x = torch.rand(2, 4, 16, 16)
+    aug(x)
+    values, keys = aug._params["values"], aug._stream_keys(int(aug._params["seed"]))
+
+    def op(clean):
+        return synthesize_op(clean * 1.0, values, keys, float(aug.profile.span_dn), aug._flags, aug._grids) + 0.0
+
+    compiled = torch.compile(op, fullgraph=True, backend="aot_eager")  # fullgraph: no graph break at the op
+    assert torch.equal(compiled(x), op(x))
+    assert torch.equal(op(x), aug(x, params=aug._params))
+
+
+@pytest.mark.skipif(not CUDA, reason="needs CUDA")
+def test_cuda_equals_cpu_no_sync_few_launches_graph_capture():
+    from torch.profiler import ProfilerActivity, profile
+
+    aug = RawNoiseAugment(every_effect_profile(), model="G*+P*+R+U+C")
+    x = torch.rand(2, 4, 64, 64)
+    y = aug(x)
+    xc = x.cuda()
+    yc = aug(xc, params={k: v for k, v in aug._params.items()})
+    np.testing.assert_allclose(y.numpy(), yc.cpu().numpy(), rtol=1e-5, atol=1e-6)
+    aug(xc)
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("error")
+    try:
+        aug(xc)
+    finally:
+        torch.cuda.set_sync_debug_mode(0)
+    with profile(activities=[ProfilerActivity.CUDA]) as prof:
+        aug(xc)
+        torch.cuda.synchronize()
+    launches = [e for e in prof.events() if e.device_type == torch.autograd.DeviceType.CUDA]
+    assert len(launches) <= 3, [e.name for e in launches]
+    params = dict(aug._params)
+    params["values"] = params["values"].cuda()
+    static = torch.empty_like(xc)
+    graph = torch.cuda.CUDAGraph()
+    aug(xc, params=params)
+    with torch.cuda.graph(graph):
+        static.copy_(aug(xc, params=params))
+    graph.replay()
+    torch.testing.assert_close(static, aug(xc, params=params))
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_values_pass_through_every_backend(samplers, bad):
+    x = torch.rand(1, 4, 8, 8)
+    x[0, 1, 2, 3] = bad
+    y = RawNoiseAugment("SonyA7S2", check_finite=False)(x)
+    assert not torch.isfinite(y[0, 1, 2, 3]) and torch.isfinite(y).sum() == y.numel() - 1
