@@ -29,24 +29,44 @@ def measured_stack(effects, seed=123, n=8, size=128, label="measured"):
     return FrameStack(synthesize(prof, template, 1, seed)[0].astype(np.float64), K, label=label)
 
 
-@pytest.mark.parametrize("effects", [COL, FPN, HOT, {**COL, **FPN, **HOT}], ids=["Col", "FPN", "Hot", "mixed"])
-def test_loop_names_each_undeclared_effect_and_halves_its_error(effects):
-    # Seed 124: with the CPU noise kernels, seed 123's mixed stack is one on which BLE passes
-    # its test by chance (1 of 14 seeds tried: 123, 124-126, 130-139; 0 of 4 with torch's
-    # samplers). That false-positive rate is the loop's, noted in the README.
-    result = run_frame_loop([measured_stack(effects, seed=124)], BASE, n_synth=10, seed=1)
-    assert set(result.added) == set(effects)
-    for step in result.steps:
-        if step.accepted:
-            assert step.error_after <= 0.5 * step.error_before, step
+CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "mixed": {**COL, **FPN, **HOT}}
+
+
+def loop_succeeds(effects, seed):
+    """The loop on a measured stack (its fixed patterns and noise from ``seed``): exactly the
+    planted effects added, each cutting its evidence's error by half, the battery's rms z
+    halved, nothing significant left."""
+    result = run_frame_loop([measured_stack(effects, seed=seed)], BASE, n_synth=10, seed=1)
+    if set(result.added) != set(effects) or result.unexplained():
+        return False
+    if not effects:
+        return result.steps == []
+    if any(step.accepted and step.error_after > 0.5 * step.error_before for step in result.steps):
+        return False
     final = [s for s in result.steps if s.accepted][-1]  # the battery of the final model
-    assert final.battery_after["rms_z"] < 0.5 * result.steps[0].battery_before["rms_z"]
-    assert not result.unexplained()
+    return final.battery_after["rms_z"] < 0.5 * result.steps[0].battery_before["rms_z"]
+
+
+# Measured over the 20 measured-stack seeds 200-219 (test_loop_rates_over_seeds, slow):
+# Col, FPN, Hot and all three mixed named and fixed in 20 of 20 each; the ELD-only stack got
+# nothing added in 20 of 20. The default run checks the first seed of that range.
+@pytest.mark.parametrize("effects", list(CASES.values()), ids=list(CASES))
+def test_loop_names_each_undeclared_effect_and_halves_its_error(effects):
+    assert loop_succeeds(effects, seed=200)
 
 
 def test_loop_adds_nothing_without_an_undeclared_effect():
-    result = run_frame_loop([measured_stack({})], BASE, n_synth=10, seed=2)
-    assert result.added == [] and result.steps == []
+    assert loop_succeeds({}, seed=200)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(CASES) + ["none"])
+def test_loop_rates_over_seeds(name):
+    # 19 of 20 or better: a success rate of 0.95 passes with probability 0.74, one of 0.8
+    # with probability 0.07 (binomial)
+    effects = CASES.get(name, {})
+    successes = sum(loop_succeeds(effects, seed) for seed in range(200, 220))
+    assert successes >= 19, f"{name}: {successes} of 20 seeds"
 
 
 def test_statistics_reject_bad_input():
