@@ -63,6 +63,7 @@ FIXED_KEYS = {
     "sigma_r": "row-noise sigma, DN (>= 0)",
     "step_dn": "quantization step, DN (> 0)",
     "color_bias_dn": "per-channel black-level error, DN (4 values R, G1, B, G2)",
+    "exposure_s": "exposure time, seconds, for the dark current of a profile's Dark effect (>= 0)",
 }
 
 
@@ -84,7 +85,7 @@ def check_fixed(fixed) -> dict:
         lo = float(values.min())
         if key in ("k", "ratio", "step_dn") and lo <= 0:
             raise ValueError(f"fixed {key} must be > 0 ({FIXED_KEYS[key]}), got {value!r}")
-        if key.startswith("sigma") and lo < 0:
+        if (key.startswith("sigma") or key == "exposure_s") and lo < 0:
             raise ValueError(f"fixed {key} must be >= 0 ({FIXED_KEYS[key]}), got {value!r}")
         if key == "lambda" and not (-1.0 <= lo and float(values.max()) <= 1.0):
             raise ValueError(f"fixed lambda must be in [-1, 1], got {value!r}")

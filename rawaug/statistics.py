@@ -209,7 +209,8 @@ class Statistic:
     base: str = ""  # the base-model parameter it checks ("" when only effects explain it)
 
     def applies(self, n_frames: int, kind: str) -> bool:
-        return n_frames >= self.min_frames and self.kind in ("any", kind)
+        # dark frames are bias frames of a longer exposure: every bias statistic applies
+        return n_frames >= self.min_frames and self.kind in ("any", kind, "bias" if kind == "dark" else kind)
 
     def resolution(self, frames, value: float = 0.0) -> float:
         """Smallest meaningful difference of this statistic for this stack. A pixel
@@ -254,7 +255,7 @@ def frame_statistics(frames, kind: str = "bias", level_dn=None, names=None) -> d
     ----------
     frames : array (N, 4, h, w)
         Packed frames in DN (black-subtracted).
-    kind : "bias" or "flat"
+    kind : "bias", "dark" or "flat"
     level_dn : the clean level of a flat stack (DN), scalar or (4,).
     names : restrict to these statistics.
     """
@@ -263,8 +264,8 @@ def frame_statistics(frames, kind: str = "bias", level_dn=None, names=None) -> d
         raise ValueError(f"frames must be packed (N, 4, h, w), got shape {frames.shape}")
     if min(frames.shape[2:]) < 8:
         raise ValueError(f"frames must be at least 8x8 per channel, got {frames.shape[2:]}")
-    if kind not in ("bias", "flat"):
-        raise ValueError(f"kind must be 'bias' or 'flat', got {kind!r}")
+    if kind not in ("bias", "dark", "flat"):
+        raise ValueError(f"kind must be 'bias', 'dark' or 'flat', got {kind!r}")
     out = {}
     for name, stat in STATISTICS.items():
         if names is not None and name not in names:

@@ -14,17 +14,26 @@ BASE = NoiseProfile.load("SonyA7S2")
 COLUMN = {"seed": 3, "k": [1.0], "sigma_dn": [1.5], "fixed_dn": [2.0]}
 
 
-def write_frames(folder, with_columns: bool):
-    profile = BASE.with_effect("Col", COLUMN) if with_columns else BASE
+DARK = {"seed": 21, "k": [0.75, 3.0], "rate_e_per_s": [3.0, 3.0], "dsnu": [0.2, 0.2]}
+CASES = {"Col": ("Col", COLUMN), "Dark": ("Dark", DARK), "none": (None, None)}
+
+
+def write_frames(folder, effect=None, params=None):
+    """Bias frames, dark frames of 4 s and flat pairs at two ISOs of the base camera, plus
+    ``effect`` nobody declared: a manifest of 16-bit frames."""
+    profile = BASE.with_effect(effect, params) if effect else BASE
     rows = []
     for i, (iso, k) in enumerate([(800, 0.75), (3200, 3.0)]):
-        fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": BASE.row_scale.median(k)}
-        aug = RawNoiseAugment(profile, model="G*+P*+R", ratio=1.0, fixed=fixed, generator=torch.Generator().manual_seed(i), rank_seeding=False)
-        frames = [("bias", 1e-4, 0.0, j) for j in range(6)] + [("flat", level, level, j) for level in (0.02, 0.1) for j in range(2)]
-        clean = torch.tensor([f[2] for f in frames], dtype=torch.float32)[:, None, None, None].expand(len(frames), 4, 64, 64)
-        codes = np.clip(np.rint(aug(clean.contiguous()).numpy() * BASE.span_dn + BASE.black_level), 0, BASE.white_level)
-        for (kind, exposure, _, j), packed in zip(frames, codes):
-            name = f"{kind}_{iso}_{exposure:g}_{j}.npy"
+        frames = ([("bias", 1e-4, 0.0, j) for j in range(6)] + [("dark", 4.0, 0.0, j) for j in range(4)]
+                  + [("flat", level, level, j) for level in (0.02, 0.1) for j in range(2)])
+        for kind, exposure, level, j in frames:
+            fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": BASE.row_scale.median(k),
+                     "exposure_s": exposure}
+            aug = RawNoiseAugment(profile, model="G*+P*+R", ratio=1.0, fixed=fixed,
+                                  generator=torch.Generator().manual_seed(1000 * i + 10 * j + len(rows)), rank_seeding=False)
+            clean = torch.full((1, 4, 64, 64), level)
+            packed = np.clip(np.rint(aug(clean).numpy()[0] * BASE.span_dn + BASE.black_level), 0, BASE.white_level)
+            name = f"{kind}_{iso}_{exposure:g}_{level:g}_{j}.npy"
             np.save(folder / name, unpack(packed, "RGGB").astype(np.uint16))
             rows.append([name, kind, iso, exposure, "RGGB", 512, 16383])
     manifest = folder / "manifest.csv"
@@ -33,18 +42,19 @@ def write_frames(folder, with_columns: bool):
     return manifest
 
 
-@pytest.mark.parametrize("with_columns", [True, False])
-def test_loop_on_a_manifest_names_the_undeclared_effect(tmp_path, with_columns):
-    manifest = write_frames(tmp_path, with_columns)
+@pytest.mark.parametrize("case", list(CASES))
+def test_loop_on_a_manifest_names_the_undeclared_effect(tmp_path, case):
+    effect, params = CASES[case]
+    manifest = write_frames(tmp_path, effect, params)
     out, report = tmp_path / "loop.yaml", tmp_path / "report"
     assert main(["loop", str(manifest), "--out", str(out), "--report", str(report), "--n-synth", "8"]) == 0
     assert (report / "calibration" / "base_profile.yaml").is_file()  # the base model was calibrated first
     steps = json.loads((report / "report.json").read_text())["steps"]
     accepted = [s for s in steps if s.get("accepted")]
     effects = yaml.safe_load(out.read_text())["effects"]
-    if with_columns:
-        assert "Col" in effects, steps
-        col = next(s for s in accepted if s["effect"] == "Col")
-        assert col["error_after"] <= 0.5 * col["error_before"], col
+    if effect:
+        assert list(effects) == [effect], steps
+        step = next(s for s in accepted if s["effect"] == effect)
+        assert step["error_after"] <= 0.5 * step["error_before"], step
     else:
         assert accepted == [] and effects == {}, steps

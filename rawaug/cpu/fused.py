@@ -27,6 +27,8 @@ _HD, _HM, _HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_l
 _Q, _B0 = L.COLUMN["step_dn"], L.COLUMN["bias_r"]
 _BS, _BC, _CL = L.COLUMN["ble_sigma"], L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"]
 _RATIO = L.COLUMN["ratio"]
+_DARK_E, _DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
+_DSNU_PATTERN = L.STREAM["dsnu_pattern"]
 _ROW = L.STREAM["row"]
 _BLE = L.STREAM["ble"]
 _PRNU_PATTERN = L.STREAM["prnu_pattern"]
@@ -94,6 +96,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 bad += 1
             if stages & L.PRNU:
                 s *= 1.0 + v[_PRNU] * symmetric(normal, draw(keys[_PRNU_PATTERN], p))
+            if stages & L.DARK_CURRENT:
+                s += k * v[_DARK_E] * max(1.0 + v[_DSNU] * symmetric(normal, draw(keys[_DSNU_PATTERN], p)), 0.0)
             if stages & L.SHOT_POISSON:  # the body of rawaug.cpu.poisson._poisson, inlined (see there)
                 lam = s / k
                 if not math.isfinite(lam):

@@ -21,10 +21,12 @@ BIAS = 1 << 10  # C
 BLE = 1 << 11  # frame black-level error
 CLIP = 1 << 12  # black clipping
 CLIP_WHITE = 1 << 13  # clipping at white
+DARK_CURRENT = 1 << 14  # dark electrons (and their non-uniformity), before shot noise
 
 COLUMNS = (
     "k", "ratio",
     "prnu_sigma",
+    "dark_e", "dsnu",
     "sigma_tl", "lambda", "sigma_g",
     "sigma_r",
     "col_sigma", "col_fixed",
@@ -41,7 +43,7 @@ N_COLUMNS = len(COLUMNS)
 # Random stream slots (one 63-bit key each, per call or per fixed pattern).
 STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
-    "prnu_pattern", "fpn_pattern", "hot_where", "hot_size", "col_pattern",
+    "prnu_pattern", "dsnu_pattern", "fpn_pattern", "hot_where", "hot_size", "col_pattern",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -12,6 +12,7 @@ from .counter import draw, normal_upper, tail_of, tukey_upper, unit
 from .poisson import poisson_count
 
 C_K, C_RATIO, C_PRNU = L.COLUMN["k"], L.COLUMN["ratio"], L.COLUMN["prnu_sigma"]
+C_DARK_E, C_DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
 C_TL, C_LAM, C_G, C_R = L.COLUMN["sigma_tl"], L.COLUMN["lambda"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
 C_CS, C_CF, C_FS, C_FR = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"], L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
 C_HD, C_HM, C_HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
@@ -20,6 +21,7 @@ C_Q, C_B0, C_BS, C_BC, C_CL = (L.COLUMN["step_dn"], L.COLUMN["bias_r"], L.COLUMN
 S = L.STREAM
 K_SHOT, K_SHOT_REST, K_SHOT_COARSE, K_READ = S["shot"], S["shot_rest"], S["shot_coarse"], S["read"]
 K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
+K_DSNU = S["dsnu_pattern"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -65,6 +67,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     s = tl.load(clean_ptr + plane.to(tl.int64) * hw + idx, mask=live, other=0.0).to(tl.float64) * scale_in
     if FLAGS & 1:  # PRNU
         s *= 1.0 + _col(v, C_PRNU) * _normal(draw(_key(keys_ptr, K_PRNU), p))
+    if FLAGS & 16384:  # dark current: K * dark electrons * (1 + DSNU map), before shot noise
+        s += k * _col(v, C_DARK_E) * tl.maximum(1.0 + _col(v, C_DSNU) * _normal(draw(_key(keys_ptr, K_DSNU), p)), 0.0)
     if FLAGS & 2:  # P*
         lam = s / k
         counted = k * poisson_count(lam, _key(keys_ptr, K_SHOT), _key(keys_ptr, K_SHOT_REST), _key(keys_ptr, K_SHOT_COARSE), g,

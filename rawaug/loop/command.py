@@ -12,7 +12,9 @@ INPUT is one of
 * a frame manifest (CSV with ``path, kind, iso, ...``) or a folder, as ``rawaug calibrate``
   takes it: without ``--profile`` the base model is first calibrated from it (stage 1 and 2,
   report in ``DIR/calibration``); then the frame loop compares the bias stacks of every ISO
-  with syntheses and adds the missing effects.
+  with syntheses and adds the missing effects. Dark frames (kind ``dark``, with their
+  exposure) are compared with syntheses of the same exposure that carry the read noise and
+  offsets of the bias frames of their ISO, so that dark current shows.
 """
 from __future__ import annotations
 
@@ -94,7 +96,7 @@ def _run_frame_table(args, path):
 def _run_manifest(args, path):
     from ..calibration.stage1 import estimate_read_noise, estimate_row_noise, row_corrected
     from ..io import read_manifest
-    from .diagnose import FrameStack
+    from .diagnose import FrameStack, channel_offsets
     from .frames_loop import run_frame_loop
 
     if args.profile:
@@ -105,22 +107,39 @@ def _run_manifest(args, path):
         path = path / "manifest.csv"
         if not path.is_file():
             raise ValueError(f"{path.parent}: the frame loop needs a manifest.csv (kinds and ISOs of the frames)")
-    groups: dict = {}
+    bias: dict = {}
+    darks: dict = {}
     for entry in read_manifest(path):
-        if getattr(entry, "kind", "bias") != "bias":
+        kind = getattr(entry, "kind", "bias")
+        if kind == "flat":
             continue
         frame = entry.read()
-        groups.setdefault(frame.iso, []).append(frame.packed_dn())
-    if not groups:
+        if kind == "dark":
+            if not frame.exposure_s:
+                raise ValueError(f"{entry.path}: a dark frame needs its exposure_s (manifest column or EXIF)")
+            darks.setdefault((frame.iso, float(frame.exposure_s)), []).append(frame.packed_dn())
+        else:
+            bias.setdefault(frame.iso, []).append(frame.packed_dn())
+    if not bias:
         raise ValueError(f"{path}: no bias frames in the manifest")
-    stacks = []
-    for iso, frames in sorted(groups.items()):
+    stacks, measured = [], {}
+    for iso, frames in sorted(bias.items()):
         frames = np.stack(frames).astype(np.float64)
         row = estimate_row_noise(frames[0])
         read = estimate_read_noise(row_corrected(frames[0], row.row_means))
         k = profile.k_at_iso(iso) if iso else 1.0
-        stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}",
-                                 base={"sigma_tl": read.sigma_tl, "lambda": read.lam, "sigma_g": read.sigma_g, "sigma_r": row.sigma_r}))
+        measured[iso] = ({"sigma_tl": read.sigma_tl, "lambda": read.lam, "sigma_g": read.sigma_g, "sigma_r": row.sigma_r},
+                         channel_offsets(frames), k)
+        stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}", base=measured[iso][0]))
+    for (iso, exposure), frames in sorted(darks.items()):
+        if iso not in measured or len(frames) < 2:
+            print(f"warning: dark frames at ISO {iso:g}, {exposure:g} s left out: "
+                  + ("no bias frames at that ISO to compare them with" if iso not in measured else "fewer than 2 frames"))
+            continue
+        base, offsets, k = measured[iso]
+        # synthesized with the bias frames' read noise and offsets: what the dark adds shows
+        stacks.append(FrameStack(np.stack(frames).astype(np.float64), k, kind="dark", exposure_s=exposure,
+                                 label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_dn=offsets))
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
     md = [f"# rawaug loop: {path.name}", "", steps_table([s.to_dict() for s in result.steps])]
     for label in result.initial:

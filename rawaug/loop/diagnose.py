@@ -27,10 +27,13 @@ from ..statistics import STATISTICS, frame_statistics
 class FrameStack:
     """Measured frames of one setting, packed ``(N, 4, h, w)`` in DN (black-subtracted).
 
-    ``kind`` is ``"bias"`` (no light) or ``"flat"`` (uniform light of ``level_dn``);
-    ``base`` may fix base-model parameters measured on these frames (keys of
-    ``RawNoiseAugment(fixed=...)``: ``sigma_tl``, ``lambda``, ``sigma_r``); missing ones
-    come from the profile at ``k``."""
+    ``kind`` is ``"bias"`` (no light, shortest exposure), ``"dark"`` (no light, exposure
+    ``exposure_s`` seconds) or ``"flat"`` (uniform light of ``level_dn``). ``base`` may fix
+    base-model parameters measured on the bias frames of the same ISO (keys of
+    ``RawNoiseAugment(fixed=...)``: ``sigma_tl``, ``lambda``, ``sigma_r``); missing ones come
+    from the profile at ``k``. ``offsets_dn`` (R, G1, B, G2) are the channel offsets the
+    synthesis adds; default: the stack's own for bias frames, 0 for flats. A dark stack
+    should get those of its ISO's bias frames, so that the dark signal shows."""
 
     frames_dn: np.ndarray
     k: float
@@ -38,6 +41,8 @@ class FrameStack:
     level_dn: float | None = None
     label: str = ""
     base: dict = field(default_factory=dict)
+    exposure_s: float | None = None
+    offsets_dn: list | None = None
 
     def __post_init__(self):
         self.frames_dn = np.asarray(self.frames_dn, dtype=np.float64)
@@ -45,10 +50,14 @@ class FrameStack:
             raise ValueError(f"frames_dn must be packed (N, 4, h, w), got shape {self.frames_dn.shape}")
         if not (isinstance(self.k, (int, float)) and math.isfinite(self.k) and self.k > 0):
             raise ValueError(f"k (system gain, DN/e-) must be a positive number, got {self.k!r}")
-        if self.kind not in ("bias", "flat"):
-            raise ValueError(f"kind must be 'bias' or 'flat', got {self.kind!r}")
+        if self.kind not in ("bias", "dark", "flat"):
+            raise ValueError(f"kind must be 'bias', 'dark' or 'flat', got {self.kind!r}")
         if self.kind == "flat" and self.level_dn is None:
             raise ValueError("a flat stack needs its clean level level_dn (DN)")
+        if self.kind == "dark" and not (isinstance(self.exposure_s, (int, float)) and self.exposure_s > 0):
+            raise ValueError(f"a dark stack needs its exposure_s (seconds, > 0), got {self.exposure_s!r}")
+        if self.offsets_dn is not None and len(self.offsets_dn) != 4:
+            raise ValueError(f"offsets_dn must hold 4 values (R, G1, B, G2), got {self.offsets_dn!r}")
         self.label = self.label or f"{self.kind} K={self.k:.4g}"
 
     @property
@@ -91,8 +100,11 @@ def synthesis_fixed(profile: NoiseProfile, stack: FrameStack) -> dict:
         "sigma_g": profile.gaussian_scale.median(k),
         "lambda": float(profile.tukey_shape.nearest(k)),
         "sigma_r": profile.row_scale.median(k),
-        "color_bias_dn": channel_offsets(stack.frames_dn) if stack.kind == "bias" else [0.0] * 4,
+        "color_bias_dn": (list(stack.offsets_dn) if stack.offsets_dn is not None
+                          else channel_offsets(stack.frames_dn) if stack.kind == "bias" else [0.0] * 4),
     }
+    if stack.kind == "dark":
+        fixed["exposure_s"] = float(stack.exposure_s)
     fixed.update(stack.base)
     return fixed
 
@@ -119,7 +131,7 @@ def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int
     if "C" not in tokens:
         tokens.append("C")
     n, _, h, w = stack.frames_dn.shape
-    level = 0.0 if stack.kind == "bias" else float(np.mean(stack.level_dn))
+    level = float(np.mean(stack.level_dn)) if stack.kind == "flat" else 0.0
     clean = torch.full((n, 4, h, w), level / profile.span_dn, dtype=torch.float32)
     generator = torch.Generator().manual_seed(int(seed))
     out = np.empty((n_synth, n, 4, h, w), dtype=np.float32)

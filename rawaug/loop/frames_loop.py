@@ -86,12 +86,15 @@ def _estimate(token, stacks, diags, seed):
     records = []
     for stack in stacks:
         try:
-            rec = cand.estimate(stack.frames_dn, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn, seed=seed)
+            rec = cand.estimate(stack.frames_dn, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
+                                exposure_s=stack.exposure_s, seed=seed)
         except ValueError:
             continue  # this stack cannot show the effect (too few frames, not a flat)
         records.append(rec)
     if not records:
         return None
+    if hasattr(cand.module, "combine"):
+        return cand.module.combine(records)
     if all("k" in r for r in records):
         return merge_records(records)
     return records[0]

@@ -1,0 +1,85 @@
+"""Dark current (Dark): thermally generated electrons, growing with exposure time, with their
+shot noise and their pixel-to-pixel non-uniformity (DSNU), as EMVA 1288 measures them.
+
+Physics: every pixel collects ``rate * t`` electrons in the dark during an exposure of ``t``
+seconds; they are Poisson like photo-electrons (so their shot noise comes from the shot
+stage), and the rate differs from pixel to pixel (a fixed pattern whose spread grows with
+``t``: DSNU). The ELD paper lumps dark current into the read noise of its short bias frames;
+dark frames at longer exposures show it apart.
+
+Stage (DN, before shot noise): ``s -> s + K * dark_e * max(1 + dsnu * g, 0)`` with
+``dark_e = rate(K) * exposure_s`` electrons and ``g`` a standard-normal map keyed by the
+profile's seed and the pixel position. The exposure is a synthesis setting
+(``RawNoiseAugment(fixed={"exposure_s": t})``, default 0: no dark signal).
+
+Profile entry (per-K records, nearest record in log K)::
+
+    Dark: {seed: 19, k: [K, ...], rate_e_per_s: [...], dsnu: [...]}
+
+Detected on dark stacks (``FrameStack(kind="dark", exposure_s=t)``, synthesized with the
+offsets and read noise of the bias frames of the same ISO) by ``mean_dn`` (the dark signal),
+``temporal_std`` (its shot noise) and ``fixed_std`` (DSNU). Estimated by ``estimate``: the
+mean excess over the model gives the rate, the excess fixed-pattern variance (less the
+dark shot noise left in an N-frame mean) gives DSNU.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..engine import layout as L
+from ..statistics import fixed_std
+from .base import PHOTON, NoiseEffect, pattern_key, register
+from .k_records import check_seed, validate_records, value_at_k
+
+STATISTICS = ("mean_dn", "temporal_std", "fixed_std")
+
+
+@register
+class DarkCurrent(NoiseEffect):
+    token = "Dark"
+    order = PHOTON + 5
+    flag = L.DARK_CURRENT
+    columns = ("dark_e", "dsnu")
+
+    def draw(self, ctx):
+        p = self.profile.effects[self.token]
+        exposure = ctx.fixed.get("exposure_s", 0.0)
+        exposure = torch.as_tensor(exposure, dtype=torch.float64, device=ctx.device).expand(ctx.batch)
+        return {"dark_e": value_at_k(p, "rate_e_per_s", ctx.k) * exposure, "dsnu": value_at_k(p, "dsnu", ctx.k)}
+
+    def pattern_streams(self):
+        return {"dsnu_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
+
+    @classmethod
+    def validate_params(cls, params):
+        validate_records(cls.token, params, ("rate_e_per_s", "dsnu"), nonnegative=("rate_e_per_s", "dsnu"))
+        check_seed(cls.token, params)
+
+
+def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, **_) -> dict:
+    """Dark-current record at gain ``k`` from a dark stack (N >= 2, 4, h, w) in DN of
+    ``exposure_s`` seconds and stacks of the same shape synthesized by the current model."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if not exposure_s or frames.shape[0] < 2:
+        raise ValueError("Dark needs a dark stack of >= 2 frames and its exposure_s")
+    base = [np.asarray(s, dtype=np.float64) for s in synthesized]
+    signal_dn = float(frames.mean() - np.mean([s.mean() for s in base]))
+    if signal_dn <= 0:
+        return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [0.0], "dsnu": [0.0]}
+    n = frames.shape[0]
+    excess = fixed_std(frames) ** 2 - float(np.mean([fixed_std(s) ** 2 for s in base])) - k * signal_dn / n
+    dsnu = float(np.sqrt(max(excess, 0.0)) / signal_dn)
+    return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [signal_dn / (k * float(exposure_s))], "dsnu": [dsnu]}
+
+
+def combine(records: list[dict]) -> dict:
+    """One record per gain: the rate and DSNU of the stacks at one K (several exposures)
+    averaged, weighted by nothing but their count."""
+    by_k: dict = {}
+    for r in records:
+        by_k.setdefault(r["k"][0], []).append(r)
+    ks = sorted(by_k)
+    return {"seed": records[0]["seed"], "k": ks,
+            "rate_e_per_s": [float(np.mean([r["rate_e_per_s"][0] for r in by_k[k]])) for k in ks],
+            "dsnu": [float(np.mean([r["dsnu"][0] for r in by_k[k]])) for k in ks]}
