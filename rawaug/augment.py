@@ -110,7 +110,9 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         profile: a ``NoiseProfile``, a built-in camera name or a profile file path.
         model: components joined by ``+``: ``G`` / ``G*`` read noise (Gaussian / Tukey lambda),
             ``P`` / ``P*`` shot noise (Gaussian approx. / Poisson), ``R`` row noise, ``U``
-            quantization, ``C`` colour bias, and any registered loop effect.
+            quantization, ``C`` colour bias, and any registered loop effect. Default: the
+            profile's ``richest_model`` (``G*+P*+R+U``, or ``G+P*+U`` for a Poisson-Gaussian
+            profile without Tukey-lambda and row-noise fits).
         ratio: low-light factor, a number or a ``(low, high)`` range drawn uniformly.
         k: fix the system gain K (DN/e-), or a ``(low, high)`` range drawn log-uniformly;
             default: the profile's calibrated range.
@@ -135,7 +137,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
     def __init__(
         self,
         profile: NoiseProfile | str = "SonyA7S2",
-        model: str = "G*+P*+R+U",
+        model: str | None = None,
         ratio: float | tuple[float, float] = (100.0, 300.0),
         k: float | tuple[float, float] | None = None,
         iso: float | None = None,
@@ -153,10 +155,13 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         if not 0.0 <= float(p) <= 1.0:
             raise ValueError(f"p must be in [0, 1], got {p}")
         self.profile = NoiseProfile.load(profile)
-        self.model = model
+        self.fixed = check_fixed(fixed)
+        self.model = model = model if model is not None else self.profile.richest_model
         tokens = parse_model(model)
         if include_profile_effects:
             tokens += [t for t in self.profile.effects if t not in tokens]
+        for t in tokens:
+            EFFECTS[t].check(self.profile, self.fixed)
         self.effects = sorted((EFFECTS[t](self.profile) for t in tokens), key=lambda e: e.order)
         self._flags = sum(e.flag for e in self.effects) | (L.CLIP_WHITE if clip_white else 0)
         grids = [g for g in (e.grids() for e in self.effects) if g is not None]
@@ -165,7 +170,6 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         if iso is not None:
             k = self.profile.k_at_iso(iso)
         self.k_range = _range(k, "k") if k is not None else (self.profile.k_min, self.profile.k_max)
-        self.fixed = check_fixed(fixed)
         self.clip_white = bool(clip_white)
         self.generator = generator
         self.rank_seeding = bool(rank_seeding)

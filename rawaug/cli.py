@@ -11,11 +11,15 @@ import sys
 SUBCOMMANDS = {
     "calibrate": ("rawaug.calibration.command", "measured frames of a camera -> NoiseProfile + report"),
     "loop": ("rawaug.loop.command", "closed loop: diagnose residuals, add missing effects, report before/after"),
+    "import-darktable": ("rawaug.calibration.darktable", "a darktable noise profile (the user's noiseprofiles.json) -> NoiseProfile"),
 }
 
 
 def main(argv=None) -> int:
+    from . import __version__
+
     parser = argparse.ArgumentParser(prog="rawaug", description="Low-light raw noise: calibration and closed loop.")
+    parser.add_argument("--version", action="version", version=f"rawaug {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     modules = {}
     for name, (module_name, help_text) in SUBCOMMANDS.items():

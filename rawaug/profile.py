@@ -67,10 +67,10 @@ class NoiseProfile:
     cfa: str
     k_min: float
     k_max: float
-    tukey_scale: LogLinear
+    tukey_scale: LogLinear | None  # None: a Poisson-Gaussian profile (no Tukey-lambda fit)
     gaussian_scale: LogLinear
-    row_scale: LogLinear
-    tukey_shape: KTable
+    row_scale: LogLinear | None  # None: no row noise measured
+    tukey_shape: KTable | None
     color_bias: KTable
     quantization_step_dn: float = 1.0
     iso_table: tuple[tuple[float, ...], tuple[float, ...]] | None = None
@@ -138,19 +138,25 @@ class NoiseProfile:
             iso_table = (tuple(isos[i] for i in order), tuple(ks[i] for i in order))
 
         read = _require(data, "read_noise", "profile")
-        tukey_scale = LogLinear.from_dict(_require(read, "tukey_scale", "read_noise"), "read_noise.tukey_scale")
         gaussian_scale = LogLinear.from_dict(_require(read, "gaussian_scale", "read_noise"), "read_noise.gaussian_scale")
-        shape = _require(read, "tukey_shape", "read_noise")
-        shape_k = [_positive(v, "read_noise.tukey_shape.k[]") for v in _require(shape, "k", "read_noise.tukey_shape")]
-        lambdas = [_finite(v, "read_noise.tukey_shape.lambda[]") for v in _require(shape, "lambda", "read_noise.tukey_shape")]
-        for lam in lambdas:
-            if not -1.0 <= lam <= 1.0:
-                raise ValueError(f"read_noise.tukey_shape.lambda must be in [-1, 1], got {lam}")
-        if len(shape_k) != len(lambdas) or not lambdas:
-            raise ValueError(f"read_noise.tukey_shape.k and .lambda must have equal non-zero length, got {len(shape_k)} and {len(lambdas)}")
+        tukey_scale = shape_table = None
+        if ("tukey_scale" in read) != ("tukey_shape" in read):
+            raise ValueError("read_noise needs both tukey_scale and tukey_shape (a Tukey-lambda fit) or neither "
+                             "(a Poisson-Gaussian profile)")
+        if "tukey_scale" in read:
+            tukey_scale = LogLinear.from_dict(read["tukey_scale"], "read_noise.tukey_scale")
+            shape = read["tukey_shape"]
+            shape_k = [_positive(v, "read_noise.tukey_shape.k[]") for v in _require(shape, "k", "read_noise.tukey_shape")]
+            lambdas = [_finite(v, "read_noise.tukey_shape.lambda[]") for v in _require(shape, "lambda", "read_noise.tukey_shape")]
+            for lam in lambdas:
+                if not -1.0 <= lam <= 1.0:
+                    raise ValueError(f"read_noise.tukey_shape.lambda must be in [-1, 1], got {lam}")
+            if len(shape_k) != len(lambdas) or not lambdas:
+                raise ValueError(f"read_noise.tukey_shape.k and .lambda must have equal non-zero length, got {len(shape_k)} and {len(lambdas)}")
+            shape_table = KTable(tuple(shape_k), tuple(lambdas))
 
-        row = _require(data, "row_noise", "profile")
-        row_scale = LogLinear.from_dict(_require(row, "scale", "row_noise"), "row_noise.scale")
+        row = data.get("row_noise")
+        row_scale = LogLinear.from_dict(_require(row, "scale", "row_noise"), "row_noise.scale") if row is not None else None
 
         quant = data.get("quantization", {"step_dn": 1.0})
         step = _positive(_require(quant, "step_dn", "quantization"), "quantization.step_dn")
@@ -185,7 +191,7 @@ class NoiseProfile:
             tukey_scale=tukey_scale,
             gaussian_scale=gaussian_scale,
             row_scale=row_scale,
-            tukey_shape=KTable(tuple(shape_k), tuple(lambdas)),
+            tukey_shape=shape_table,
             color_bias=KTable(tuple(bias_k), tuple(bias_rows)),
             quantization_step_dn=step,
             iso_table=iso_table,
@@ -199,7 +205,7 @@ class NoiseProfile:
         if self.iso_table:
             gain["iso"] = list(self.iso_table[0])
             gain["k"] = list(self.iso_table[1])
-        return {
+        data = {
             "format": FORMAT_NAME,
             "version": FORMAT_VERSION,
             "camera": self.camera,
@@ -211,16 +217,29 @@ class NoiseProfile:
                 "cfa": self.cfa,
             },
             "system_gain": gain,
-            "read_noise": {
-                "tukey_scale": self.tukey_scale.to_dict(),
-                "gaussian_scale": self.gaussian_scale.to_dict(),
-                "tukey_shape": {"k": list(self.tukey_shape.k), "lambda": list(self.tukey_shape.values)},
-            },
-            "row_noise": {"scale": self.row_scale.to_dict()},
+            "read_noise": {"gaussian_scale": self.gaussian_scale.to_dict()},
             "quantization": {"step_dn": self.quantization_step_dn},
             "color_bias": {"k": list(self.color_bias.k), "dn": [list(r) for r in self.color_bias.values]},
             "effects": copy.deepcopy(self.effects),
         }
+        return self._fits(data)
+
+    def _fits(self, data: dict) -> dict:
+        if self.tukey_scale is not None:
+            data["read_noise"] = {"tukey_scale": self.tukey_scale.to_dict(), **data["read_noise"],
+                                  "tukey_shape": {"k": list(self.tukey_shape.k), "lambda": list(self.tukey_shape.values)}}
+        if self.row_scale is not None:
+            data = {**{k: v for k, v in data.items() if k != "quantization" and k != "color_bias" and k != "effects"},
+                    "row_noise": {"scale": self.row_scale.to_dict()},
+                    **{k: data[k] for k in ("quantization", "color_bias", "effects")}}
+        return data
+
+    @property
+    def richest_model(self) -> str:
+        """The paper's fullest model this profile can synthesize: ``G*+P*+R+U``, or without
+        the parts it has no fit for (``G+P*+U`` for a Poisson-Gaussian profile)."""
+        read = "G*" if self.tukey_scale is not None else "G"
+        return "+".join([read, "P*"] + (["R"] if self.row_scale is not None else []) + ["U"])
 
     def save(self, path) -> None:
         """Write the profile as YAML, atomically (temp file in the same folder, then rename)."""

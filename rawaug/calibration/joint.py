@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..effects.read_noise import tukey_lambda_variance
-from ..profile import KTable, LogLinear, NoiseProfile
+from ..distributions import tukey_lambda_variance
+from ..profile import NoiseProfile
+from ..relations import KTable, LogLinear
 from ..validate import finite
 
 
@@ -26,26 +27,36 @@ class IsoParameters:
 
     iso: float
     k: float
-    sigma_tl: float
-    sigma_r: float
-    lam: float
+    sigma_tl: float | None  # None: no Tukey-lambda fit (a Poisson-Gaussian table)
+    sigma_r: float | None  # None: row noise not measured
+    lam: float | None
     sigma_g: float | None = None
     color_bias_dn: tuple | None = None  # (R, G1, B, G2)
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self):
         where = f"ISO {self.iso!r} parameters"
-        for name in ("iso", "k", "sigma_tl"):
+        for name in ("iso", "k"):
             value = float(getattr(self, name))
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"{where}: {name} must be a positive finite number, got {getattr(self, name)!r}")
             setattr(self, name, value)
-        self.sigma_r = float(self.sigma_r)
-        if not math.isfinite(self.sigma_r) or self.sigma_r < 0:
-            raise ValueError(f"{where}: sigma_r must be >= 0 and finite, got {self.sigma_r!r}")
-        self.lam = float(self.lam)
-        if not -1.0 <= self.lam <= 1.0:
-            raise ValueError(f"{where}: lambda must be in [-1, 1], got {self.lam!r}")
+        if (self.sigma_tl is None) != (self.lam is None):
+            raise ValueError(f"{where}: sigma_tl and lambda come together (a Tukey-lambda fit) or not at all, "
+                             f"got sigma_tl={self.sigma_tl!r}, lambda={self.lam!r}")
+        if self.sigma_tl is None and self.sigma_g is None:
+            raise ValueError(f"{where}: needs a read-noise scale: sigma_tl with lambda, or sigma_g")
+        if self.sigma_tl is not None:
+            self.sigma_tl = float(self.sigma_tl)
+            if not math.isfinite(self.sigma_tl) or self.sigma_tl <= 0:
+                raise ValueError(f"{where}: sigma_tl must be a positive finite number, got {self.sigma_tl!r}")
+            self.lam = float(self.lam)
+            if not -1.0 <= self.lam <= 1.0:
+                raise ValueError(f"{where}: lambda must be in [-1, 1], got {self.lam!r}")
+        if self.sigma_r is not None:
+            self.sigma_r = float(self.sigma_r)
+            if not math.isfinite(self.sigma_r) or self.sigma_r < 0:
+                raise ValueError(f"{where}: sigma_r must be >= 0 and finite, got {self.sigma_r!r}")
         if self.sigma_g is not None:
             self.sigma_g = float(self.sigma_g)
             if not math.isfinite(self.sigma_g) or self.sigma_g <= 0:
@@ -91,7 +102,10 @@ def _number(value, name, where):
 
 def _row_to_params(row: dict, where: str, iso=None) -> IsoParameters:
     iso = _number(iso if iso is not None else _pick(row, "iso", where), "iso", where)
-    values = {key: _number(_pick(row, key, where), key, where) for key in ("k", "sigma_tl", "sigma_r", "lam")}
+    values = {"k": _number(_pick(row, "k", where), "k", where)}
+    for key in ("sigma_tl", "sigma_r", "lam"):  # optional: a Poisson-Gaussian table has sigma_g alone
+        raw = _pick(row, key, where, required=False)
+        values[key] = None if raw is None else _number(raw, key, where)
     sigma_g = _pick(row, "sigma_g", where, required=False)
     lowered = {str(k).strip().lower(): v for k, v in row.items()}
     bias = None
@@ -119,7 +133,8 @@ def _row_to_params(row: dict, where: str, iso=None) -> IsoParameters:
 def read_parameter_table(path) -> list[IsoParameters]:
     """Per-ISO parameters from a CSV or JSON table, sorted by K.
 
-    CSV: header with ``iso, K, sigma_TL, sigma_r, lambda`` and optional ``sigma_G``,
+    CSV: header with ``iso, K`` and ``sigma_TL, lambda`` (a Tukey-lambda fit) and/or
+    ``sigma_G`` (Gaussian), optional ``sigma_r``,
     ``bias_R, bias_G1, bias_B, bias_G2`` (or ``bias``); other columns go to ``extra``.
     JSON: a list of such objects; ``{"per_iso": [...]}``; or the PMN layout
     ``{"<Camera>_per_ISO": {"<iso>": {"Kmax": K, "sigTL":, "sigR":, "sigGs":, "lam":, "bias":}}}``
@@ -213,16 +228,21 @@ def fit_joint(params, *, camera, black_level, white_level, bit_depth, cfa, quant
     k = np.array([p.k for p in params])
     if np.unique(k).size < 2:
         raise ValueError(f"the joint model needs >= 2 distinct K values, got {np.unique(k).tolist()}")
-    tukey = fit_log_linear(k, [p.sigma_tl for p in params])
+    tukey = shape = None
+    if all(p.sigma_tl is not None for p in params):
+        tukey = fit_log_linear(k, [p.sigma_tl for p in params])
+        shape = KTable(tuple(float(v) for v in k), tuple(float(p.lam) for p in params))
     sigma_g = [p.sigma_g if p.sigma_g is not None else gaussian_equivalent_sigma(p.sigma_tl, p.lam) for p in params]
     gaussian = fit_log_linear(k, sigma_g)
-    with_rows = [p for p in params if p.sigma_r > 0]
-    if len(with_rows) < len(params):
-        warnings.warn(f"sigma_r = 0 at ISO {[p.iso for p in params if p.sigma_r <= 0]}: left out of the row-noise fit",
-                      stacklevel=2)
-    if len({p.k for p in with_rows}) < 2:
-        raise ValueError("row noise (sigma_r > 0) was found at fewer than 2 distinct K: cannot fit its relation")
-    row = fit_log_linear([p.k for p in with_rows], [p.sigma_r for p in with_rows])
+    with_rows = [p for p in params if p.sigma_r is not None and p.sigma_r > 0]
+    row = None
+    if any(p.sigma_r is not None for p in params):
+        if len(with_rows) < len(params):
+            warnings.warn(f"no sigma_r > 0 at ISO {[p.iso for p in params if p not in with_rows]}: left out of the "
+                          "row-noise fit", stacklevel=2)
+        if len({p.k for p in with_rows}) < 2:
+            raise ValueError("row noise (sigma_r > 0) was found at fewer than 2 distinct K: cannot fit its relation")
+        row = fit_log_linear([p.k for p in with_rows], [p.sigma_r for p in with_rows])
     bias_rows = [tuple(p.color_bias_dn) if p.color_bias_dn is not None else (0.0, 0.0, 0.0, 0.0) for p in params]
     isos = {}
     for p in params:
@@ -232,7 +252,7 @@ def fit_joint(params, *, camera, black_level, white_level, bit_depth, cfa, quant
     return NoiseProfile(
         camera=str(camera), black_level=float(black_level), white_level=float(white_level), bit_depth=int(bit_depth),
         cfa=str(cfa).upper(), k_min=float(k.min()), k_max=float(k.max()), tukey_scale=tukey, gaussian_scale=gaussian,
-        row_scale=row, tukey_shape=KTable(tuple(float(v) for v in k), tuple(float(p.lam) for p in params)),
+        row_scale=row, tukey_shape=shape,
         color_bias=KTable(tuple(float(v) for v in k), tuple(bias_rows)), quantization_step_dn=float(quantization_step_dn),
         iso_table=(tuple(float(i) for i in iso_sorted), tuple(iso_k)), effects={}, source=str(source),
     )

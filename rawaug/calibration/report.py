@@ -115,10 +115,12 @@ def figure_joint(profile, params, path):
     """sigma_TL, sigma_r, sigma_G against K with the fitted line and the sampled band."""
     plt = _plt()
     k = np.array([p.k for p in params])
-    series = [("sigma_TL", [p.sigma_tl for p in params], profile.tukey_scale),
-              ("sigma_r", [p.sigma_r for p in params], profile.row_scale),
+    series = [("sigma_TL", [p.sigma_tl or np.nan for p in params], profile.tukey_scale),
+              ("sigma_r", [p.sigma_r or np.nan for p in params], profile.row_scale),
               ("sigma_G", [p.sigma_g if p.sigma_g else np.nan for p in params], profile.gaussian_scale)]
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.5))
+    series = [s for s in series if s[2] is not None]  # a Poisson-Gaussian table has sigma_G alone
+    fig, axes = plt.subplots(1, len(series), figsize=(4 * len(series), 3.5), squeeze=False)
+    axes = axes[0]
     grid = np.linspace(np.log(k.min()) - 0.2, np.log(k.max()) + 0.2, 100)
     for ax, (name, sig, rel) in zip(axes, series):
         line = rel.slope * grid + rel.intercept
@@ -139,7 +141,8 @@ def figure_joint(profile, params, path):
 def figure_tables(profile, path):
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
-    axes[0].semilogx(profile.tukey_shape.k, profile.tukey_shape.values, "o")
+    if profile.tukey_shape is not None:
+        axes[0].semilogx(profile.tukey_shape.k, profile.tukey_shape.values, "o")
     axes[0].set_xlabel("K, DN/e-")
     axes[0].set_ylabel("Tukey lambda")
     bias = np.asarray(profile.color_bias.values)
@@ -202,10 +205,15 @@ def _markdown(profile, params, figures, warnings_list):
         r2t, r2g = p.extra.get("r2_tukey"), p.extra.get("r2_gauss")
         fmt = lambda v: f"{v:.5f}" if isinstance(v, (int, float)) else "-"  # noqa: E731
         sg = f"{p.sigma_g:.4g}" if p.sigma_g else "-"
-        lines.append(f"| {p.iso:g} | {p.k:.4g} | {p.sigma_tl:.4g} | {p.lam:.3f} | {p.sigma_r:.4g} | {sg} | {fmt(r2t)} | {fmt(r2g)} |")
+        num = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
+        lines.append(f"| {p.iso:g} | {p.k:.4g} | {num(p.sigma_tl, '.4g')} | {num(p.lam, '.3f')} | {num(p.sigma_r, '.4g')} "
+                     f"| {sg} | {fmt(r2t)} | {fmt(r2g)} |")
     lines += ["", "## Joint model: log(sigma) = slope log(K) + intercept + N(0, resid^2)", "",
               "| relation | slope | intercept | residual sigma |", "|---|---|---|---|"]
     for name, rel in (("sigma_TL", profile.tukey_scale), ("sigma_r", profile.row_scale), ("sigma_G", profile.gaussian_scale)):
+        if rel is None:
+            lines.append(f"| {name} | not measured | | |")
+            continue
         lines.append(f"| {name} | {rel.slope:.4f} | {rel.intercept:.4f} | {rel.residual_std:.4f} |")
     if warnings_list:
         lines += ["", "## Warnings", ""] + [f"- {w}" for w in warnings_list]

@@ -95,6 +95,11 @@ class NoiseEffect:
     def draw(self, ctx: DrawContext) -> dict[str, torch.Tensor]:
         return {}
 
+    @classmethod
+    def check(cls, profile, fixed: dict) -> None:
+        """Raise ValueError if ``profile`` (with the user's ``fixed`` values) cannot drive this
+        stage, naming what is missing."""
+
     def pattern_streams(self) -> dict[str, int]:
         """Stream keys of fixed patterns, by stream slot: the same in every call."""
         return {}

@@ -19,6 +19,12 @@ class TukeyLambdaReadNoise(NoiseEffect):
     flag = L.READ_TUKEY
     columns = ("sigma_tl", "lambda")
 
+    @classmethod
+    def check(cls, profile, fixed):
+        if profile.tukey_scale is None and not {"sigma_tl", "lambda"} <= set(fixed):
+            raise ValueError(f"profile {profile.camera!r} has no Tukey-lambda read-noise fit (read_noise.tukey_scale): "
+                             f"use a model with G instead of G* (e.g. {profile.richest_model!r}) or fix sigma_tl and lambda")
+
     def draw(self, ctx):
         sigma = ctx.scale(self.profile.tukey_scale, "sigma_tl")
         lam = ctx.fixed.get("lambda")

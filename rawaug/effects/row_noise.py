@@ -19,5 +19,11 @@ class RowNoise(NoiseEffect):
     flag = L.ROW
     columns = ("sigma_r",)
 
+    @classmethod
+    def check(cls, profile, fixed):
+        if profile.row_scale is None and "sigma_r" not in fixed:
+            raise ValueError(f"profile {profile.camera!r} has no row-noise fit (row_noise.scale): use a model "
+                             f"without R (e.g. {profile.richest_model!r}) or fix sigma_r")
+
     def draw(self, ctx):
         return {"sigma_r": ctx.scale(self.profile.row_scale, "sigma_r")}

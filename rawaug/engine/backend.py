@@ -38,6 +38,14 @@ def poisson_tables(device: str):
     return tuple(tuple(torch.as_tensor(a).to(device) for a in part) for part in tables())
 
 
+@functools.lru_cache(maxsize=8)
+def normal_table_on(device: str) -> torch.Tensor:
+    """The CPU kernel's normal quantile table on ``device``."""
+    from ..cpu.quantile_table import normal_table
+
+    return torch.from_numpy(normal_table()).to(device)
+
+
 @functools.lru_cache(maxsize=128)
 def _read_table(lam):
     from ..cpu.quantile_table import normal_table, tukey_lambda_table
@@ -73,7 +81,8 @@ def _triton(clean, out, values, keys, span, flags, grids):
     if clean.device.type == "cpu" and os.environ.get("TRITON_INTERPRET") != "1":
         raise RuntimeError("the Triton backend runs CPU tensors only under TRITON_INTERPRET=1 (set before importing triton)")
     fine, coarse = poisson_tables(str(clean.device))
-    return launch(clean, out, values.to(torch.float64), keys, span, flags, fine, coarse, grids.to(clean.device, torch.float64))
+    return launch(clean, out, values.to(torch.float64), keys, span, flags, fine, coarse, grids.to(clean.device, torch.float64),
+                  normal_table_on(str(clean.device)))
 
 
 def run(clean: torch.Tensor, values: torch.Tensor, keys: torch.Tensor, span: float, flags: int,

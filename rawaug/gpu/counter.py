@@ -87,3 +87,30 @@ def normal_upper(t):
             + 7.868691311456132591e-4) * e + 0.0148753612908506148525) * e + 0.13692988092273580531) * e
          + 0.59983220655588793769) * e + 1.0)
     return tl.where(q <= 0.425, central, tl.where(s <= 5.0, mid, far))
+
+
+@triton.jit
+def leading_zeros(x):
+    """Count of leading zero bits of a uint64 (x > 0), by halving."""
+    n = tl.zeros_like(x).to(tl.int64)
+    for shift in tl.static_range(6):
+        s: tl.constexpr = 32 >> shift
+        small = x < (1 << (64 - s))
+        n += tl.where(small, s, 0)
+        x = tl.where(small, x << s, x)
+    return n
+
+
+@triton.jit
+def symmetric_table(table_ptr, z):
+    """The CPU kernel's tabulated symmetric draw (``rawaug.cpu.quantile_table.symmetric``),
+    the same lookup and interpolation in float64: used where a value feeds the Poisson
+    draw, so that both backends count the same electrons."""
+    r = (z & 0x7FFFFFFFFFFFFFFF) | 1
+    lz = leading_zeros(r)  # 1..63
+    pos = (r.to(tl.float64) * tl.exp2((lz - 63).to(tl.float64)) - 1.0) * 1024.0
+    j = pos.to(tl.int64)
+    idx = (lz - 1) * 1025 + j
+    lo = tl.load(table_ptr + idx)
+    q = lo + (pos - j.to(tl.float64)) * (tl.load(table_ptr + idx + 1) - lo)
+    return q * (1.0 - 2.0 * (z >> 63).to(tl.float64))

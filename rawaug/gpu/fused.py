@@ -1,6 +1,8 @@
 """The whole noise chain in one Triton kernel: each element of clean is read once and its
 noisy value written once; the stages are the CPU kernel's (``rawaug.cpu.fused``), in the
-same order, from the same counter streams. ``FLAGS`` is a compile-time constant, so the
+same order, from the same counter streams. Draws after the shot noise evaluate their
+quantiles in float32 registers; the fixed patterns that feed the Poisson draw (PRNU, DSNU)
+use the CPU's normal table, so that both backends count the same electrons. ``FLAGS`` is a compile-time constant, so the
 stages a model does not use are not in its kernel."""
 from __future__ import annotations
 
@@ -8,7 +10,7 @@ import triton
 import triton.language as tl
 
 from ..engine import layout as L
-from .counter import draw, normal_upper, tail_of, tukey_upper, unit
+from .counter import draw, normal_upper, symmetric_table, tail_of, tukey_upper, unit
 from .poisson import poisson_count
 
 C_K, C_RATIO, C_PRNU = L.COLUMN["k"], L.COLUMN["ratio"], L.COLUMN["prnu_sigma"]
@@ -46,7 +48,7 @@ def _col(v_ptr, col: tl.constexpr):
 def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
                  f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
                  c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin,
-                 grids_ptr, GH, GW,
+                 grids_ptr, GH, GW, normal_ptr,
                  FLAGS: tl.constexpr, P: tl.constexpr, BLOCK: tl.constexpr):
     plane = tl.program_id(1)  # b * 4 + c
     b = plane // 4
@@ -66,9 +68,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     scale_in = span / ratio
     s = tl.load(clean_ptr + plane.to(tl.int64) * hw + idx, mask=live, other=0.0).to(tl.float64) * scale_in
     if FLAGS & 1:  # PRNU
-        s *= 1.0 + _col(v, C_PRNU) * _normal(draw(_key(keys_ptr, K_PRNU), p))
+        s *= 1.0 + _col(v, C_PRNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_PRNU), p))
     if FLAGS & 16384:  # dark current: K * dark electrons * (1 + DSNU map), before shot noise
-        s += k * _col(v, C_DARK_E) * tl.maximum(1.0 + _col(v, C_DSNU) * _normal(draw(_key(keys_ptr, K_DSNU), p)), 0.0)
+        s += k * _col(v, C_DARK_E) * tl.maximum(1.0 + _col(v, C_DSNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)), 0.0)
     if FLAGS & 2:  # P*
         lam = s / k
         counted = k * poisson_count(lam, _key(keys_ptr, K_SHOT), _key(keys_ptr, K_SHOT_REST), _key(keys_ptr, K_SHOT_COARSE), g,
@@ -122,12 +124,12 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     tl.store(out_ptr + plane.to(tl.int64) * hw + idx, (s * (ratio / span)).to(out_ptr.dtype.element_ty), mask=live)
 
 
-def launch(clean, out, values, keys, span, flags, fine, coarse, grids, block: int = 1024):
+def launch(clean, out, values, keys, span, flags, fine, coarse, grids, normal, block: int = 1024):
     """One launch over a contiguous (B, 4, H, W) batch; tables and grids on clean's device."""
     b, _, h, w = clean.shape
     if b == 0 or h * w == 0:
         return out
     grid = (triton.cdiv(h * w, block), b * 4)
-    fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2],
+    fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2], normal,
                        FLAGS=int(flags), P=values.shape[1], BLOCK=block)
     return out

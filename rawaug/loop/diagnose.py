@@ -96,16 +96,17 @@ def synthesis_fixed(profile: NoiseProfile, stack: FrameStack) -> dict:
     fixed = {
         "k": k,
         "ratio": 1.0,
-        "sigma_tl": profile.tukey_scale.median(k),
         "sigma_g": profile.gaussian_scale.median(k),
-        "lambda": float(profile.tukey_shape.nearest(k)),
-        "sigma_r": profile.row_scale.median(k),
         "color_bias_dn": (list(stack.offsets_dn) if stack.offsets_dn is not None
                           else channel_offsets(stack.frames_dn) if stack.kind == "bias" else [0.0] * 4),
     }
+    if profile.tukey_scale is not None:
+        fixed.update(sigma_tl=profile.tukey_scale.median(k), **{"lambda": float(profile.tukey_shape.nearest(k))})
+    if profile.row_scale is not None:
+        fixed["sigma_r"] = profile.row_scale.median(k)
+    fixed.update(stack.base)
     if stack.kind == "dark":
         fixed["exposure_s"] = float(stack.exposure_s)
-    fixed.update(stack.base)
     return fixed
 
 
@@ -122,12 +123,12 @@ def sensor_realization(profile: NoiseProfile, index: int) -> NoiseProfile:
     return NoiseProfile.from_dict(data)
 
 
-def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int, model: str = "G*+P*+R+U") -> np.ndarray:
+def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int, model: str | None = None) -> np.ndarray:
     """``n_synth`` stacks like ``stack`` from the model (base ``model`` + colour bias +
     every effect in the profile), each from its own realization of the fixed patterns
     (``sensor_realization``): array (n_synth, N, 4, h, w) in DN, float32. Integer measured
     codes get rounded syntheses (the ADC rounds) instead of the ``U`` dither."""
-    tokens = [t for t in parse_model(model) if not (t == "U" and stack.integer)]
+    tokens = [t for t in parse_model(model or profile.richest_model) if not (t == "U" and stack.integer)]
     if "C" not in tokens:
         tokens.append("C")
     n, _, h, w = stack.frames_dn.shape
@@ -160,7 +161,7 @@ def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float =
     return sorted(out, key=lambda r: -abs(r.z))
 
 
-def diagnose(stack: FrameStack, profile, *, model: str = "G*+P*+R+U", n_synth: int = 12, seed: int = 0,
+def diagnose(stack: FrameStack, profile, *, model: str | None = None, n_synth: int = 12, seed: int = 0,
              z_min: float = 6.0, rel_min: float = 0.1):
     """Synthesize ``n_synth`` stacks like ``stack`` and rank the residuals.
 

@@ -100,7 +100,7 @@ def _estimate(token, stacks, diags, seed):
     return records[0]
 
 
-def run_frame_loop(stacks: list[FrameStack], profile, *, model: str = "G*+P*+R+U", n_synth: int = 12, seed: int = 0,
+def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = None, n_synth: int = 12, seed: int = 0,
                    z_min: float = 6.0, rel_min: float = 0.1, max_steps: int = 8, log=None) -> LoopResult:
     """Fit the missing effects of ``profile`` to measured ``stacks``.
 
@@ -108,7 +108,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str = "G*+P*+R+U
     ----------
     stacks : measured frame stacks (labels must be unique).
     profile : the fitted base model (``NoiseProfile``, built-in name or path).
-    model : the base-model components used for the syntheses.
+    model : the base-model components used for the syntheses (default: the profile's richest).
     n_synth : syntheses per diagnosis (the spread behind every ``z``).
     z_min, rel_min : a residual is significant when ``|z| > z_min`` and its relative error
         exceeds ``rel_min`` (statistically and practically significant).

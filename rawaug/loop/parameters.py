@@ -212,8 +212,10 @@ def parameter_loop(params) -> dict:
     Returns ``{"fits": {name: RelationFit}, "steps": [...], "diagnosis": {name: ...}}``."""
     params = sorted(params, key=lambda p: p.k)
     k = np.array([p.k for p in params])
-    series = {"sigma_tl": np.array([p.sigma_tl for p in params])}
-    if all(p.sigma_r > 0 for p in params):
+    series = {}
+    if all(p.sigma_tl is not None for p in params):
+        series["sigma_tl"] = np.array([p.sigma_tl for p in params])
+    if all(p.sigma_r is not None and p.sigma_r > 0 for p in params):
         series["sigma_r"] = np.array([p.sigma_r for p in params])
     if all(p.sigma_g is not None for p in params):
         series["sigma_g"] = np.array([p.sigma_g for p in params])
