@@ -36,7 +36,7 @@ def run_stages(flags, dn, columns=None, seed=1, which="numba", grids=None):
     grids = torch.zeros(1, 1, 1, dtype=torch.float64) if grids is None else grids
     previous = backend.set_backend(which)
     try:
-        return backend.run(dn.contiguous(), values, torch.tensor(keys), 1.0, flags, grids)
+        return backend.run(dn.contiguous(), values, torch.tensor(keys), 1.0, flags, grids, torch.zeros(1, 1, dtype=torch.float64))
     finally:
         backend.set_backend(previous)
 

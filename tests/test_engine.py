@@ -20,6 +20,8 @@ LOOP_EFFECTS = {
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
     "PRNU": {"seed": 17, "sigma": 0.02},
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2]},
+    "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8]},
+    "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]]},
 }
 
 
@@ -128,7 +130,7 @@ def test_compiled_operator_equals_eager():
     values, keys = aug._params["values"], aug._stream_keys(int(aug._params["seed"]))
 
     def op(clean):
-        return synthesize_op(clean * 1.0, values, keys, float(aug.profile.span_dn), aug._flags, aug._grids) + 0.0
+        return synthesize_op(clean * 1.0, values, keys, float(aug.profile.span_dn), aug._flags, aug._grids, aug._code_lut) + 0.0
 
     compiled = torch.compile(op, fullgraph=True, backend="aot_eager")  # fullgraph: no graph break at the op
     assert torch.equal(compiled(x), op(x))

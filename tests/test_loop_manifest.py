@@ -15,13 +15,32 @@ COLUMN = {"seed": 3, "k": [1.0], "sigma_dn": [1.5], "fixed_dn": [2.0]}
 
 
 DARK = {"seed": 21, "k": [0.75, 3.0], "rate_e_per_s": [3.0, 3.0], "dsnu": [0.2, 0.2]}
-CASES = {"Col": ("Col", COLUMN), "Dark": ("Dark", DARK), "none": (None, None)}
+def digital_gain(dn, rng):
+    """Firmware gain of 1.5 after the ADC: a comb of unused codes (no stage of rawaug's)."""
+    return np.rint(np.rint(dn) * 1.5)
 
 
-def write_frames(folder, effect=None, params=None):
+def interference(dn, rng):
+    """A smooth pattern new in every frame (two random low-frequency waves, 2.5 DN, zero mean:
+    a frame-mean shift would be a black-level error, which BLE models physically)."""
+    y, x = np.mgrid[0 : dn.shape[1], 0 : dn.shape[2]] / dn.shape[1]
+    wave = sum(2.5 * np.cos(2 * np.pi * (rng.uniform(0.3, 1.5) * x + rng.uniform(0.3, 1.5) * y) + rng.uniform(0, 6.3))
+               for _ in range(2))
+    return dn + (wave - wave.mean())[None]
+
+
+# case -> (planted rawaug effect, its parameters, what the frames undergo besides, what the loop should add)
+CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["Dark"]),
+         "comb": (None, None, digital_gain, ["CodeMap"]), "interference": (None, None, interference, ["LowFreq"]),
+         "none": (None, None, None, [])}
+
+
+def write_frames(folder, effect=None, params=None, post=None):
     """Bias frames, dark frames of 4 s and flat pairs at two ISOs of the base camera, plus
-    ``effect`` nobody declared: a manifest of 16-bit frames."""
+    ``effect`` nobody declared, plus ``post`` (a change to the DN no rawaug stage makes): a
+    manifest of 16-bit frames."""
     profile = BASE.with_effect(effect, params) if effect else BASE
+    rng = np.random.default_rng(5)
     rows = []
     for i, (iso, k) in enumerate([(800, 0.75), (3200, 3.0)]):
         frames = ([("bias", 1e-4, 0.0, j) for j in range(6)] + [("dark", 4.0, 0.0, j) for j in range(4)]
@@ -32,7 +51,9 @@ def write_frames(folder, effect=None, params=None):
             aug = RawNoiseAugment(profile, model="G*+P*+R", ratio=1.0, fixed=fixed,
                                   generator=torch.Generator().manual_seed(1000 * i + 10 * j + len(rows)), rank_seeding=False)
             clean = torch.full((1, 4, 64, 64), level)
-            packed = np.clip(np.rint(aug(clean).numpy()[0] * BASE.span_dn + BASE.black_level), 0, BASE.white_level)
+            dn = aug(clean).numpy()[0] * BASE.span_dn
+            dn = post(dn, rng) if post else dn
+            packed = np.clip(np.rint(dn + BASE.black_level), 0, BASE.white_level)
             name = f"{kind}_{iso}_{exposure:g}_{level:g}_{j}.npy"
             np.save(folder / name, unpack(packed, "RGGB").astype(np.uint16))
             rows.append([name, kind, iso, exposure, "RGGB", 512, 16383])
@@ -44,17 +65,21 @@ def write_frames(folder, effect=None, params=None):
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_loop_on_a_manifest_names_the_undeclared_effect(tmp_path, case):
-    effect, params = CASES[case]
-    manifest = write_frames(tmp_path, effect, params)
+    effect, params, post, expected = CASES[case]
+    manifest = write_frames(tmp_path, effect, params, post)
     out, report = tmp_path / "loop.yaml", tmp_path / "report"
     assert main(["loop", str(manifest), "--out", str(out), "--report", str(report), "--n-synth", "8"]) == 0
     assert (report / "calibration" / "base_profile.yaml").is_file()  # the base model was calibrated first
-    steps = json.loads((report / "report.json").read_text())["steps"]
+    data = json.loads((report / "report.json").read_text())
+    steps = data["steps"]
     accepted = [s for s in steps if s.get("accepted")]
     effects = yaml.safe_load(out.read_text())["effects"]
-    if effect:
-        assert list(effects) == [effect], steps
-        step = next(s for s in accepted if s["effect"] == effect)
+    assert list(effects) == expected, steps
+    for token in expected:
+        step = next(s for s in accepted if s["effect"] == token)
         assert step["error_after"] <= 0.5 * step["error_before"], step
-    else:
-        assert accepted == [] and effects == {}, steps
+        assert step["kind"] == ("measured" if post else "physical")
+    assert data["reproduced_by_measurement"] == (expected if post else [])
+    if not expected:
+        assert accepted == [], steps
+        assert "Nothing was added" in (report / "report.md").read_text()

@@ -29,6 +29,9 @@ _BS, _BC, _CL = L.COLUMN["ble_sigma"], L.COLUMN["ble_channel_sigma"], L.COLUMN["
 _RATIO = L.COLUMN["ratio"]
 _DARK_E, _DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
 _DSNU_PATTERN = L.STREAM["dsnu_pattern"]
+_LF, _LF_GH, _LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
+_CM_REC, _CM_LO, _CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
+_LOWFREQ = L.STREAM["lowfreq"]
 _ROW = L.STREAM["row"]
 _BLE = L.STREAM["ble"]
 _PRNU_PATTERN = L.STREAM["prnu_pattern"]
@@ -47,21 +50,38 @@ _COL_SET = np.array(L.COLUMN_SET, dtype=np.int64)
 
 
 @njit(inline="always")
-def shading_at(grids, record, y, x, h, w):
-    """Bilinear upsampling (align_corners=False, edge-clamped) of grid ``record`` at (y, x)."""
-    gh, gw = grids.shape[1], grids.shape[2]
+def _bilinear_at(y, x, h, w, gh, gw):
+    """(y0, x0, y1, x1, fy, fx) of bilinear upsampling (align_corners=False, edge-clamped)."""
     sy = min(max((y + 0.5) * gh / h - 0.5, 0.0), gh - 1.0)
     sx = min(max((x + 0.5) * gw / w - 0.5, 0.0), gw - 1.0)
     y0, x0 = int(sy), int(sx)
-    y1, x1 = min(y0 + 1, gh - 1), min(x0 + 1, gw - 1)
-    fy, fx = sy - y0, sx - x0
+    return y0, x0, min(y0 + 1, gh - 1), min(x0 + 1, gw - 1), sy - y0, sx - x0
+
+
+@njit(inline="always")
+def shading_at(grids, record, y, x, h, w):
+    """Bilinear upsampling of grid ``record`` of ``grids`` at (y, x)."""
+    y0, x0, y1, x1, fy, fx = _bilinear_at(y, x, h, w, grids.shape[1], grids.shape[2])
     top = grids[record, y0, x0] * (1.0 - fx) + grids[record, y0, x1] * fx
     bottom = grids[record, y1, x0] * (1.0 - fx) + grids[record, y1, x1] * fx
     return top * (1.0 - fy) + bottom * fy
 
 
+@njit(inline="always")
+def lowfreq_at(normal, key, b, y, x, h, w, gh, gw):
+    """A per-frame standard-normal grid (gh x gw, counter (b * gh + i) * gw + j) at (y, x)."""
+    y0, x0, y1, x1, fy, fx = _bilinear_at(y, x, h, w, gh, gw)
+    base = b * gh
+    z00 = symmetric(normal, draw(key, (base + y0) * gw + x0))
+    z01 = symmetric(normal, draw(key, (base + y0) * gw + x1))
+    z10 = symmetric(normal, draw(key, (base + y1) * gw + x0))
+    z11 = symmetric(normal, draw(key, (base + y1) * gw + x1))
+    return (z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy
+
+
 @njit(nogil=True, cache=True)
-def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read_index, normal, fine, coarse, grids):
+def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read_index, normal, fine, coarse, grids,
+          code_lut):
     """Rows ``r0 .. r1`` of the (B * 4 * H) rows of a (B, 4, H, W) batch, flattened; returns
     the count of non-finite clean values met (their outputs are NaN)."""
     bad = 0
@@ -132,7 +152,13 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], col_set * w + x))
             if stages & L.QUANT:
                 s += (unit(draw(keys[_QUANT], g)) - 0.5) * v[_Q]
+            if stages & L.LOW_FREQ:
+                s += v[_LF] * lowfreq_at(normal, keys[_LOWFREQ], b, y, x, h, w, int(v[_LF_GH]), int(v[_LF_GW]))
             s += line
+            if stages & L.CODE_MAP:
+                code = math.floor(s + 0.5)
+                i = int(code - v[_CM_LO])
+                s = code_lut[int(v[_CM_REC]), i] if 0 <= i < int(v[_CM_N]) else code
             if stages & L.CLIP:
                 s = max(s, v[_CL])
             if stages & L.CLIP_WHITE:
@@ -141,7 +167,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
     return bad
 
 
-def synthesize(clean, out, values, flags, keys, span, read_tables, read_index, normal, fine, coarse, grids, threads=1):
+def synthesize(clean, out, values, flags, keys, span, read_tables, read_index, normal, fine, coarse, grids, code_lut,
+               threads=1):
     """Run the fused chain over a (B, 4, H, W) NumPy batch into ``out`` (may be ``clean``);
     returns the count of non-finite clean values."""
     from .parallel import run_ranges
@@ -150,4 +177,4 @@ def synthesize(clean, out, values, flags, keys, span, read_tables, read_index, n
     x, o = clean.reshape(-1), out.reshape(-1)
     keys = np.asarray(keys, dtype=np.uint64)
     return run_ranges(lambda r0, r1: _rows(x, o, values, np.int64(flags), keys, float(span), h, w, r0, r1, read_tables,
-                                    read_index, normal, fine, coarse, grids), b * 4 * h, w, threads)
+                                    read_index, normal, fine, coarse, grids, code_lut), b * 4 * h, w, threads)

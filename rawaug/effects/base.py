@@ -11,7 +11,7 @@ An effect is a small class with
 * ``draw(ctx)``: its per-sample parameters, ``{column: (B,) tensor}`` on the device,
   given the drawn gain K (no host round trip);
 * ``pattern_streams()``: keys of its fixed patterns (the same in every call, keyed by the
-  profile's seed and the pixel position), and ``grids()`` where it needs a small table.
+  profile's seed and the pixel position), and ``tables()`` where it needs a small table.
 
 Effects found by the closed loop also carry ``validate_params`` (for their
 ``profile.effects`` entry) and, in their own module, ``estimate`` (from measured frames)
@@ -104,8 +104,10 @@ class NoiseEffect:
         """Stream keys of fixed patterns, by stream slot: the same in every call."""
         return {}
 
-    def grids(self) -> torch.Tensor | None:
-        return None
+    def tables(self) -> dict[str, torch.Tensor]:
+        """Small tables the kernels read, by name: ``grids`` (records, gh, gw) or ``code_lut``
+        (records, n), float64."""
+        return {}
 
     @classmethod
     def validate_params(cls, params) -> None:

@@ -67,8 +67,8 @@ class DarkShading(NoiseEffect):
     def pattern_streams(self):
         return {"fpn_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
 
-    def grids(self):
-        return torch.tensor(self.profile.effects[self.token]["shading_dn"], dtype=torch.float64)  # (records, gh, gw)
+    def tables(self):
+        return {"grids": torch.tensor(self.profile.effects[self.token]["shading_dn"], dtype=torch.float64)}
 
     @classmethod
     def validate_params(cls, params):

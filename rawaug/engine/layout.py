@@ -22,6 +22,8 @@ BLE = 1 << 11  # frame black-level error
 CLIP = 1 << 12  # black clipping
 CLIP_WHITE = 1 << 13  # clipping at white
 DARK_CURRENT = 1 << 14  # dark electrons (and their non-uniformity), before shot noise
+LOW_FREQ = 1 << 15  # measured fallback: per-frame low-frequency field (bilinear random grid)
+CODE_MAP = 1 << 16  # measured fallback: output codes mapped to the codes the camera uses
 
 COLUMNS = (
     "k", "ratio",
@@ -36,6 +38,8 @@ COLUMNS = (
     "bias_r", "bias_g1", "bias_b", "bias_g2",
     "ble_sigma", "ble_channel_sigma",
     "clip_floor",
+    "lowfreq_sigma", "lowfreq_gh", "lowfreq_gw",
+    "codemap_record", "codemap_lo", "codemap_n",
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 N_COLUMNS = len(COLUMNS)
@@ -43,7 +47,7 @@ N_COLUMNS = len(COLUMNS)
 # Random stream slots (one 63-bit key each, per call or per fixed pattern).
 STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
-    "prnu_pattern", "dsnu_pattern", "fpn_pattern", "hot_where", "hot_size", "col_pattern",
+    "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

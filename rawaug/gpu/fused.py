@@ -15,6 +15,8 @@ from .poisson import poisson_count
 
 C_K, C_RATIO, C_PRNU = L.COLUMN["k"], L.COLUMN["ratio"], L.COLUMN["prnu_sigma"]
 C_DARK_E, C_DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
+C_LF, C_LF_GH, C_LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
+C_CM_REC, C_CM_LO, C_CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
 C_TL, C_LAM, C_G, C_R = L.COLUMN["sigma_tl"], L.COLUMN["lambda"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
 C_CS, C_CF, C_FS, C_FR = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"], L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
 C_HD, C_HM, C_HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
@@ -23,7 +25,7 @@ C_Q, C_B0, C_BS, C_BC, C_CL = (L.COLUMN["step_dn"], L.COLUMN["bias_r"], L.COLUMN
 S = L.STREAM
 K_SHOT, K_SHOT_REST, K_SHOT_COARSE, K_READ = S["shot"], S["shot_rest"], S["shot_coarse"], S["read"]
 K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
-K_DSNU = S["dsnu_pattern"]
+K_DSNU, K_LOWFREQ = S["dsnu_pattern"], S["lowfreq"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -32,6 +34,18 @@ K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["f
 def _normal(z):
     t, sign = tail_of(z)
     return (sign * normal_upper(t)).to(tl.float64)
+
+
+@triton.jit
+def _bilinear(y, x, H, W, gh, gw):
+    """(y0, x0, y1, x1, fy, fx) of bilinear upsampling, as ``rawaug.cpu.fused._bilinear_at``."""
+    ghf = gh.to(tl.float64)
+    gwf = gw.to(tl.float64)
+    sy = tl.minimum(tl.maximum((y.to(tl.float64) + 0.5) * ghf / H - 0.5, 0.0), ghf - 1.0)
+    sx = tl.minimum(tl.maximum((x.to(tl.float64) + 0.5) * gwf / W - 0.5, 0.0), gwf - 1.0)
+    y0 = sy.to(tl.int64)
+    x0 = sx.to(tl.int64)
+    return y0, x0, tl.minimum(y0 + 1, gh - 1), tl.minimum(x0 + 1, gw - 1), sy - y0.to(tl.float64), sx - x0.to(tl.float64)
 
 
 @triton.jit
@@ -48,7 +62,7 @@ def _col(v_ptr, col: tl.constexpr):
 def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
                  f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
                  c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin,
-                 grids_ptr, GH, GW, normal_ptr,
+                 grids_ptr, GH, GW, normal_ptr, code_ptr, CODE_N,
                  FLAGS: tl.constexpr, P: tl.constexpr, BLOCK: tl.constexpr):
     plane = tl.program_id(1)  # b * 4 + c
     b = plane // 4
@@ -80,16 +94,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     elif FLAGS & 4:  # P
         s += tl.sqrt(k * tl.maximum(s, 0.0)) * _normal(draw(_key(keys_ptr, K_SHOT), g))
     if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading
-        gh = GH.to(tl.float64)
-        gw = GW.to(tl.float64)
-        sy = tl.minimum(tl.maximum((y.to(tl.float64) + 0.5) * gh / H - 0.5, 0.0), gh - 1.0)
-        sx = tl.minimum(tl.maximum((x.to(tl.float64) + 0.5) * gw / W - 0.5, 0.0), gw - 1.0)
-        y0 = sy.to(tl.int64)
-        x0 = sx.to(tl.int64)
-        y1 = tl.minimum(y0 + 1, GH - 1)
-        x1 = tl.minimum(x0 + 1, GW - 1)
-        fy = sy - y0.to(tl.float64)
-        fx = sx - x0.to(tl.float64)
+        y0, x0, y1, x1, fy, fx = _bilinear(y, x, H, W, GH.to(tl.int64), GW.to(tl.int64))
         base = grids_ptr + _col(v, C_FR).to(tl.int64) * GH * GW
         top = tl.load(base + y0 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y0 * GW + x1, mask=live, other=0.0) * fx
         bottom = tl.load(base + y1 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y1 * GW + x1, mask=live, other=0.0) * fx
@@ -108,6 +113,17 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), (col_set.to(tl.int64) * W + x).to(tl.uint64)))
     if FLAGS & 512:  # U
         s += (unit(draw(_key(keys_ptr, K_QUANT), g)) - 0.5) * _col(v, C_Q)
+    if FLAGS & 32768:  # measured low-frequency field: a per-frame normal grid, bilinear
+        gh = _col(v, C_LF_GH).to(tl.int64)
+        gw = _col(v, C_LF_GW).to(tl.int64)
+        y0, x0, y1, x1, fy, fx = _bilinear(y, x, H, W, gh, gw)
+        kl = _key(keys_ptr, K_LOWFREQ)
+        base = b.to(tl.int64) * gh
+        z00 = symmetric_table(normal_ptr, draw(kl, ((base + y0) * gw + x0).to(tl.uint64)))
+        z01 = symmetric_table(normal_ptr, draw(kl, ((base + y0) * gw + x1).to(tl.uint64)))
+        z10 = symmetric_table(normal_ptr, draw(kl, ((base + y1) * gw + x0).to(tl.uint64)))
+        z11 = symmetric_table(normal_ptr, draw(kl, ((base + y1) * gw + x1).to(tl.uint64)))
+        s += _col(v, C_LF) * ((z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy)
     line = 0.0
     if FLAGS & 128:  # R: one offset per sensor row
         line += _col(v, C_R) * _normal(draw(_key(keys_ptr, K_ROW), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
@@ -117,6 +133,12 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         line += _col(v, C_BS) * _normal(draw(_key(keys_ptr, K_BLE), (b * 5).to(tl.uint64) + tl.zeros_like(g)))
         line += _col(v, C_BC) * _normal(draw(_key(keys_ptr, K_BLE), (b * 5 + 1 + c).to(tl.uint64) + tl.zeros_like(g)))
     s += line
+    if FLAGS & 65536:  # measured code map: nearest code the camera uses
+        code = tl.floor(s + 0.5)
+        i = (code - _col(v, C_CM_LO)).to(tl.int64)
+        inside = live & (i >= 0) & (i < _col(v, C_CM_N).to(tl.int64))
+        mapped = tl.load(code_ptr + _col(v, C_CM_REC).to(tl.int64) * CODE_N + i, mask=inside, other=0.0)
+        s = tl.where(inside, mapped, code)
     if FLAGS & 4096:  # black clip
         s = tl.maximum(s, _col(v, C_CL))
     if FLAGS & 8192:  # white clip
@@ -124,12 +146,12 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     tl.store(out_ptr + plane.to(tl.int64) * hw + idx, (s * (ratio / span)).to(out_ptr.dtype.element_ty), mask=live)
 
 
-def launch(clean, out, values, keys, span, flags, fine, coarse, grids, normal, block: int = 1024):
+def launch(clean, out, values, keys, span, flags, fine, coarse, grids, normal, code_lut, block: int = 1024):
     """One launch over a contiguous (B, 4, H, W) batch; tables and grids on clean's device."""
     b, _, h, w = clean.shape
     if b == 0 or h * w == 0:
         return out
     grid = (triton.cdiv(h * w, block), b * 4)
-    fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2], normal,
+    fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2], normal, code_lut, code_lut.shape[1],
                        FLAGS=int(flags), P=values.shape[1], BLOCK=block)
     return out

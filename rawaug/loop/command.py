@@ -26,7 +26,7 @@ import numpy as np
 
 from ..profile import NoiseProfile
 from . import parameters
-from .report import residual_table, steps_table, write_report
+from .report import outcome_summary, residual_table, steps_table, write_report
 
 
 def add_arguments(parser) -> None:
@@ -141,11 +141,14 @@ def _run_manifest(args, path):
         stacks.append(FrameStack(np.stack(frames).astype(np.float64), k, kind="dark", exposure_s=exposure,
                                  label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_dn=offsets))
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
-    md = [f"# rawaug loop: {path.name}", "", steps_table([s.to_dict() for s in result.steps])]
+    md = [f"# rawaug loop: {path.name}", "", outcome_summary(result), "", steps_table([s.to_dict() for s in result.steps])]
     for label in result.initial:
         md += [residual_table([r.to_dict() for r in result.initial[label]], f"{label}: before"),
                residual_table([r.to_dict() for r in result.final[label]], f"{label}: after")]
     report = {"input": str(path), "kind": "frames", "steps": [s.to_dict() for s in result.steps],
+              "explained_physically": result.explained_physically,
+              "reproduced_by_measurement": result.reproduced_by_measurement,
+              "unexplained": [{"stack": label, **r.to_dict()} for label, r in result.unexplained()],
               "initial": {k: [r.to_dict() for r in v] for k, v in result.initial.items()},
               "final": {k: [r.to_dict() for r in v] for k, v in result.final.items()}}
     return result.profile, report, "\n".join(md)

@@ -39,6 +39,7 @@ class Step:
     battery_after: dict
     note: str = ""
     round: int = 0  # loop round (several candidates may be tried in one round)
+    kind: str = "physical"  # or "measured": a fallback that reproduces what no physical effect explains
 
     def to_dict(self):
         return self.__dict__.copy()
@@ -54,6 +55,14 @@ class LoopResult:
     @property
     def added(self) -> list[str]:
         return [s.effect for s in self.steps if s.accepted]
+
+    @property
+    def explained_physically(self) -> list[str]:
+        return [s.effect for s in self.steps if s.accepted and s.kind == "physical"]
+
+    @property
+    def reproduced_by_measurement(self) -> list[str]:
+        return [s.effect for s in self.steps if s.accepted and s.kind == "measured"]
 
     def unexplained(self) -> list[tuple[str, Residual]]:
         """Significant residuals left at the end (none of the candidate effects fixed them)."""
@@ -79,6 +88,10 @@ def _options(diags, tried, present):
                 if token not in best or abs(r.z) > abs(best[token][2].z):
                     best[token] = (token, label, r)
     return sorted(best.values(), key=lambda o: -abs(o[2].z))
+
+
+def _measured(token) -> bool:
+    return bool(getattr(CANDIDATES[token].module, "MEASURED", False))
 
 
 def _estimate(token, stacks, diags, seed):
@@ -134,21 +147,26 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             break
         before_b = _battery(diags)
         trials = []
-        for token, label, evidence in options:
-            params = _estimate(token, stacks, diags, seed=int(np.random.default_rng(seed + step_no).integers(1, 2**31)))
-            if params is None:
-                tried.add(token)
-                say(f"step {step_no}: {token} suggested by {evidence.statistic} but no stack can estimate it")
-                continue
-            trial = current.with_effect(token, params)
-            new_diags = diagnose_all(trial, seed + 1000 * step_no)
-            after = next(r for r in new_diags[label][0] if r.statistic == evidence.statistic)
-            after_b = _battery(new_diags)
-            # acceptable if its evidence improved by a fifth or more and nothing new became significant
-            ok = after.rel_error <= ACCEPT_FACTOR * evidence.rel_error and after_b["n_significant"] <= before_b["n_significant"]
-            step = Step(token, params, ok, evidence.to_dict(), label, evidence.rel_error, after.rel_error, after.z, before_b, after_b,
-                        round=step_no)
-            trials.append((step, trial, new_diags))
+        physical = [o for o in options if not _measured(o[0])]
+        # measured fallbacks only once no physical effect explains the residuals left
+        for batch in (physical, [o for o in options if _measured(o[0])]):
+            for token, label, evidence in batch:
+                params = _estimate(token, stacks, diags, seed=int(np.random.default_rng(seed + step_no).integers(1, 2**31)))
+                if params is None:
+                    tried.add(token)
+                    say(f"step {step_no}: {token} suggested by {evidence.statistic} but no stack can estimate it")
+                    continue
+                trial = current.with_effect(token, params)
+                new_diags = diagnose_all(trial, seed + 1000 * step_no)
+                after = next(r for r in new_diags[label][0] if r.statistic == evidence.statistic)
+                after_b = _battery(new_diags)
+                # acceptable if its evidence improved by a fifth or more and nothing new became significant
+                ok = after.rel_error <= ACCEPT_FACTOR * evidence.rel_error and after_b["n_significant"] <= before_b["n_significant"]
+                step = Step(token, params, ok, evidence.to_dict(), label, evidence.rel_error, after.rel_error, after.z, before_b,
+                            after_b, round=step_no, kind="measured" if _measured(token) else "physical")
+                trials.append((step, trial, new_diags))
+            if any(t[0].accepted for t in trials):
+                break
         acceptable = [t for t in trials if t[0].accepted]
         chosen = min(acceptable, key=lambda t: (t[0].battery_after["mean_rel_error"], t[0].battery_after["n_significant"])) if acceptable else None
         for step, _, _ in trials:

@@ -63,3 +63,24 @@ def write_report(folder, report: dict, markdown: str) -> None:
     folder = Path(folder)
     write_text_atomic(folder / "report.json", json.dumps(_jsonable(report), indent=2))
     write_text_atomic(folder / "report.md", markdown)
+
+
+def outcome_summary(result) -> str:
+    """Plain sentences: what was explained physically, what was reproduced by measurement,
+    what stayed unexplained."""
+    lines = []
+    if not result.added:
+        lines.append("Nothing was added: no significant residual pointed to an effect that the model lacks "
+                     "and that cut its error.")
+    if result.explained_physically:
+        lines.append("Explained physically: " + ", ".join(f"`{t}`" for t in result.explained_physically) + ".")
+    if result.reproduced_by_measurement:
+        lines.append("Reproduced by measurement (no physical effect explained these residuals): "
+                     + ", ".join(f"`{t}`" for t in result.reproduced_by_measurement) + ".")
+    left = result.unexplained()
+    if left:
+        lines.append("Unexplained (still significant at the end): "
+                     + "; ".join(f"{label}: `{r.statistic}` (z {r.z:.1f}, rel. error {r.rel_error:.2f})" for label, r in left) + ".")
+    else:
+        lines.append("No significant residual is left.")
+    return "\n\n".join(lines)
