@@ -193,10 +193,21 @@ def frame_mean_common_cov(frames, level_dn=None):
     return float((c[0, 2] + c[1, 3]) / 2.0)
 
 
+def pixel_fixed_std(frames, level_dn=None):
+    """Pixel-to-pixel std of the stack-mean map from neighbouring-pixel differences along
+    rows (robust: 1.4826 MAD / sqrt(2)), per channel, rms (DN). Smooth patterns (vignetting,
+    uneven illumination of a flat) do not count; a white fixed pattern and temporal noise /
+    sqrt(N) do."""
+    d = np.diff(frames.mean(axis=0), axis=2).reshape(4, -1)
+    _, scale = _robust_scale(d, axis=1)
+    return _rms(scale) / np.sqrt(2.0)
+
+
 def flat_fixed_rel(frames, level_dn=None):
-    """Fixed-pattern std of a flat stack relative to its mean level (dimensionless)."""
+    """Pixel-to-pixel fixed-pattern std of a flat stack (``pixel_fixed_std``) relative to its
+    mean level (dimensionless)."""
     level = float(np.mean(level_dn)) if level_dn is not None else float(frames.mean())
-    return fixed_std(frames) / max(level, 1e-12)
+    return pixel_fixed_std(frames) / max(level, 1e-12)
 
 
 @dataclass(frozen=True)

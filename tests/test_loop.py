@@ -33,7 +33,9 @@ def measured_stack(effects, seed=123, n=8, size=128, label="measured", exposure_
                       exposure_s=exposure_s, offsets_dn=[0.5] * 4 if exposure_s else None)
 
 
-CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "mixed": {**COL, **FPN, **HOT}}
+BLE = {"BLE": {"k": [K], "sigma_dn": [0.6], "channel_sigma_dn": [0.0]}}
+CLIP = {"Clip": {"floor_dn": -2.0}}
+CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "mixed": {**COL, **FPN, **HOT}}
 
 
 def loop_succeeds(effects, seed):

@@ -30,7 +30,8 @@ def interference(dn, rng):
 
 
 # case -> (planted rawaug effect, its parameters, what the frames undergo besides, what the loop should add)
-CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["Dark"]),
+PRNU = {"seed": 23, "sigma": 0.015}
+CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["Dark"]), "PRNU": ("PRNU", PRNU, None, ["PRNU"]),
          "comb": (None, None, digital_gain, ["CodeMap"]), "interference": (None, None, interference, ["LowFreq"]),
          "none": (None, None, None, [])}
 

@@ -77,3 +77,28 @@ def estimate(frames, synthesized, k: float, **_) -> dict:
     at = np.searchsorted(np.sort(model), r, side="right") / model.size
     codes = np.quantile(v.ravel(), np.clip(0.5 * (below + at), 0.0, 1.0), method="inverted_cdf")
     return {"k": [float(k)], "lo_dn": [float(r[0])], "map_dn": [[float(c) for c in codes]]}
+
+
+def combine(records: list[dict]) -> dict:
+    """One map per gain: the maps of the stacks at one K (bias, dark, flats cover different
+    code ranges) joined over their union; where two overlap the first stack's holds, and
+    codes between them map to themselves."""
+    by_k: dict = {}
+    for r in records:
+        by_k.setdefault(r["k"][0], []).append(r)
+    ks, los, maps = sorted(by_k), [], []
+    for k in ks:
+        parts = by_k[k]
+        lo = min(p["lo_dn"][0] for p in parts)
+        hi = max(p["lo_dn"][0] + len(p["map_dn"][0]) - 1 for p in parts)
+        joined = np.arange(lo, hi + 1.0)
+        filled = np.zeros(joined.size, dtype=bool)
+        for p in parts:
+            start = int(p["lo_dn"][0] - lo)
+            m = np.asarray(p["map_dn"][0], dtype=np.float64)
+            free = ~filled[start : start + m.size]
+            joined[start : start + m.size][free] = m[free]
+            filled[start : start + m.size] = True
+        los.append(float(lo))
+        maps.append([float(c) for c in np.maximum.accumulate(joined)])  # non-decreasing where ranges meet
+    return {"k": ks, "lo_dn": los, "map_dn": maps}

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..engine import layout as L
-from ..statistics import fixed_std
+from ..statistics import pixel_fixed_std
 from .base import PHOTON, NoiseEffect, pattern_key, register
 from .k_records import _number, check_seed
 
@@ -49,8 +49,9 @@ class PhotoResponseNonUniformity(NoiseEffect):
 
 
 def _fixed_var(frames):
-    """Robust fixed-pattern variance of a stack (``fixed_std`` squared), DN^2."""
-    return fixed_std(frames) ** 2
+    """Pixel-to-pixel fixed-pattern variance of a stack (``pixel_fixed_std`` squared), DN^2:
+    an uneven illumination of the flat does not count."""
+    return pixel_fixed_std(frames) ** 2
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, seed: int = 17, **_) -> dict:

@@ -109,12 +109,13 @@ def _run_manifest(args, path):
             raise ValueError(f"{path.parent}: the frame loop needs a manifest.csv (kinds and ISOs of the frames)")
     bias: dict = {}
     darks: dict = {}
+    flats: dict = {}
     for entry in read_manifest(path):
         kind = getattr(entry, "kind", "bias")
-        if kind == "flat":
-            continue
         frame = entry.read()
-        if kind == "dark":
+        if kind == "flat":
+            flats.setdefault((frame.iso, float(frame.exposure_s or 0.0)), []).append((frame.packed_dn(), frame.white_level - frame.black_packed()))
+        elif kind == "dark":
             if not frame.exposure_s:
                 raise ValueError(f"{entry.path}: a dark frame needs its exposure_s (manifest column or EXIF)")
             darks.setdefault((frame.iso, float(frame.exposure_s)), []).append(frame.packed_dn())
@@ -140,6 +141,17 @@ def _run_manifest(args, path):
         # synthesized with the bias frames' read noise and offsets: what the dark adds shows
         stacks.append(FrameStack(np.stack(frames).astype(np.float64), k, kind="dark", exposure_s=exposure,
                                  label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_dn=offsets))
+    for (iso, exposure), frames in sorted(flats.items()):
+        if iso not in measured or len(frames) < 2:
+            continue  # calibration reports flats it cannot use
+        base, offsets, k = measured[iso]
+        stack = np.stack([f for f, _ in frames]).astype(np.float64)
+        level = stack.mean(axis=(0, 2, 3)) - np.asarray(offsets)
+        headroom = min(float(np.min(room)) for _, room in frames)
+        if level.min() < 20 * k or stack.max() >= 0.98 * headroom:
+            continue  # too dark to carry shot noise, or clipped at white
+        stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in level], base=base, offsets_dn=offsets,
+                                 label=f"ISO {iso:g} flat {float(level.mean()):.0f} DN"))
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
     md = [f"# rawaug loop: {path.name}", "", outcome_summary(result), "", steps_table([s.to_dict() for s in result.steps])]
     for label in result.initial:

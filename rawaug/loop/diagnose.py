@@ -28,7 +28,8 @@ class FrameStack:
     """Measured frames of one setting, packed ``(N, 4, h, w)`` in DN (black-subtracted).
 
     ``kind`` is ``"bias"`` (no light, shortest exposure), ``"dark"`` (no light, exposure
-    ``exposure_s`` seconds) or ``"flat"`` (uniform light of ``level_dn``). ``base`` may fix
+    ``exposure_s`` seconds) or ``"flat"`` (uniform light of ``level_dn``: DN above the
+    offsets, one number or one per channel). ``base`` may fix
     base-model parameters measured on the bias frames of the same ISO (keys of
     ``RawNoiseAugment(fixed=...)``: ``sigma_tl``, ``lambda``, ``sigma_r``); missing ones come
     from the profile at ``k``. ``offsets_dn`` (R, G1, B, G2) are the channel offsets the
@@ -132,8 +133,8 @@ def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int
     if "C" not in tokens:
         tokens.append("C")
     n, _, h, w = stack.frames_dn.shape
-    level = float(np.mean(stack.level_dn)) if stack.kind == "flat" else 0.0
-    clean = torch.full((n, 4, h, w), level / profile.span_dn, dtype=torch.float32)
+    level = np.broadcast_to(np.asarray(stack.level_dn if stack.kind == "flat" else 0.0, dtype=np.float64), (4,))
+    clean = torch.from_numpy(level / profile.span_dn).float().view(1, 4, 1, 1).expand(n, 4, h, w).contiguous()
     generator = torch.Generator().manual_seed(int(seed))
     out = np.empty((n_synth, n, 4, h, w), dtype=np.float32)
     for i in range(n_synth):

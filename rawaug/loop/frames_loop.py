@@ -80,7 +80,9 @@ def _options(diags, tried, present):
     best: dict = {}
     for label, (residuals, _) in diags.items():
         for r in residuals:
-            if not r.significant:
+            # every candidate adds something that raises the statistics it is shown by: a
+            # statistic the model overshoots (z < 0) calls for a refit, not for one more effect
+            if not r.significant or r.z <= 0:
                 continue
             for token in r.effects:
                 if token in tried or token in present:
