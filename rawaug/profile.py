@@ -46,6 +46,7 @@ from .validate import finite as _finite
 
 FORMAT_NAME = "rawaug.noise-profile"
 FORMAT_VERSION = 1
+K_PHYSICAL = (1e-4, 1e4)  # DN per electron: any real sensor lies well inside
 BUILTIN_PROFILES = ("SonyA7S2", "NikonD850", "CanonEOS70D", "CanonEOS700D", "CanonEOS5D4")
 
 
@@ -172,6 +173,17 @@ class NoiseProfile:
                 raise ValueError(f"color_bias.dn[{i}] must hold 4 values (R, G1, B, G2), got {r!r}")
             bias_rows.append(tuple(_finite(v, f"color_bias.dn[{i}]") for v in r))
 
+        span = white - black
+        if not (K_PHYSICAL[0] <= k_min and k_max <= K_PHYSICAL[1]):
+            raise ValueError(f"system_gain K must lie in {list(K_PHYSICAL)} DN/e- (a physical camera), got "
+                             f"k_min={k_min}, k_max={k_max}")
+        for where, rel in (("read_noise.tukey_scale", tukey_scale), ("read_noise.gaussian_scale", gaussian_scale),
+                           ("row_noise.scale", row_scale)):
+            for k in (k_min, k_max):
+                if rel is not None and not rel.median(k) < span:
+                    raise ValueError(f"{where} gives sigma {rel.median(k):.4g} DN at K={k:.4g}, more than the whole "
+                                     f"range white - black = {span:g} DN: not a noise scale of this sensor")
+
         effects = data.get("effects") or {}
         if not isinstance(effects, dict):
             raise ValueError(f"profile 'effects' must be a mapping of effect name -> parameters, got {type(effects).__name__}")
@@ -241,9 +253,16 @@ class NoiseProfile:
         read = "G*" if self.tukey_scale is not None else "G"
         return "+".join([read, "P*"] + (["R"] if self.row_scale is not None else []) + ["U"])
 
+    def to_yaml(self) -> str:
+        """The profile file's text, loaded back and validated first (so no profile that
+        ``load`` would refuse is ever written)."""
+        text = yaml.safe_dump(self.to_dict(), sort_keys=False)
+        NoiseProfile.from_dict(yaml.safe_load(text))
+        return text
+
     def save(self, path) -> None:
         """Write the profile as YAML, atomically (temp file in the same folder, then rename)."""
-        write_text_atomic(path, yaml.safe_dump(self.to_dict(), sort_keys=False))
+        write_text_atomic(path, self.to_yaml())
 
     # ---------------------------------------------------------------- helpers
     @property

@@ -17,8 +17,15 @@ def test_ablation_smoke(tmp_path):
         rows = list(csv.DictReader(f))
     assert {r["model"] for r in rows} == {"G", "loop", "paired real"}
     assert {int(r["ratio"]) for r in rows} == {100, 200, 250, 300}
-    for r in rows:
-        assert 0 < float(r["psnr_db_mean"]) < 100 and 0 <= float(r["ssim_mean"]) <= 1
+    # smoke scale trains for a few steps only, so the PSNRs say nothing about the models; what
+    # is checked: the loop found TestCam's two undeclared effects, and the test pairs get
+    # noisier from x100 (ISO 800) to x250 (ISO 3200)
+    import yaml
+
+    assert set(yaml.safe_load((out / "testcam_loop.yaml").read_text())["effects"]) == {"Col", "FPN"}
+    noisy = next(line for line in (out / "results.md").read_text().splitlines() if line.startswith("| noisy input |"))
+    psnr = [float(cell.split("/")[0]) for cell in noisy.strip("|").split("|")[2:]]
+    assert psnr[0] > psnr[1] > psnr[2], psnr
     assert (out / "results.md").read_text().count("| paired real |") == 1
     assert (out / "results.png").stat().st_size > 1000
     assert (out / "testcam_loop.yaml").is_file() and (out / "loop_report" / "report.md").is_file()

@@ -90,7 +90,8 @@ def test_row_noise_unbiased_when_small():
     se_var = math.sqrt(2 / (2 * h)) * (sigma_r**2 + sigma_read**2 / n)
     assert abs(est.sigma_r**2 - sigma_r**2) < 4 * se_var
     assert est.read_variance_dn2 == pytest.approx(sigma_read**2, rel=0.02)
-    assert 0 <= est.shapiro_p <= 1
+    # Gaussian row means: Shapiro-Wilk rejects at 1e-3 with probability 1e-3
+    assert est.shapiro_p > 1e-3
 
 
 def test_read_noise_against_scipy_ppcc_max_on_all_values():
@@ -119,7 +120,7 @@ def test_fit_log_linear_matches_least_squares():
 def test_pmn_table_stage2(tmp_path):
     params = read_parameter_table(PMN)
     assert len(params) == 28 and params[0].iso == 50 and params[0].k == pytest.approx(0.047815)
-    assert params[-1].lam == pytest.approx(-0.0910, abs=1e-3) or params[-1].iso == 25600
+    assert params[-1].iso == 25600 and params[-1].lam == pytest.approx(-0.09089, abs=1e-5)  # the table's last row
     prof = fit_joint(params, camera="SonyA7S2", black_level=512, white_level=16383, bit_depth=14, cfa="RGGB")
     ref = stats.linregress(np.log([p.k for p in params]), np.log([p.sigma_tl for p in params]))
     assert prof.tukey_scale.slope == pytest.approx(ref.slope)

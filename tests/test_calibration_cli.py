@@ -35,9 +35,10 @@ def _write_set(folder, fmt):
 
 
 def test_directory_of_dng_files_to_profile_and_report(tmp_path, capsys):
-    _write_set(tmp_path, "dng")
+    (tmp_path / "frames").mkdir()
+    _write_set(tmp_path / "frames", "dng")
     out, report = tmp_path / "out" / "profile.yaml", tmp_path / "report"
-    assert main(["calibrate", str(tmp_path), "--out", str(out), "--report", str(report), "--no-progress"]) == 0
+    assert main(["calibrate", str(tmp_path / "frames"), "--out", str(out), "--report", str(report), "--no-progress"]) == 0
     assert "wrote" in capsys.readouterr().out
     prof = NoiseProfile.load(out)
     assert prof.iso_table[0] == (400.0, 1600.0)

@@ -122,7 +122,7 @@ def test_relation_fit_rejects_bad_values():
 
 def test_sony_table_regime_change_and_floor(tmp_path):
     out, rep = tmp_path / "p.yaml", tmp_path / "rep"
-    assert main([ "loop", str(DATA / "PMN_noise_params_extracted.json"), "--camera", "SonyA7S2",
+    assert main(["loop", str(DATA / "PMN_noise_params_extracted.json"), "--camera", "SonyA7S2", "--cfa", "RGGB",
                   "--out", str(out), "--report", str(rep)]) == 0
     report = json.loads((rep / "report.json").read_text())
     tl = [s for s in report["steps"] if s["relation"] == "sigma_tl"]

@@ -14,6 +14,7 @@ import csv
 import math
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,7 @@ import numpy as np
 from ..io import find_flat_pairs, group_by_iso, read_frame, read_manifest
 from ..io.manifest import ManifestEntry
 from ..io.readers import RAWPY_EXTENSIONS
+from ..outputs import check_outputs, write_set
 from .diagnostics import CalibrationWarning, frame_anomalies
 from .joint import fit_joint, read_parameter_table
 from .stage1 import calibrate_iso, centered_spectrum, estimate_quantization_step
@@ -33,8 +35,14 @@ def add_arguments(parser) -> None:
                                       "or a per-ISO parameter table (.json/.csv) for stage 2 only")
     parser.add_argument("--out", required=True, help="profile YAML to write (atomically)")
     parser.add_argument("--report", default=None, help="folder for report.json, report.md and the figures")
-    parser.add_argument("--camera", default=None, help="camera name stored in the profile")
-    parser.add_argument("--cfa", default=None, help="CFA (table input, or to override the frames')")
+    add_calibration_options(parser)
+
+
+def add_calibration_options(parser) -> None:
+    """The options of a calibration, shared by ``rawaug calibrate`` and ``rawaug loop``."""
+    parser.add_argument("--camera", default=None, help="camera name stored in the profile (default: the input's name)")
+    parser.add_argument("--cfa", default=None, choices=["RGGB", "BGGR", "GRBG", "GBRG"],
+                        help="CFA (table input, or to override the frames')")
     parser.add_argument("--black-level", type=float, default=None, help="black level, raw codes (table input)")
     parser.add_argument("--white-level", type=float, default=None, help="white level, raw codes (table input)")
     parser.add_argument("--bit-depth", type=int, default=None, help="ADC bit depth (default: from the white level)")
@@ -119,19 +127,95 @@ class _FrameSource:
     _last_bias = None
 
 
-def run(args) -> int:
-    from tqdm import tqdm
+def input_paths(source: Path) -> list[Path]:
+    """Every input of a calibration: the source, and the frames a manifest lists."""
+    paths = [source]
+    manifest = source / "manifest.csv" if source.is_dir() else source
+    if manifest.is_file() and manifest.suffix.lower() == ".csv" and _is_manifest_csv(manifest):
+        paths += [Path(e.path) for e in read_manifest(manifest)]
+    return paths
 
-    start = time.perf_counter()
+
+@dataclass
+class CalibrationOptions:
+    """What ``rawaug calibrate`` takes besides its input and outputs (see ``add_arguments``)."""
+
+    camera: str | None = None
+    cfa: str | None = None
+    black_level: float | None = None
+    white_level: float | None = None
+    bit_depth: int | None = None
+    quantization_step: float | None = None
+    max_samples: int | None = 200_000
+    quiet: bool = True
+
+
+@dataclass
+class Calibration:
+    """A calibrated profile with what its report shows."""
+
+    profile: object  # NoiseProfile
+    params: list
+    where: str
+    notes: list
+    spectrum: tuple | None
+    elapsed_s: float
+
+    def write_report(self, folder):
+        """report.json, report.md and the figures into ``folder``; returns the .md path."""
+        return _write_report(folder, self.profile, self.params, self.where, self.notes, self.spectrum, self.elapsed_s)
+
+
+def options_from(args) -> CalibrationOptions:
+    if args.bit_depth is not None and not 1 <= args.bit_depth <= 32:
+        raise ValueError(f"--bit-depth must be in [1, 32], got {args.bit_depth}")
+    if args.quantization_step is not None and not args.quantization_step > 0:
+        raise ValueError(f"--quantization-step must be > 0 DN, got {args.quantization_step}")
+    if args.max_samples is not None and args.max_samples != 0 and args.max_samples < 1000:
+        raise ValueError(f"--max-samples must be 0 (all) or >= 1000 (values for the Tukey-lambda fit), got {args.max_samples}")
+    return CalibrationOptions(camera=args.camera, cfa=args.cfa, black_level=args.black_level, white_level=args.white_level,
+                              bit_depth=args.bit_depth, quantization_step=args.quantization_step,
+                              max_samples=args.max_samples or None, quiet=args.no_progress)
+
+
+def is_table(source: Path) -> bool:
+    return source.is_file() and (source.suffix.lower() == ".json"
+                                 or (source.suffix.lower() == ".csv" and not _is_manifest_csv(source)))
+
+
+def calibrate(source, options: CalibrationOptions | None = None) -> Calibration:
+    """Calibrate a camera from ``source``: a manifest, a folder (with or without
+    ``manifest.csv``) or a per-ISO parameter table. The library under ``rawaug calibrate``
+    and ``rawaug loop``."""
+    source, options = Path(source), options or CalibrationOptions()
+    if not source.exists():
+        raise FileNotFoundError(f"input {str(source)!r} does not exist")
+    if is_table(source):
+        return _calibrate_table(source, options)
+    return _calibrate_frames(source, options)
+
+
+def run(args) -> int:
     source = Path(args.input)
     if not source.exists():
         raise FileNotFoundError(f"input {str(source)!r} does not exist")
     out = Path(args.out)
-    max_samples = args.max_samples or None
-    if source.is_file() and (source.suffix.lower() == ".json" or (source.suffix.lower() == ".csv" and not _is_manifest_csv(source))):
-        return _run_table(args, source, out, start)
+    check_outputs(out, args.report, input_paths(source))
+    result = calibrate(source, options_from(args))
+    write_set(result.profile, out, args.report, result.write_report)
+    p = result.profile
+    print(f"wrote {out} ({len(result.params)} ISOs, K {p.k_min:.4g}..{p.k_max:.4g} DN/e-) in {result.elapsed_s:.1f} s")
+    if args.report:
+        print(f"wrote report {Path(args.report) / 'report.md'}")
+    return 0
 
-    quiet = args.no_progress
+
+def _calibrate_frames(source: Path, args: CalibrationOptions) -> Calibration:
+    from tqdm import tqdm
+
+    start = time.perf_counter()
+    max_samples = args.max_samples
+    quiet = args.quiet
     tell = (lambda _m: None) if quiet else (lambda m: tqdm.write(m))
     if source.is_dir():
         manifest = source / "manifest.csv"
@@ -190,13 +274,9 @@ def run(args) -> int:
                             bit_depth=_bit_depth(ref.white_level, args.bit_depth), cfa=ref.cfa,
                             quantization_step_dn=step, source=f"rawaug calibrate of {where}")
     notes += [str(w.message) for w in caught]
-    profile.save(out)
-    elapsed = time.perf_counter() - start
-    print(f"wrote {out} ({len(params)} ISOs, K {profile.k_min:.4g}..{profile.k_max:.4g} DN/e-) in {elapsed:.1f} s")
-    if args.report:
-        md = _write_report(args.report, profile, params, where, notes, frames.spectrum, elapsed)
-        print(f"wrote report {md}")
-    return 0
+    return Calibration(profile, params, where, notes, frames.spectrum, time.perf_counter() - start)
+
+
 
 
 def _write_report(folder, profile, params, where, notes, spectrum, elapsed):
@@ -207,7 +287,8 @@ def _write_report(folder, profile, params, where, notes, spectrum, elapsed):
                         spectrum_title=title, timing={"total": elapsed})
 
 
-def _run_table(args, source, out, start) -> int:
+def _calibrate_table(source: Path, args: CalibrationOptions) -> Calibration:
+    start = time.perf_counter()
     params = read_parameter_table(source)
     first = params[0].extra
     black = args.black_level if args.black_level is not None else first.get("bl", first.get("black_level"))
@@ -223,9 +304,4 @@ def _run_table(args, source, out, start) -> int:
                             quantization_step_dn=args.quantization_step or 1.0,
                             source=f"rawaug calibrate (stage 2) of per-ISO table {source.name}")
     notes = [str(w.message) for w in caught]
-    profile.save(out)
-    elapsed = time.perf_counter() - start
-    print(f"wrote {out} ({len(params)} ISOs, K {profile.k_min:.4g}..{profile.k_max:.4g} DN/e-)")
-    if args.report:
-        print(f"wrote report {_write_report(args.report, profile, params, str(source), notes, None, elapsed)}")
-    return 0
+    return Calibration(profile, params, str(source), notes, None, time.perf_counter() - start)

@@ -110,8 +110,11 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from ..outputs import check_outputs, write_set
+
+    check_outputs(args.out, None, [args.noiseprofiles])
     profile = import_profile(args.noiseprofiles, args.camera, black_level=args.black_level,
                              white_level=args.white_level, cfa=args.cfa)
-    profile.save(args.out)
+    write_set(profile, args.out)
     print(f"{profile.camera}: K {profile.k_min:.4g} .. {profile.k_max:.4g} DN/e-, model {profile.richest_model} -> {args.out}")
     return 0

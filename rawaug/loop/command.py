@@ -26,6 +26,7 @@ import numpy as np
 
 from ..profile import NoiseProfile
 from . import parameters
+from ..outputs import check_outputs, write_set
 from .report import outcome_summary, residual_table, steps_table, write_report
 
 
@@ -34,15 +35,14 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", help="output profile (YAML)")
     parser.add_argument("--report", required=True, help="report folder (report.json, report.md)")
     parser.add_argument("--profile", help="base profile (built-in name or YAML) for per-frame tables and manifests")
-    parser.add_argument("--camera", default="camera", help="camera name for a profile fitted from a table")
-    parser.add_argument("--black-level", type=float, help="black level (raw code); default: the table's 'bl' column")
-    parser.add_argument("--white-level", type=float, help="white level (raw code); default: the table's 'wp' column")
-    parser.add_argument("--cfa", default="RGGB")
     parser.add_argument("--k", type=float, help="system gain K (DN/e-) of a per-frame table")
     parser.add_argument("--frame-size", type=int, nargs=2, metavar=("ROWS", "COLS"),
                         help="sensor size of the frames of a per-frame table (raw rows, columns)")
     parser.add_argument("--n-synth", type=int, default=12, help="syntheses per diagnosis (frame loop)")
     parser.add_argument("--seed", type=int, default=0)
+    from ..calibration.command import add_calibration_options
+
+    add_calibration_options(parser)  # the same options, and meaning, as rawaug calibrate
 
 
 def _is_frame_table(path: Path) -> bool:
@@ -54,17 +54,10 @@ def _is_frame_table(path: Path) -> bool:
 
 
 def _run_parameter_table(args, path):
-    from ..calibration.joint import fit_joint, read_parameter_table
+    from ..calibration.command import calibrate, options_from
 
-    params = read_parameter_table(path)
-    extra = params[0].extra
-    black = args.black_level if args.black_level is not None else extra.get("bl")
-    white = args.white_level if args.white_level is not None else extra.get("wp")
-    if black is None or white is None:
-        raise ValueError("the table has no 'bl'/'wp' columns: give --black-level and --white-level")
-    black, white = float(black), float(white)
-    base = fit_joint(params, camera=args.camera, black_level=black, white_level=white,
-                     bit_depth=int(np.ceil(np.log2(white + 1))), cfa=args.cfa, source=f"rawaug loop on {path.name}")
+    calibration = calibrate(path, options_from(args))  # as rawaug calibrate fits it
+    base, params = calibration.profile, calibration.params
     result = parameters.parameter_loop(params)
     profile = parameters.apply_to_profile(base, result["fits"])
     md = [f"# rawaug loop: {path.name}", "", f"{len(params)} ISOs, K {params[0].k:.4g} .. {params[-1].k:.4g} DN/e-.",
@@ -99,10 +92,14 @@ def _run_manifest(args, path):
     from .diagnose import FrameStack, channel_offsets
     from .frames_loop import run_frame_loop
 
+    calibration = None
     if args.profile:
         profile = NoiseProfile.load(args.profile)
-    else:
-        profile = _calibrate_base(path, Path(args.report) / "calibration")
+    else:  # the base model, as rawaug calibrate fits it; its report goes to REPORT/calibration
+        from ..calibration.command import calibrate, options_from
+
+        calibration = calibrate(path, options_from(args))
+        profile = calibration.profile
     if path.is_dir():
         path = path / "manifest.csv"
         if not path.is_file():
@@ -163,21 +160,9 @@ def _run_manifest(args, path):
               "unexplained": [{"stack": label, **r.to_dict()} for label, r in result.unexplained()],
               "initial": {k: [r.to_dict() for r in v] for k, v in result.initial.items()},
               "final": {k: [r.to_dict() for r in v] for k, v in result.final.items()}}
+    if calibration is not None:
+        report["_calibration"] = calibration
     return result.profile, report, "\n".join(md)
-
-
-def _calibrate_base(path: Path, report_dir: Path) -> NoiseProfile:
-    """Fit the base ELD model from the frames with ``rawaug calibrate`` (its report goes to ``report_dir``)."""
-    import argparse
-
-    from ..calibration import command as calibration
-
-    parser = argparse.ArgumentParser(prog="rawaug calibrate")
-    calibration.add_arguments(parser)
-    report_dir.mkdir(parents=True, exist_ok=True)
-    base = report_dir / "base_profile.yaml"
-    calibration.run(parser.parse_args([str(path), "--out", str(base), "--report", str(report_dir), "--no-progress"]))
-    return NoiseProfile.load(base)
 
 
 def _is_manifest(path: Path) -> bool:
@@ -190,6 +175,15 @@ def run(args) -> int:
     path = Path(args.input)
     if not path.exists():
         raise FileNotFoundError(f"loop input {str(path)!r} does not exist")
+    if args.frame_size is not None and min(args.frame_size) < 2:
+        raise ValueError(f"--frame-size ROWS COLS must be at least 2 2 (raw sensor size), got {args.frame_size}")
+    if args.k is not None and not args.k > 0:
+        raise ValueError(f"--k (system gain, DN/e-) must be > 0, got {args.k}")
+    if args.n_synth < 3:
+        raise ValueError(f"--n-synth must be >= 3 (the spread of the syntheses), got {args.n_synth}")
+    from ..calibration.command import input_paths
+
+    check_outputs(args.out, args.report, input_paths(path))
     start = time.time()
     if _is_manifest(path):
         profile, report, md = _run_manifest(args, path)
@@ -198,9 +192,16 @@ def run(args) -> int:
     else:
         profile, report, md = _run_parameter_table(args, path)
     report["elapsed_s"] = time.time() - start
-    write_report(args.report, report, md)
+    calibration = report.pop("_calibration", None)
+
+    def write_all(folder):
+        write_report(folder, report, md)
+        if calibration is not None:  # the base model and its calibration report
+            calibration.write_report(Path(folder) / "calibration")
+            calibration.profile.save(Path(folder) / "calibration" / "base_profile.yaml")
+
+    write_set(profile, args.out if profile is not None else None, args.report, write_all)
     if profile is not None and args.out:
-        profile.save(args.out)
         print(f"profile -> {args.out}")
     print(f"report -> {Path(args.report) / 'report.md'}")
     return 0
