@@ -1,0 +1,114 @@
+"""The bad-input matrix: every case gets a clear error (exit code 2 and a message naming the
+value), inputs stay byte-identical and no old output is destroyed."""
+import hashlib
+import os
+import stat
+
+import pytest
+
+from rawaug import NoiseProfile
+from rawaug.cli import main
+
+TABLE = "iso,K,sigma_TL,lambda,sigma_r\n800,0.77,1.9,0.05,0.3\n1600,1.53,2.7,0.02,0.45\n3200,3.06,4.4,0.0,0.7\n"
+LEVELS = ["--cfa", "RGGB", "--black-level", "512", "--white-level", "16383"]
+
+
+def digest(folder):
+    """{relative path: sha256} of every file below ``folder``."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture
+def workspace(tmp_path):
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "table.csv").write_text(TABLE)
+    (tmp_path / "old").mkdir()
+    assert main(["calibrate", str(tmp_path / "in" / "table.csv"), "--out", str(tmp_path / "old" / "p.yaml"),
+                 "--report", str(tmp_path / "old" / "report"), *LEVELS]) == 0
+    return tmp_path
+
+
+CASES = {
+    "out is the input": (["calibrate", "{in}/table.csv", "--out", "{in}/table.csv", *LEVELS], "would overwrite the input"),
+    "report inside the input folder": (["calibrate", "{in}", "--out", "{tmp}/p.yaml", "--report", "{in}/rep", *LEVELS],
+                                       "would mix report files with the input"),
+    "report is the input file": (["calibrate", "{in}/table.csv", "--out", "{tmp}/p.yaml", "--report", "{in}/table.csv", *LEVELS],
+                                 "is a file"),
+    "out is a folder": (["calibrate", "{in}/table.csv", "--out", "{tmp}/old", *LEVELS], "is a folder"),
+    "out below a file": (["calibrate", "{in}/table.csv", "--out", "{in}/table.csv/p.yaml", *LEVELS], "is a file, not a folder"),
+    "black above white": (["calibrate", "{in}/table.csv", "--out", "{old}/p.yaml", "--report", "{old}/report", "--cfa", "RGGB",
+                           "--black-level", "20000", "--white-level", "16383"], "white_level must exceed black_level"),
+    "bit depth 99": (["calibrate", "{in}/table.csv", "--out", "{old}/p.yaml", "--report", "{old}/report", *LEVELS,
+                      "--bit-depth", "99"], "--bit-depth must be in [1, 32], got 99"),
+    "negative quantization step": (["calibrate", "{in}/table.csv", "--out", "{old}/p.yaml", "--report", "{old}/report", *LEVELS,
+                                    "--quantization-step", "-1"], "--quantization-step must be > 0 DN, got -1"),
+    "max samples -5": (["calibrate", "{in}/table.csv", "--out", "{old}/p.yaml", *LEVELS, "--max-samples", "-5"],
+                       "--max-samples must be 0 (all) or >= 1000"),
+    "absurd noise scale": (["calibrate", "{in}/absurd.csv", "--out", "{old}/p.yaml", "--report", "{old}/report", *LEVELS],
+                           "more than the whole range"),
+    "missing input": (["calibrate", "{in}/nope.csv", "--out", "{tmp}/p.yaml", *LEVELS], "does not exist"),
+    "loop frame size 0": (["loop", "{in}/table.csv", "--report", "{tmp}/r", "--frame-size", "0", "0", *LEVELS],
+                          "--frame-size ROWS COLS must be at least 2 2"),
+    "loop n-synth 1": (["loop", "{in}/table.csv", "--report", "{tmp}/r", "--n-synth", "1", *LEVELS], "--n-synth must be >= 3"),
+    "report holds other files": (["calibrate", "{in}/table.csv", "--out", "{tmp}/p.yaml", "--report", "{tmp}/mine", *LEVELS],
+                                 "holds files that are not a rawaug report"),
+    "darktable out is its input": (["import-darktable", "{in}/table.csv", "Acme", "--out", "{in}/table.csv",
+                                    "--black-level", "0", "--white-level", "1023"], "would overwrite the input"),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_bad_input_gets_a_clear_error_and_loses_nothing(workspace, case, capsys):
+    argv, message = CASES[case]
+    (workspace / "in" / "absurd.csv").write_text(TABLE.replace("1.9,", "1900000.0,").replace("2.7,", "2700000.0,")
+                                                 .replace("4.4,", "4400000.0,"))
+    (workspace / "mine").mkdir()
+    (workspace / "mine" / "notes.txt").write_text("my own file")
+    before = digest(workspace)
+    paths = {"in": workspace / "in", "old": workspace / "old", "tmp": workspace}
+    code = main([a.format(**paths) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err, err
+    assert len(err.strip().splitlines()) == 1  # one line, no traceback
+    assert digest(workspace) == before  # inputs and old outputs untouched, nothing new left behind
+
+
+def test_bad_cfa_is_refused_by_the_parser(workspace, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["calibrate", str(workspace / "in" / "table.csv"), "--out", str(workspace / "p.yaml"), "--cfa", "XYZ"])
+    assert exc.value.code == 2 and "invalid choice: 'XYZ'" in capsys.readouterr().err
+
+
+def test_a_rerun_replaces_the_report_whole_and_keeps_permissions(workspace):
+    old = workspace / "old"
+    (old / "report" / "stale_figure.png").write_bytes(b"old")
+    os.chmod(old / "p.yaml", 0o644)
+    assert main(["calibrate", str(workspace / "in" / "table.csv"), "--out", str(old / "p.yaml"),
+                 "--report", str(old / "report"), *LEVELS]) == 0
+    assert not (old / "report" / "stale_figure.png").exists()
+    assert stat.S_IMODE((old / "p.yaml").stat().st_mode) == 0o644
+    NoiseProfile.load(old / "p.yaml")
+    previous = os.umask(0o027)
+    try:
+        assert main(["calibrate", str(workspace / "in" / "table.csv"), "--out", str(workspace / "new.yaml"), *LEVELS]) == 0
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE((workspace / "new.yaml").stat().st_mode) == 0o640  # the umask's, not 0600
+
+
+@pytest.mark.parametrize("interrupt", [KeyboardInterrupt, OSError])
+def test_an_interrupted_run_leaves_the_old_profile_and_report(workspace, monkeypatch, interrupt):
+    from rawaug.calibration import report
+
+    def broken(folder, *args, **kwargs):
+        (folder / "report.json").write_text("half")
+        raise interrupt("stopped while writing the report")
+
+    monkeypatch.setattr(report, "write_report", broken)
+    before = digest(workspace)
+    with pytest.raises((KeyboardInterrupt, OSError)):
+        main(["calibrate", str(workspace / "in" / "table.csv"), "--out", str(workspace / "old" / "p.yaml"),
+              "--report", str(workspace / "old" / "report"), *LEVELS])
+    assert digest(workspace) == before
+    assert sorted(p.name for p in (workspace / "old").iterdir()) == ["p.yaml", "report"]  # no temporary left
