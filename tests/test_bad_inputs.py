@@ -107,8 +107,12 @@ def test_an_interrupted_run_leaves_the_old_profile_and_report(workspace, monkeyp
 
     monkeypatch.setattr(report, "write_report", broken)
     before = digest(workspace)
-    with pytest.raises((KeyboardInterrupt, OSError)):
-        main(["calibrate", str(workspace / "in" / "table.csv"), "--out", str(workspace / "old" / "p.yaml"),
-              "--report", str(workspace / "old" / "report"), *LEVELS])
+    argv = ["calibrate", str(workspace / "in" / "table.csv"), "--out", str(workspace / "old" / "p.yaml"),
+            "--report", str(workspace / "old" / "report"), *LEVELS]
+    if interrupt is KeyboardInterrupt:
+        with pytest.raises(KeyboardInterrupt):
+            main(argv)
+    else:
+        assert main(argv) == 2  # an OS error is one line naming it
     assert digest(workspace) == before
     assert sorted(p.name for p in (workspace / "old").iterdir()) == ["p.yaml", "report"]  # no temporary left
