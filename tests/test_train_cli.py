@@ -134,3 +134,10 @@ def test_resume_from_checkpoint_is_exact_and_logs_to_tensorboard(tmp_path):
     tags = events.Tags()
     assert {"train/loss", "val/psnr", "val/psnr_noisy", "val/ssim"} <= set(tags["scalars"])
     assert "val/noisy_denoised_target" in tags["images"]
+
+
+def test_last_checkpoint_is_the_last_epoch_even_between_validations(tmp_path):
+    # validation (and the best-PSNR checkpoint) every 2 epochs, 3 epochs of 2 steps: last.ckpt must hold step 6
+    main(_quick(tmp_path / "a", 3, ["--trainer.check_val_every_n_epoch", "2"]))
+    last = torch.load(tmp_path / "a" / "version_0" / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert last["global_step"] == 6  # the weights after the final step (epoch 3 of 3 completed)

@@ -11,6 +11,13 @@ different crops and noise.
 """
 from __future__ import annotations
 
+import warnings
+
+# The noise is applied in the module's on_after_batch_transfer on purpose (the module owns
+# the noise model; every datamodule gets it): Lightning's notice that the module's hook is
+# used rather than the datamodule's says nothing a user must act on.
+warnings.filterwarnings("ignore", message="You have overridden `on_after_batch_transfer` in `LightningModule`")
+
 import math
 import zlib
 from pathlib import Path
