@@ -22,11 +22,14 @@ from rawaug.calibration.stage1 import estimate_read_noise, estimate_row_noise, r
 from rawaug.io import read_frame
 from rawaug.loop import FrameStack, run_frame_loop
 from rawaug.loop.parameters import frame_table_loop, parameter_loop, read_frame_table
-from rawaug.loop.report import residual_table, steps_table
+from rawaug.loop.report import outcome_summary, residual_table, steps_table
 
 DATA = Path(str(resources.files("rawaug") / "data" / "measured" / "PMN"))
-# the real dark frame lives in shared/ beside the checkout (not copied whole into the project)
-DARK = Path(__file__).resolve().parents[2].parent / "shared/data/frames/InfiniteISP/BlackImage_1920x1080_12bits_BGGR.raw"
+# the real dark frame: whole in shared/ beside the checkout (not copied into the project),
+# else the 512x512 crop of it bundled with the tests
+ROOT = Path(__file__).resolve().parents[1]
+DARK = ROOT.parent / "shared/data/frames/InfiniteISP/BlackImage_1920x1080_12bits_BGGR.raw"
+DARK_CROP = ROOT / "tests/data/InfiniteISP_BlackImage_crop512_y0_x1408_12bits_BGGR.raw"
 IMX686_K = {100: 0.1366021, 6400: 8.7425333}  # PMN_noise_params_extracted.json, IMX686_specific
 
 
@@ -47,9 +50,21 @@ def imx686():
         print(residual_table(out["after"], "after"))
 
 
+def _summary(token, params):
+    """An effect's profile entry in a line (the FPN grid and the CodeMap table are long)."""
+    if token == "FPN":
+        return f"white sigma {params['sigma_dn'][0]:.3g} DN, {len(params['shading_dn'][0])}x{len(params['shading_dn'][0][0])} shading grid"
+    if token == "CodeMap":
+        m = params["map_dn"][0]
+        return f"{len(set(m))} codes used for {len(m)} whole DN from {params['lo_dn'][0]:g} DN"
+    return str({k: v for k, v in params.items() if k != "seed"})
+
+
 def dark(path, n_synth):
-    print("## InfiniteISP dark frame (1920x1080, 12 bit, BGGR, single frame)\n")
-    frame = read_frame(path, width=1920, height=1080, dtype="<u2", cfa="BGGR", black_level=0, white_level=4095)
+    path = Path(path)
+    width, height = (512, 512) if "crop512" in path.name else (1920, 1080)
+    print(f"## InfiniteISP dark frame ({path.name}: {width}x{height}, 12 bit, BGGR, single frame)\n")
+    frame = read_frame(path, width=width, height=height, dtype="<u2", cfa="BGGR", black_level=0, white_level=4095)
     packed = frame.packed_dn()[None].astype(np.float64)
     row = estimate_row_noise(packed[0])
     read = estimate_read_noise(row_corrected(packed[0], row.row_means))
@@ -61,8 +76,9 @@ def dark(path, n_synth):
                        base={"sigma_tl": read.sigma_tl, "lambda": read.lam, "sigma_g": read.sigma_g, "sigma_r": row.sigma_r})
     print(f"base (stage 1 on the frame): sigma_TL {read.sigma_tl:.3f} DN, lambda {read.lam:.3f}, sigma_r {row.sigma_r:.3f} DN\n")
     result = run_frame_loop([stack], base, n_synth=n_synth, seed=0)
+    print(outcome_summary(result) + "\n")
     print(steps_table([s.to_dict() for s in result.steps]))
-    print(f"effects other than FPN (its grid is long): { {t: p for t, p in result.profile.effects.items() if t != 'FPN'} }\n")
+    print("effects: " + "; ".join(f"{t}: {_summary(t, p)}" for t, p in result.profile.effects.items()) + "\n")
     print(residual_table([r.to_dict() for r in result.initial["dark frame"]], "before"))
     print(residual_table([r.to_dict() for r in result.final["dark frame"]], "after"))
 
@@ -75,6 +91,8 @@ if __name__ == "__main__":
     t = time.time()
     sony()
     imx686()
-    if Path(args.dark).is_file():
-        dark(args.dark, args.n_synth)
+    dark_path = Path(args.dark) if Path(args.dark).is_file() else DARK_CROP
+    if dark_path != Path(args.dark):
+        print(f"(the whole dark frame {args.dark} is not here: its bundled 512x512 crop is used)\n")
+    dark(dark_path, args.n_synth)
     print(f"\n(elapsed {time.time() - t:.0f} s)")
