@@ -4,7 +4,7 @@ from .data import RawDenoiseData
 from .eld import ELD
 from .module import DenoiseModule
 from .sid import SIDSony
-from .sources import CleanFolder, NoisyFolder, Source
+from .sources import CleanFolder, NoisyFolder, PhotoFolder, Source
 from .unet import UNet
 
-__all__ = ["DenoiseModule", "RawDenoiseData", "Source", "CleanFolder", "NoisyFolder", "SIDSony", "ELD", "UNet", "DenoisedWriter"]
+__all__ = ["DenoiseModule", "RawDenoiseData", "Source", "CleanFolder", "NoisyFolder", "PhotoFolder", "SIDSony", "ELD", "UNet", "DenoisedWriter"]

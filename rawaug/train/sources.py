@@ -162,6 +162,54 @@ class CleanFolder(Source):
         return {"target": clean, "name": path.stem}
 
 
+class PhotoFolder(Source):
+    """Ordinary photos (JPEG, PNG, ... in sRGB) as clean raw training frames, by unprocessing
+    (``rawaug.train.unprocess``: inverse tone curve and gamma, the camera's colour matrix
+    inverted, white balance divided out, mosaicked). For users without clean raw frames.
+
+    Args:
+        root: the folder; pattern: glob inside it.
+        xyz_to_cam: the camera's 3x3 XYZ -> camera matrix (``rawpy.imread(f).rgb_xyz_matrix[:3]``
+            of one of its raw files); default: the Sony A7S II's, the built-in profile's camera.
+        seed: the white-balance gains of item ``i`` are drawn from ``seed + i`` (the same
+            every epoch).
+    """
+
+    def __init__(self, root: str, pattern: str = "*", xyz_to_cam: list | None = None, seed: int = 0,
+                 camera: str = "unprocessed-photos", repeat: int = 1, window: int | None = None) -> None:
+        super().__init__(camera=camera, repeat=repeat, window=window)
+        self.root, self.pattern, self.seed = Path(root), pattern, int(seed)
+        from .unprocess import XYZ_TO_SONY_A7S2
+
+        self.xyz_to_cam = np.asarray(xyz_to_cam if xyz_to_cam is not None else XYZ_TO_SONY_A7S2, dtype=np.float64)
+        if self.xyz_to_cam.shape != (3, 3) or not np.all(np.isfinite(self.xyz_to_cam)):
+            raise ValueError(f"xyz_to_cam must be a finite 3x3 matrix, got {xyz_to_cam!r}")
+
+    def describe(self) -> str:
+        return f"root={str(self.root)!r}, pattern={self.pattern!r}"
+
+    def list_entries(self) -> list[Path]:
+        if not self.root.is_dir():
+            raise FileNotFoundError(f"photo folder {str(self.root)!r} does not exist")
+        return sorted(p for p in self.root.glob(self.pattern) if p.suffix.lower() in PHOTO_EXTENSIONS)
+
+    def load(self, path: Path) -> dict:
+        import imageio.v3 as iio
+
+        from .unprocess import unprocess
+
+        image = np.asarray(iio.imread(path))
+        if image.ndim != 3 or image.shape[2] not in (3, 4):
+            raise ValueError(f"{path}: an RGB photo is expected, got an image of shape {image.shape}")
+        scale = float(np.iinfo(image.dtype).max) if np.issubdtype(image.dtype, np.integer) else 1.0
+        index = self.entries.index(path)
+        packed = unprocess(image[..., :3] / scale, np.random.default_rng(self.seed + index), self.xyz_to_cam)
+        return {"target": packed, "name": path.stem}
+
+
+PHOTO_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp")
+
+
 class NoisyFolder(Source):
     """Real noisy frames to denoise (``predict``): each is multiplied by ``ratio`` (the
     low-light factor to brighten by), no reference needed.
