@@ -15,4 +15,10 @@ def main(args=None):
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    try:
+        main()
+    except (FileNotFoundError, NotADirectoryError) as exc:  # data not where the config says: one line
+        print(f"fit.py: error: {exc}", file=sys.stderr)
+        sys.exit(2)

@@ -40,7 +40,9 @@ def eld_pairs(root: str | Path, camera: str, scenes=range(1, 11), ratios=(100, 2
         for scene in scenes:
             folder = Path(root) / camera / f"scene-{int(scene)}"
             if not folder.is_dir():
-                raise FileNotFoundError(f"ELD scene folder {str(folder)!r} does not exist")
+                raise FileNotFoundError(f"ELD scene folder {str(folder)!r} does not exist: get the ELD data set "
+                                        "(Wei et al., CVPR 2020) and set the source's root to "
+                                        "the folder that holds <camera>/scene-<n>/")
             for img_id in INPUT_IDS[int(ratio)]:
                 pairs.append({"input": find_any_extension(folder / f"IMG_{img_id:04d}"),
                               "target": find_any_extension(folder / f"IMG_{reference_id(img_id):04d}"),

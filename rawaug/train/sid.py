@@ -50,7 +50,9 @@ def read_sid_list(list_file: str | Path, root: str | Path, max_ratio: float = 30
     """Parse a SID list file into ``{short, long, ratio, scene, iso}`` dicts (paths under ``root``)."""
     list_file, root = Path(list_file), Path(root)
     if not list_file.is_file():
-        raise FileNotFoundError(f"SID list file {str(list_file)!r} does not exist")
+        raise FileNotFoundError(f"SID list file {str(list_file)!r} does not exist: get the SID Sony set (Chen et al., "
+                                "CVPR 2018, 'Learning to See in the Dark', about 25 GB) and set the source's root to the "
+                                "folder that holds Sony/ and Sony_*_list.txt")
     pairs = []
     for n, line in enumerate(list_file.read_text().splitlines(), start=1):
         parts = line.split()
