@@ -228,3 +228,17 @@ def test_data_module_errors():
     with pytest.raises(ValueError, match="'test'"):
         RawDenoiseData().test_dataloader()
     assert RawDenoiseData().val_dataloader() == []
+
+
+def test_clean_folder_split_by_subfolder_or_none(tmp_path):
+    from rawaug.train import CleanFolder
+
+    for split in ("train", "val"):
+        (tmp_path / split).mkdir()
+        np.save(tmp_path / split / f"{split}0.npy", np.zeros((8, 8), dtype=np.uint16))
+    np.save(tmp_path / "top.npy", np.zeros((8, 8), dtype=np.uint16))
+    hints = {"cfa": "RGGB", "black_level": 0, "white_level": 1023}
+    assert [p.name for p in CleanFolder(str(tmp_path), split="val", **hints).entries] == ["val0.npy"]
+    assert [p.name for p in CleanFolder(str(tmp_path), split="None", **hints).entries] == ["top.npy"]
+    with pytest.raises(ValueError, match="neither a manifest.csv.*set split to null"):
+        CleanFolder(str(tmp_path), split="test", **hints).entries

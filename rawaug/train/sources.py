@@ -123,7 +123,9 @@ class CleanFolder(Source):
         root: the folder; ``None`` means the real scenes bundled with rawaug.
         pattern: glob pattern inside ``root`` (recursive patterns like ``**/*.dng`` work).
         split: when ``root`` holds a ``manifest.csv`` with a ``split`` column (as the
-            bundled scenes do), only rows of this split (e.g. ``train``, ``val``).
+            bundled scenes do), only rows of this split (e.g. ``train``, ``val``); without
+            a manifest, the frames in the folder ``root/<split>/``; ``None`` (or the string
+            ``null``/``None`` from a command line): every frame in ``root``.
         files: explicit file names (relative to ``root``) instead of ``pattern``/``split``.
         cfa, black_level, white_level, width, height, dtype: read hints for files that do
             not store them (headerless ``.raw``, plain ``.npy``/``.png``); levels in raw codes.
@@ -135,7 +137,8 @@ class CleanFolder(Source):
                  camera: str = "", repeat: int = 1, window: int | None = None) -> None:
         super().__init__(camera=camera, repeat=repeat, window=window)
         self.root = Path(root) if root is not None else BUNDLED_SCENES
-        self.pattern, self.split, self.files = pattern, split, files
+        self.pattern, self.files = pattern, files
+        self.split = None if split is None or str(split).strip().lower() in ("none", "null", "") else str(split)
         self.hints = _hints(cfa=cfa, black_level=black_level, white_level=white_level, width=width, height=height, dtype=dtype)
 
     def describe(self) -> str:
@@ -147,9 +150,13 @@ class CleanFolder(Source):
         if self.files is not None:
             return [find_any_extension(self.root / f) for f in self.files]
         manifest = self.root / "manifest.csv"
+        if self.split is not None and not manifest.is_file():
+            if (self.root / self.split).is_dir():  # root/train/, root/val/: the split's own folder
+                return sorted(p for p in (self.root / self.split).glob(self.pattern)
+                              if p.is_file() and p.suffix.lower() in SUPPORTED_EXTENSIONS)
+            raise ValueError(f"split={self.split!r}: {str(self.root)!r} has neither a manifest.csv with a 'split' column "
+                             f"nor a folder {self.split!r}; to use every frame in it, set split to null")
         if self.split is not None:
-            if not manifest.is_file():
-                raise ValueError(f"split={self.split!r} needs a manifest.csv with a 'split' column in {str(self.root)!r}")
             lines = [ln for ln in manifest.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
             rows = list(csv.DictReader(lines))
             if not rows or "split" not in rows[0] or "file" not in rows[0]:
