@@ -141,3 +141,29 @@ def test_last_checkpoint_is_the_last_epoch_even_between_validations(tmp_path):
     main(_quick(tmp_path / "a", 3, ["--trainer.check_val_every_n_epoch", "2"]))
     last = torch.load(tmp_path / "a" / "version_0" / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     assert last["global_step"] == 6  # the weights after the final step (epoch 3 of 3 completed)
+
+
+def test_predict_writes_dng_files_a_raw_reader_opens(tmp_path):
+    import rawpy
+
+    from rawaug.io.dng import write_dng
+
+    noisy = tmp_path / "noisy"
+    noisy.mkdir()
+    mosaic = np.random.default_rng(0).integers(600, 900, (48, 64)).astype(np.uint16)
+    write_dng(noisy / "shot.dng", mosaic, cfa="GRBG", black_level=600, white_level=4095, iso=3200, exposure_s=0.01)
+    args = ["predict", "--config", str(REPO / "configs" / "quickstart.yaml"), *_small(tmp_path),
+            "--data.init_args.predict=rawaug.train.NoisyFolder", f"--data.init_args.predict.root={noisy}",
+            "--data.init_args.predict.ratio=10", "--trainer.callbacks+=rawaug.train.DenoisedWriter",
+            f"--trainer.callbacks.output_dir={tmp_path / 'out'}", "--trainer.callbacks.format=both"]
+    main(args)
+    packed = np.load(tmp_path / "out" / "shot.npy")
+    with rawpy.imread(str(tmp_path / "out" / "shot.dng")) as raw:
+        assert raw.raw_image.shape == (48, 64)
+        assert [int(v) for v in raw.black_level_per_channel] == [600] * 4 and raw.white_level == 4095
+        assert "".join(chr(raw.color_desc[c]) for c in raw.raw_pattern.ravel()) == "GRBG"
+        from rawaug.bayer import pack
+
+        codes = pack(raw.raw_image.astype(np.float64), "GRBG")
+    # the DNG holds the .npy output in raw codes, rounded
+    assert np.abs(codes - (packed * (4095 - 600) + 600)).max() <= 0.5 + 1e-3
