@@ -84,3 +84,6 @@ def test_loop_on_a_manifest_names_the_undeclared_effect(tmp_path, case):
     if not expected:
         assert accepted == [], steps
         assert "Nothing was added" in (report / "report.md").read_text()
+        assert not (report / "steps.png").exists()
+    else:
+        assert (report / "steps.png").stat().st_size > 1000 and "![steps](steps.png)" in (report / "report.md").read_text()

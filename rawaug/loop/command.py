@@ -27,7 +27,7 @@ import numpy as np
 from ..profile import NoiseProfile
 from . import parameters
 from ..outputs import check_outputs, write_set
-from .report import outcome_summary, residual_table, steps_table, write_report
+from .report import figure_steps, outcome_summary, residual_table, steps_table, write_report
 
 
 def add_arguments(parser) -> None:
@@ -195,7 +195,10 @@ def run(args) -> int:
     calibration = report.pop("_calibration", None)
 
     def write_all(folder):
-        write_report(folder, report, md)
+        text = md
+        if report.get("kind") == "frames" and figure_steps(report["steps"], Path(folder) / "steps.png"):
+            text += "\n\n## What each added effect changed\n\n![steps](steps.png)\n"
+        write_report(folder, report, text)
         if calibration is not None:  # the base model and its calibration report
             calibration.write_report(Path(folder) / "calibration")
             calibration.profile.save(Path(folder) / "calibration" / "base_profile.yaml")

@@ -40,6 +40,7 @@ class Step:
     note: str = ""
     round: int = 0  # loop round (several candidates may be tried in one round)
     kind: str = "physical"  # or "measured": a fallback that reproduces what no physical effect explains
+    evidence_after: dict = field(default_factory=dict)  # the evidence statistic with the effect added
 
     def to_dict(self):
         return self.__dict__.copy()
@@ -165,7 +166,8 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 # acceptable if its evidence improved by a fifth or more and nothing new became significant
                 ok = after.rel_error <= ACCEPT_FACTOR * evidence.rel_error and after_b["n_significant"] <= before_b["n_significant"]
                 step = Step(token, params, ok, evidence.to_dict(), label, evidence.rel_error, after.rel_error, after.z, before_b,
-                            after_b, round=step_no, kind="measured" if _measured(token) else "physical")
+                            after_b, round=step_no, kind="measured" if _measured(token) else "physical",
+                            evidence_after=after.to_dict())
                 trials.append((step, trial, new_diags))
             if any(t[0].accepted for t in trials):
                 break

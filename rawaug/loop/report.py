@@ -84,3 +84,34 @@ def outcome_summary(result) -> str:
     else:
         lines.append("No significant residual is left.")
     return "\n\n".join(lines)
+
+
+def figure_steps(steps: list[dict], path) -> bool:
+    """One panel per added effect: the statistic that drove it, measured (line) against the
+    model's syntheses before and after (mean +- spread). Returns False when nothing was added."""
+    added = [s for s in steps if s.get("accepted")]
+    if not added:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from ..atomic import atomic_write
+
+    fig, axes = plt.subplots(len(added), 1, figsize=(6, 1.3 * len(added) + 0.4), squeeze=False)
+    for ax, step in zip(axes[:, 0], added):
+        ev, af = step["evidence"], step.get("evidence_after") or {}
+        ax.axvline(ev["measured"], color="k", lw=2, label="measured")
+        ax.errorbar([ev["synth_mean"]], [1], xerr=[[ev["synth_std"]]], fmt="o", color="tab:red", label="model before")
+        if af:
+            ax.errorbar([af["synth_mean"]], [0], xerr=[[af["synth_std"]]], fmt="o", color="tab:green", label="model after")
+        ax.set_yticks([0, 1], ["after", "before"])
+        ax.set_ylim(-0.7, 1.7)
+        ax.set_title(f"{step['effect']} ({step.get('kind', 'physical')}): {ev['statistic']} on {step['stack']}, "
+                     f"error {step['error_before']:.3f} -> {step['error_after']:.3f}", fontsize=8)
+    axes[0, 0].legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
+    plt.close(fig)
+    return True
