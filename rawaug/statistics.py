@@ -217,6 +217,7 @@ class Statistic:
     min_frames: int = 1
     kind: str = "any"  # "any", "bias" or "flat"
     pixel_fraction: bool = False  # resolution: one pixel of the stack
+    mad_of_mean: bool = False  # a robust (MAD) scale of the N-frame mean map: a grid of 1/(2N) DN on whole codes
     base: str = ""  # the base-model parameter it checks ("" when only effects explain it)
 
     def applies(self, n_frames: int, kind: str) -> bool:
@@ -227,7 +228,13 @@ class Statistic:
         """Smallest meaningful difference of this statistic for this stack. A pixel
         fraction counts pixels of one frame's size n: its floor is the Poisson counting
         spread ``sqrt(max(value * n, 1)) / n`` of the model's value (this also covers the realization spread of
-        a fixed pattern, which repeated syntheses from one seed do not show). Else 1e-9."""
+        a fixed pattern, which repeated syntheses from one seed do not show). A MAD of the
+        mean map of N frames of whole codes moves in steps of 1.4826 / (2N) DN, so syntheses
+        that agree to the step show no spread: the step is its floor. Else 1e-9."""
+        if self.mad_of_mean:
+            integer = bool(np.all(frames == np.rint(frames)))
+            step = 1.482602218505602 / (2 * frames.shape[0]) if integer else 1e-9
+            return step
         if not self.pixel_fraction:
             return 1e-9
         n = frames[0].size
@@ -250,7 +257,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("clip_low", clip_low, pixel_fraction=True),
         Statistic("mean_dn", mean_dn, kind="bias", base="colour bias (black-level error)"),
         Statistic("temporal_std", temporal_std, min_frames=2, base="read noise scale sigma_TL / sigma_G"),
-        Statistic("fixed_std", fixed_std, min_frames=2),
+        Statistic("fixed_std", fixed_std, min_frames=2, mad_of_mean=True),
         Statistic("fixed_col_excess", fixed_col_excess, min_frames=2),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
