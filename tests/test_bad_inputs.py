@@ -116,3 +116,38 @@ def test_an_interrupted_run_leaves_the_old_profile_and_report(workspace, monkeyp
         assert main(argv) == 2  # an OS error is one line naming it
     assert digest(workspace) == before
     assert sorted(p.name for p in (workspace / "old").iterdir()) == ["p.yaml", "report"]  # no temporary left
+
+
+def _frames_manifest(folder, blacks, sep=",", bom=False):
+    """2 ISOs x (1 bias + 2 flats) of 96x96 .npy frames; ``blacks``: the black level of each row."""
+    import numpy as np
+
+    folder.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for n, (iso, kind, level) in enumerate([(800, "bias", 0), (800, "flat", 3000), (800, "flat", 3000),
+                                            (1600, "bias", 0), (1600, "flat", 3000), (1600, "flat", 3000)]):
+        frame = np.random.default_rng(n).normal(blacks[n] + level, 20, (96, 96)).clip(0, 16383).astype(np.uint16)
+        np.save(folder / f"f{n}.npy", frame)
+        rows.append(sep.join(map(str, [f"f{n}.npy", kind, iso, 0.01, "RGGB", blacks[n], 16383])))
+    header = sep.join(["path", "kind", "iso", "exposure_s", "cfa", "black_level", "white_level"])
+    (folder / "frames.csv").write_text(("\ufeff" if bom else "") + "\n".join([header] + rows) + "\n", encoding="utf-8")
+    return folder / "frames.csv"
+
+
+def test_frames_of_different_black_levels_are_refused(tmp_path, capsys):
+    manifest = _frames_manifest(tmp_path / "in", [512, 600, 512, 512, 512, 512])
+    assert main(["calibrate", str(manifest), "--out", str(tmp_path / "p.yaml"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "frames differ in black level" in err and "600.0" in err and not (tmp_path / "p.yaml").exists()
+
+
+def test_a_semicolon_manifest_is_named_and_a_bom_is_read(tmp_path, capsys):
+    from rawaug.calibration.command import _is_manifest_csv
+    from rawaug.io import read_manifest
+
+    semi = _frames_manifest(tmp_path / "semi", [512] * 6, sep=";")
+    assert main(["calibrate", str(semi), "--out", str(tmp_path / "p.yaml"), "--no-progress"]) == 2
+    assert "separated by ';'" in capsys.readouterr().err
+    bom = _frames_manifest(tmp_path / "bom", [512] * 6, bom=True)
+    assert _is_manifest_csv(bom)
+    assert [e.kind for e in read_manifest(bom)][:2] == ["bias", "flat"]

@@ -57,10 +57,13 @@ def _bit_depth(white, given):
 
 
 def _is_manifest_csv(path: Path) -> bool:
-    with path.open(newline="") as f:
+    with path.open(newline="", encoding="utf-8-sig") as f:  # a UTF-8 BOM is not part of the header
         for line in f:
             if line.strip() and not line.lstrip().startswith("#"):
                 header = [h.strip().lower() for h in next(csv.reader([line]))]
+                if len(header) == 1 and ";" in line:
+                    raise ValueError(f"{path}: fields are separated by ';'; rawaug reads comma-separated CSV "
+                                     f"(header found: {line.strip()!r})")
                 return "kind" in header
     return False
 
@@ -104,6 +107,10 @@ class _FrameSource:
         if frame.shape != ref.shape:
             raise ValueError(f"frames differ in size: {entry.path} is {frame.shape[1]}x{frame.shape[0]}, "
                              f"{ref.path} is {ref.shape[1]}x{ref.shape[0]}")
+        if not np.array_equal(frame.black_packed(), ref.black_packed()):
+            raise ValueError(f"frames differ in black level: {entry.path} has {frame.black_packed().tolist()}, "
+                             f"{ref.path} has {ref.black_packed().tolist()} (raw codes, R G1 B G2); calibrate frames "
+                             "of one black level together, or give --black-level")
         if frame.cfa != ref.cfa or frame.white_level != ref.white_level:
             raise ValueError(f"frames differ in CFA/white level: {entry.path} ({frame.cfa}, {frame.white_level:g}) "
                              f"vs {ref.path} ({ref.cfa}, {ref.white_level:g})")

@@ -89,7 +89,7 @@ def read_manifest(path) -> list[ManifestEntry]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"manifest {str(path)!r} does not exist")
-    lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    lines = [ln for ln in path.read_text(encoding="utf-8-sig").splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise ValueError(f"manifest {str(path)!r} is empty; expected a header row {','.join(COLUMNS)}")
     reader = csv.DictReader(lines, skipinitialspace=True)
