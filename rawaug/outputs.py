@@ -79,7 +79,7 @@ def _os_errors(path):
 def write_set(profile=None, out=None, report=None, write_report=None) -> None:
     """Write ``profile`` to ``out`` and ``write_report(folder)`` to ``report`` as one set:
     both or neither."""
-    from .atomic import atomic_write
+    from .atomic import atomic_write, current_umask
 
     text = profile.to_yaml() if profile is not None and out is not None else None
     staged = None
@@ -90,7 +90,7 @@ def write_set(profile=None, out=None, report=None, write_report=None) -> None:
                 target.parent.mkdir(parents=True, exist_ok=True)
                 staged = Path(tempfile.mkdtemp(prefix=f".{target.name}.new.", dir=target.parent))
             write_report(staged)
-            os.chmod(staged, 0o777 & ~_umask())
+            os.chmod(staged, 0o777 & ~current_umask())
         if text is not None:
             with _os_errors(out):
                 atomic_write(out, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"),
@@ -114,9 +114,3 @@ def _swap_in(staged: Path, target: Path) -> None:
         os.rename(staged, target)
     if old is not None:
         shutil.rmtree(old, ignore_errors=True)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

@@ -118,7 +118,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s *= 1.0 + v[_PRNU] * symmetric(normal, draw(keys[_PRNU_PATTERN], p))
             if stages & L.DARK_CURRENT:
                 s += k * v[_DARK_E] * max(1.0 + v[_DSNU] * symmetric(normal, draw(keys[_DSNU_PATTERN], p)), 0.0)
-            if stages & L.SHOT_POISSON:  # the body of rawaug.cpu.poisson._poisson, inlined (see there)
+            if stages & L.SHOT_POISSON:  # exact Poisson: tables and PTRS of rawaug.cpu.poisson, inlined (a call with the table tuples per element costs ~100 ns)
                 lam = s / k
                 if not math.isfinite(lam):
                     pass  # NaN/Inf pass through (counted above)

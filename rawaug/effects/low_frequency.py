@@ -67,14 +67,15 @@ def block_variance(frames, gh: int, gw: int) -> float:
     return float(blocks.var(axis=(1, 2), ddof=1).mean())
 
 
-def _unit_block_variance(h: int, w: int, gh: int, gw: int, n: int = 256) -> float:
+def _unit_block_variance(h: int, w: int, gh: int, gw: int) -> float:
     """``block_variance`` of the unit field (sigma 1) itself, by simulation: the stage's
-    bilinear upsampling of standard-normal grids, the same in all four channels."""
+    bilinear upsampling of standard-normal grids (the same in every channel, so one is
+    enough); about 4096 blocks in all, at most 256 frames, so large frames cost little."""
     from .dark_shading import upsample_grid
 
+    n = int(min(256, max(4, 4096 // (gh * gw))))
     z = np.random.default_rng(0).standard_normal((n, gh, gw))
-    field = upsample_grid(z, h, w)[:, None].repeat(4, axis=1)
-    return block_variance(field, gh, gw)
+    return block_variance(upsample_grid(z, h, w)[:, None], gh, gw)
 
 
 def estimate(frames, synthesized, k: float, **_) -> dict:

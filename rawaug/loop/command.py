@@ -69,7 +69,7 @@ def _run_parameter_table(args, path):
             md.append(f"| {name} | {st} | {v['rms_log']:.3f} | {v['bic']:.1f} | {bk} |")
     report = {"input": str(path), "kind": "parameter_table", "steps": result["steps"], "diagnosis": result["diagnosis"],
               "final": {n: f.relation.to_dict() for n, f in result["fits"].items()}}
-    return profile, report, "\n".join(md) + "\n"
+    return profile, report, "\n".join(md) + "\n", None  # the table's report is the loop's own
 
 
 def _run_frame_table(args, path):
@@ -83,7 +83,7 @@ def _run_frame_table(args, path):
         profile = NoiseProfile.load(args.profile).with_effect("BLE", result["params"])
     md = [f"# rawaug loop: {path.name}", "", f"{table['means'].shape[0]} frames, K = {args.k:g} DN/e-.", "",
           steps_table(result["steps"]), residual_table(result["before"], "before"), residual_table(result["after"], "after")]
-    return profile, {"input": str(path), "kind": "frame_table", **result}, "\n".join(md)
+    return profile, {"input": str(path), "kind": "frame_table", **result}, "\n".join(md), None
 
 
 def _run_manifest(args, path):
@@ -160,9 +160,7 @@ def _run_manifest(args, path):
               "unexplained": [{"stack": label, **r.to_dict()} for label, r in result.unexplained()],
               "initial": {k: [r.to_dict() for r in v] for k, v in result.initial.items()},
               "final": {k: [r.to_dict() for r in v] for k, v in result.final.items()}}
-    if calibration is not None:
-        report["_calibration"] = calibration
-    return result.profile, report, "\n".join(md)
+    return result.profile, report, "\n".join(md), calibration
 
 
 def _is_manifest(path: Path) -> bool:
@@ -186,14 +184,12 @@ def run(args) -> int:
     check_outputs(args.out, args.report, input_paths(path))
     start = time.time()
     if _is_manifest(path):
-        profile, report, md = _run_manifest(args, path)
+        profile, report, md, calibration = _run_manifest(args, path)
     elif _is_frame_table(path):
-        profile, report, md = _run_frame_table(args, path)
+        profile, report, md, calibration = _run_frame_table(args, path)
     else:
-        profile, report, md = _run_parameter_table(args, path)
+        profile, report, md, calibration = _run_parameter_table(args, path)
     report["elapsed_s"] = time.time() - start
-    calibration = report.pop("_calibration", None)
-
     def write_all(folder):
         text = md
         if report.get("kind") == "frames" and figure_steps(report["steps"], Path(folder) / "steps.png"):
