@@ -10,6 +10,9 @@ from rawaug import NoiseProfile
 from rawaug.cli import main
 
 TABLE = "iso,K,sigma_TL,lambda,sigma_r\n800,0.77,1.9,0.05,0.3\n1600,1.53,2.7,0.02,0.45\n3200,3.06,4.4,0.0,0.7\n"
+TWO_CAMERAS = ("camera,iso,K,sigma_TL,lambda,sigma_r\n"
+               "CamA,800,0.77,1.9,0.05,0.3\nCamA,1600,1.53,2.7,0.02,0.45\nCamA,3200,3.06,4.4,0.0,0.7\n"
+               "CamB,800,0.5,1.9,0.05,0.3\nCamB,1600,1.0,2.7,0.02,0.45\nCamB,3200,2.0,4.4,0.0,0.7\n")
 LEVELS = ["--cfa", "RGGB", "--black-level", "512", "--white-level", "16383"]
 
 
@@ -53,6 +56,10 @@ CASES = {
     "loop n-synth 1": (["loop", "{in}/table.csv", "--report", "{tmp}/r", "--n-synth", "1", *LEVELS], "--n-synth must be >= 3"),
     "report holds other files": (["calibrate", "{in}/table.csv", "--out", "{tmp}/p.yaml", "--report", "{tmp}/mine", *LEVELS],
                                  "holds files that are not a rawaug report"),
+    "several cameras, none chosen": (["calibrate", "{in}/two.csv", "--out", "{old}/p.yaml", *LEVELS],
+                                     "holds 2 cameras (CamA, CamB); choose one with --camera"),
+    "several cameras, unknown one": (["loop", "{in}/two.csv", "--report", "{tmp}/r", "--camera", "CamC", *LEVELS],
+                                     "no camera 'CamC' in the table; it holds CamA, CamB"),
     "darktable out is its input": (["import-darktable", "{in}/table.csv", "Acme", "--out", "{in}/table.csv",
                                     "--black-level", "0", "--white-level", "1023"], "would overwrite the input"),
 }
@@ -63,6 +70,7 @@ def test_bad_input_gets_a_clear_error_and_loses_nothing(workspace, case, capsys)
     argv, message = CASES[case]
     (workspace / "in" / "absurd.csv").write_text(TABLE.replace("1.9,", "1900000.0,").replace("2.7,", "2700000.0,")
                                                  .replace("4.4,", "4400000.0,"))
+    (workspace / "in" / "two.csv").write_text(TWO_CAMERAS)
     (workspace / "mine").mkdir()
     (workspace / "mine" / "notes.txt").write_text("my own file")
     before = digest(workspace)

@@ -132,6 +132,35 @@ def test_pmn_table_stage2(tmp_path):
     assert again.row_scale == prof.row_scale
 
 
+def test_a_table_of_several_cameras_is_chosen_by_name(tmp_path, capsys):
+    import json
+
+    from rawaug.calibration import read_parameter_tables
+    from rawaug.cli import main
+
+    sony = json.loads(PMN.read_text())["SonyA7S2_per_ISO"]
+    half = {iso: {**row, "Kmax": row["Kmax"] / 2} for iso, row in sony.items()}
+    layouts = {"pmn.json": {"SonyA7S2_per_ISO": sony, "Half_per_ISO": half, "loglinear_x": {"a": 1}},
+               "named.json": {"SonyA7S2": {"per_iso": [dict(iso=float(i), **r) for i, r in sony.items()]},
+                              "Half": [dict(iso=float(i), **r) for i, r in half.items()]}}
+    levels = ["--cfa", "RGGB", "--black-level", "512", "--white-level", "16383"]
+    for name, data in layouts.items():
+        (tmp_path / name).write_text(json.dumps(data))
+        tables = read_parameter_tables(tmp_path / name)
+        assert sorted(tables) == ["Half", "SonyA7S2"]
+        assert [p.k for p in tables["Half"]] == pytest.approx([p.k / 2 for p in tables["SonyA7S2"]])
+        assert main(["calibrate", str(tmp_path / name), "--out", str(tmp_path / "p.yaml"), *levels]) == 2
+        assert "choose one with --camera" in capsys.readouterr().err
+        assert main(["calibrate", str(tmp_path / name), "--out", str(tmp_path / "p.yaml"), "--camera", "half", *levels]) == 0
+        profile = NoiseProfile.load(tmp_path / "p.yaml")
+        assert profile.camera == "Half" and profile.k_max == pytest.approx(max(p.k for p in tables["Half"]))
+    # One table: its own name names the profile; --camera only renames it.
+    assert main(["calibrate", str(PMN), "--out", str(tmp_path / "one.yaml"), *levels]) == 0
+    assert NoiseProfile.load(tmp_path / "one.yaml").camera == "SonyA7S2"
+    assert main(["calibrate", str(PMN), "--out", str(tmp_path / "one.yaml"), "--camera", "Mine", *levels]) == 0
+    assert NoiseProfile.load(tmp_path / "one.yaml").camera == "Mine"
+
+
 def test_real_dark_frame_anomalies_are_warnings():
     frame = read_frame(DATA / "InfiniteISP_BlackImage_crop512_y0_x1408_12bits_BGGR.raw", width=512, height=512,
                        dtype="uint16", cfa="BGGR", black_level=0, white_level=4095)

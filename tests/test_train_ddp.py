@@ -30,6 +30,7 @@ def _worker(rank: int, port: int, out_path: str) -> None:
         dist.all_gather(gathered, stacked)
         if rank == 0:
             torch.save(torch.stack(gathered), out_path)
+        dist.barrier()  # neither rank tears down its gloo pairs while the other still uses them
     finally:
         dist.destroy_process_group()
 

@@ -24,7 +24,7 @@ from ..io.manifest import ManifestEntry
 from ..io.readers import RAWPY_EXTENSIONS
 from ..outputs import check_outputs, write_set
 from .diagnostics import CalibrationWarning, frame_anomalies
-from .joint import fit_joint, read_parameter_table
+from .joint import fit_joint, pick_camera, read_parameter_tables
 from .stage1 import calibrate_iso, centered_spectrum, estimate_quantization_step
 
 BIAS_MEAN_FRACTION = 0.01  # directory mode: mean below black + 1% of (white - black) -> bias
@@ -40,7 +40,9 @@ def add_arguments(parser) -> None:
 
 def add_calibration_options(parser) -> None:
     """The options of a calibration, shared by ``rawaug calibrate`` and ``rawaug loop``."""
-    parser.add_argument("--camera", default=None, help="camera name stored in the profile (default: the input's name)")
+    parser.add_argument("--camera", default=None,
+                        help="camera name stored in the profile (default: the table's camera name, else the "
+                        "input's name); in a table of several cameras, the one to calibrate")
     parser.add_argument("--cfa", default=None, choices=["RGGB", "BGGR", "GRBG", "GBRG"],
                         help="CFA (table input, or to override the frames')")
     parser.add_argument("--black-level", type=float, default=None, help="black level, raw codes (table input)")
@@ -296,7 +298,9 @@ def _write_report(folder, profile, params, where, notes, spectrum, elapsed):
 
 def _calibrate_table(source: Path, args: CalibrationOptions) -> Calibration:
     start = time.perf_counter()
-    params = read_parameter_table(source)
+    tables = read_parameter_tables(source)
+    chosen = pick_camera(tables, args.camera, source)
+    params = tables[chosen]
     first = params[0].extra
     black = args.black_level if args.black_level is not None else first.get("bl", first.get("black_level"))
     white = args.white_level if args.white_level is not None else first.get("wp", first.get("white_level"))
@@ -306,7 +310,7 @@ def _calibrate_table(source: Path, args: CalibrationOptions) -> Calibration:
         raise ValueError(f"{source}: the table does not give {', '.join(missing)}; pass them on the command line")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        profile = fit_joint(params, camera=args.camera or source.stem, black_level=float(black),
+        profile = fit_joint(params, camera=chosen if len(tables) > 1 else (args.camera or chosen or source.stem), black_level=float(black),
                             white_level=float(white), bit_depth=_bit_depth(white, args.bit_depth), cfa=cfa,
                             quantization_step_dn=args.quantization_step or 1.0,
                             source=f"rawaug calibrate (stage 2) of per-ISO table {source.name}")

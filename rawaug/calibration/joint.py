@@ -130,15 +130,19 @@ def _row_to_params(row: dict, where: str, iso=None) -> IsoParameters:
         raise ValueError(f"{where}: {exc}") from None
 
 
-def read_parameter_table(path) -> list[IsoParameters]:
-    """Per-ISO parameters from a CSV or JSON table, sorted by K.
+def read_parameter_tables(path) -> dict[str, list[IsoParameters]]:
+    """Every camera's per-ISO parameters in a CSV or JSON table: camera name -> rows sorted by K.
+
+    A file of one unnamed table maps ``""`` to it. Several cameras are told apart by
+    a ``camera`` column (CSV); several ``<Camera>_per_ISO`` keys, or an object mapping
+    camera names to tables (JSON).
 
     CSV: header with ``iso, K`` and ``sigma_TL, lambda`` (a Tukey-lambda fit) and/or
     ``sigma_G`` (Gaussian), optional ``sigma_r``,
     ``bias_R, bias_G1, bias_B, bias_G2`` (or ``bias``); other columns go to ``extra``.
     JSON: a list of such objects; ``{"per_iso": [...]}``; or the PMN layout
-    ``{"<Camera>_per_ISO": {"<iso>": {"Kmax": K, "sigTL":, "sigR":, "sigGs":, "lam":, "bias":}}}``
-    (the first ``*_per_ISO`` key). Column names are case-insensitive; sigmas in DN.
+    ``{"<Camera>_per_ISO": {"<iso>": {"Kmax": K, "sigTL":, "sigR":, "sigGs":, "lam":, "bias":}}}``.
+    Column names are case-insensitive; sigmas in DN.
     """
     path = Path(path)
     if not path.is_file():
@@ -146,33 +150,77 @@ def read_parameter_table(path) -> list[IsoParameters]:
     suffix = path.suffix.lower()
     if suffix == ".csv":
         lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-        rows = [(row, f"{path.name} row {i}") for i, row in enumerate(csv.DictReader(lines, skipinitialspace=True), start=2)]
-        params = [_row_to_params(row, where) for row, where in rows]
+        tables: dict[str, list] = {}
+        for i, row in enumerate(csv.DictReader(lines, skipinitialspace=True), start=2):
+            named = {str(k).strip().lower(): v for k, v in row.items() if k is not None}
+            camera = str(named.pop("camera", "") or "").strip()
+            row = {k: v for k, v in row.items() if k is None or str(k).strip().lower() != "camera"}
+            tables.setdefault(camera, []).append(_row_to_params(row, f"{path.name} row {i}"))
     elif suffix == ".json":
         try:
             data = json.loads(path.read_text())
         except json.JSONDecodeError as exc:
             raise ValueError(f"{path}: not valid JSON: {exc}") from None
-        params = _params_from_json(data, path.name)
+        tables = _tables_from_json(data, path.name)
     else:
         raise ValueError(f"{path}: a parameter table must be .csv or .json, got {suffix!r}")
-    if not params:
+    if not tables or not any(tables.values()):
         raise ValueError(f"{path}: the parameter table has no rows")
-    return sorted(params, key=lambda p: (p.k, p.iso))
+    for camera, params in tables.items():
+        if not params:
+            raise ValueError(f"{path}: camera {camera!r} has no rows")
+    return {camera: sorted(params, key=lambda p: (p.k, p.iso)) for camera, params in tables.items()}
 
 
-def _params_from_json(data, name):
+def pick_camera(tables: dict, camera: str | None, where) -> str:
+    """The key of ``camera`` in ``tables`` (case-insensitive). With one table, that one
+    whatever ``camera`` says (it only names the profile); with several, ``camera`` must name one."""
+    if len(tables) == 1:
+        return next(iter(tables))
+    names = sorted(tables)
+    if camera is None:
+        raise ValueError(f"{where}: the table holds {len(names)} cameras ({', '.join(names)}); "
+                         f"choose one with --camera")
+    match = [name for name in names if name.lower() == camera.lower()]
+    if not match:
+        raise ValueError(f"{where}: no camera {camera!r} in the table; it holds {', '.join(names)}")
+    return match[0]
+
+
+def read_parameter_table(path, camera: str | None = None) -> list[IsoParameters]:
+    """Per-ISO parameters of one camera, sorted by K (see :func:`read_parameter_tables`)."""
+    tables = read_parameter_tables(path)
+    return tables[pick_camera(tables, camera, path)]
+
+
+def _tables_from_json(data, name) -> dict[str, list]:
     if isinstance(data, dict):
-        per_iso_keys = [k for k in data if str(k).lower().endswith("per_iso")]
+        per_iso_keys = [k for k in data if str(k).lower().endswith("per_iso") and str(k).lower() != "per_iso"]
         if per_iso_keys:
-            table = data[per_iso_keys[0]]
-            if not isinstance(table, dict):
-                raise ValueError(f"{name}: {per_iso_keys[0]!r} must map ISO -> parameters, got {type(table).__name__}")
-            return [_row_to_params(row, f"{name} {per_iso_keys[0]}[{iso}]", iso=iso) for iso, row in table.items()]
-        if isinstance(data.get("per_iso"), list):
-            data = data["per_iso"]
+            tables = {}
+            for key in per_iso_keys:
+                table = data[key]
+                if not isinstance(table, dict):
+                    raise ValueError(f"{name}: {key!r} must map ISO -> parameters, got {type(table).__name__}")
+                camera = str(key)[: -len("per_iso")].rstrip("_- ")
+                tables[camera] = [_row_to_params(row, f"{name} {key}[{iso}]", iso=iso) for iso, row in table.items()]
+            return tables
+        if "per_iso" not in data and data and all(_is_table(v) for v in data.values()):
+            return {str(camera): _rows_from_json(table, f"{name} {camera}") for camera, table in data.items()}
+    return {"": _rows_from_json(data, name)}
+
+
+def _is_table(value) -> bool:
+    return (isinstance(value, list) and bool(value) and all(isinstance(r, dict) for r in value)) or (
+        isinstance(value, dict) and isinstance(value.get("per_iso"), list))
+
+
+def _rows_from_json(data, name):
+    if isinstance(data, dict) and isinstance(data.get("per_iso"), list):
+        data = data["per_iso"]
     if not isinstance(data, list) or not all(isinstance(r, dict) for r in data):
-        raise ValueError(f"{name}: JSON must be a list of per-ISO objects, {{'per_iso': [...]}} or a PMN '*_per_ISO' mapping")
+        raise ValueError(f"{name}: JSON must be a list of per-ISO objects, {{'per_iso': [...]}}, a PMN "
+                         f"'<Camera>_per_ISO' mapping or an object mapping camera names to such tables")
     return [_row_to_params(row, f"{name}[{i}]") for i, row in enumerate(data)]
 
 

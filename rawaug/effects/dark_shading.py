@@ -21,7 +21,8 @@ Both are per-K records (nearest record in log K)::
 
 Detected by ``fixed_std`` (stack-mean spread), ``psd2d_lowfreq``, ``row_lowfreq`` and
 ``col_lowfreq`` (smooth shading), see ``rawaug.statistics``. Estimated by
-``estimate``: grid = least-squares fit of the upsampled grid to the stack-mean map; sigma = the excess spread of the
+``estimate``: grid = least-squares fit of the upsampled grid to the stack-mean map, shrunk by
+the temporal smooth power a mean of N frames keeps (``fixed_shading_grid``); sigma = the excess spread of the
 map minus its shading (robust, so hot pixels do not count) over the current model. A single frame cannot separate a white
 fixed pattern from temporal noise: then only the shading is estimated (``sigma_dn`` 0).
 """
@@ -105,6 +106,25 @@ def shading_grid(frames) -> np.ndarray:
     return np.linalg.pinv(uy) @ m @ np.linalg.pinv(ux).T
 
 
+def fixed_shading_grid(frames) -> np.ndarray:
+    """``shading_grid`` of the stack mean less what temporal noise leaves in it, DN.
+
+    A mean of N frames keeps 1/N of the power of any per-frame smooth field (interference,
+    a drifting glow) and of the white noise under the grid's cells. That power is measured
+    from each frame's grid about the mean and the grid is shrunk by it, so a smooth field
+    new in every frame is not taken for fixed shading (as ``Col`` subtracts temporal / N).
+    """
+    grid = shading_grid(frames)
+    n = frames.shape[0]
+    if n < 2:
+        return grid
+    mean = frames.mean(axis=0)
+    temporal = np.mean([np.sum(shading_grid((f - mean)[None]) ** 2) for f in frames]) * n / (n - 1)
+    power = float(np.sum(grid**2))
+    shrink = max(0.0, 1.0 - temporal / n / power) if power > 0 else 0.0
+    return grid * shrink
+
+
 def _white_var(frames, grid):
     """Robust variance (``fixed_std`` squared) of the stack-mean map once the shading grid
     is removed, DN^2: hot pixels do not count here."""
@@ -115,10 +135,10 @@ def estimate(frames, synthesized, k: float, seed: int = 11, **_) -> dict:
     """Dark-shading record at gain ``k`` from measured frames (N, 4, h, w) in DN and
     stacks of the same shape synthesized by the current model."""
     frames = np.asarray(frames, dtype=np.float64)
-    grid = shading_grid(frames)
+    grid = shading_grid(frames)  # removed before the white part is measured
     sigma = 0.0
     if frames.shape[0] >= 2:
         base = [np.asarray(s, dtype=np.float64) for s in synthesized]
         excess = _white_var(frames, grid) - float(np.mean([_white_var(s, shading_grid(s)) for s in base]))
         sigma = float(np.sqrt(max(excess, 0.0)))
-    return {"seed": int(seed), "k": [float(k)], "sigma_dn": [sigma], "shading_dn": [grid.tolist()]}
+    return {"seed": int(seed), "k": [float(k)], "sigma_dn": [sigma], "shading_dn": [fixed_shading_grid(frames).tolist()]}

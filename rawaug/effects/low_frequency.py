@@ -14,9 +14,11 @@ channels; counter ``(b * gh + i) * gw + j`` of its stream).
 
 Profile entry (per-K records)::  ``LowFreq: {grid: [gh, gw], k: [K, ...], sigma_dn: [...]}``
 
-Estimated by ``estimate``: the excess variance over the current model of the frames'
-block means on the grid's cells (channel-averaged, per-frame mean removed), divided by what
-a unit field gives on the same blocks.
+Estimated by ``estimate``: the excess low-frequency power over the current model, ring by
+ring of the 2-D spectrum (channel-averaged frames, per-frame mean removed), fitted by the
+spectrum of a unit field; the grid (cells of 16 pixels up to two cells across the frame)
+is the one whose spectrum fits the excess best, so the field's correlation length is
+measured, not assumed.
 """
 from __future__ import annotations
 
@@ -53,39 +55,89 @@ class LowFrequencyNoise(NoiseEffect):
             raise ValueError(f"effect 'LowFreq' needs grid: [gh, gw], integers in [1, 256], got {grid!r}")
 
 
-def grid_shape(h: int, w: int) -> tuple[int, int]:
-    return max(2, min(256, h // CELL)), max(2, min(256, w // CELL))
+def grid_shape(h: int, w: int, cell: int = CELL) -> tuple[int, int]:
+    return max(2, min(256, h // cell)), max(2, min(256, w // cell))
+
+
+def candidate_grids(h: int, w: int) -> list[tuple[int, int]]:
+    """Grid shapes from cells of CELL pixels up to two cells across the frame: the field's
+    correlation length is chosen among them by its spectrum (``estimate``)."""
+    grids, cell = [], CELL
+    while True:
+        g = grid_shape(h, w, cell)
+        if g not in grids:
+            grids.append(g)
+        if g == (2, 2) or cell > max(h, w):
+            return grids
+        cell *= 2
+
+
+def _centered_fields(frames) -> np.ndarray:
+    """(N, h, w) channel-averaged frames, each with its own mean removed, DN."""
+    f = np.asarray(frames, dtype=np.float64)
+    return (f - f.mean(axis=(2, 3), keepdims=True)).mean(axis=1)
 
 
 def block_variance(frames, gh: int, gw: int) -> float:
     """Variance of the channel-averaged, per-frame-centered block means on a gh x gw grid, DN^2."""
-    f = np.asarray(frames, dtype=np.float64)
-    f = (f - f.mean(axis=(2, 3), keepdims=True)).mean(axis=1)  # (N, h, w)
+    f = _centered_fields(frames)
     n, h, w = f.shape
     bh, bw = h // gh, w // gw
     blocks = f[:, : bh * gh, : bw * gw].reshape(n, gh, bh, gw, bw).mean(axis=(2, 4))
     return float(blocks.var(axis=(1, 2), ddof=1).mean())
 
 
-def _unit_block_variance(h: int, w: int, gh: int, gw: int) -> float:
-    """``block_variance`` of the unit field (sigma 1) itself, by simulation: the stage's
-    bilinear upsampling of standard-normal grids (the same in every channel, so one is
-    enough); about 4096 blocks in all, at most 256 frames, so large frames cost little."""
+def _rings(h: int, w: int):
+    """Ring index of every rfft2 bin in cycles per frame (1, 2, ... up to the statistics' low
+    band, 1/16 of Nyquist along the shorter side); -1 outside."""
+    fy = np.fft.fftfreq(h)[:, None] * h
+    fx = np.fft.rfftfreq(w)[None, :] * w
+    radius = np.sqrt(fy**2 + fx**2)
+    top = max(2, min(h, w) // 32)
+    ring = np.floor(radius).astype(int)
+    return np.where((radius >= 1) & (ring <= top), ring, -1), top
+
+
+def ring_power(frames) -> np.ndarray:
+    """Mean 2-D power (DN^2 per bin) of the centered, channel-averaged fields in each
+    low-frequency ring (``_rings``)."""
+    f = _centered_fields(frames)
+    p = np.abs(np.fft.rfft2(f, axes=(1, 2))) ** 2 / (f.shape[1] * f.shape[2])
+    ring, top = _rings(*f.shape[1:])
+    p = p.mean(axis=0)
+    return np.array([p[ring == r].mean() if (ring == r).any() else 0.0 for r in range(1, top + 1)])
+
+
+def _unit_field(h: int, w: int, gh: int, gw: int) -> np.ndarray:
+    """Simulated frames of the unit field (sigma 1) itself: the stage's bilinear upsampling
+    of standard-normal grids (the same in every channel, so one is enough); about 4096
+    blocks in all, at most 256 frames, so large frames cost little."""
     from .dark_shading import upsample_grid
 
     n = int(min(256, max(4, 4096 // (gh * gw))))
     z = np.random.default_rng(0).standard_normal((n, gh, gw))
-    return block_variance(upsample_grid(z, h, w)[:, None], gh, gw)
+    return upsample_grid(z, h, w)[:, None]
 
 
 def estimate(frames, synthesized, k: float, **_) -> dict:
-    """LowFreq record at gain ``k`` from measured frames (N, 4, h, w) in DN."""
+    """LowFreq record at gain ``k`` from measured frames (N, 4, h, w) in DN.
+
+    The excess low-frequency power over the current model, ring by ring, is fitted by a
+    unit field of each candidate grid times sigma^2 (least squares, sigma^2 >= 0); the grid
+    that leaves the smallest misfit is kept. So a field that varies over the whole frame
+    gets a coarse grid and a finer pattern a fine one."""
     frames = np.asarray(frames, dtype=np.float64)
     h, w = frames.shape[2:]
-    gh, gw = grid_shape(h, w)
-    excess = block_variance(frames, gh, gw) - float(np.mean([block_variance(s, gh, gw) for s in synthesized]))
-    sigma = float(np.sqrt(max(excess, 0.0) / _unit_block_variance(h, w, gh, gw)))
-    return {"grid": [gh, gw], "k": [float(k)], "sigma_dn": [sigma]}
+    excess = ring_power(frames) - np.mean([ring_power(s) for s in synthesized], axis=0)
+    best = None
+    for gh, gw in candidate_grids(h, w):
+        unit = ring_power(_unit_field(h, w, gh, gw))
+        var = max(float(excess @ unit / max(unit @ unit, 1e-30)), 0.0)
+        misfit = float(np.sum((excess - var * unit) ** 2))
+        if best is None or misfit < best[0]:
+            best = (misfit, gh, gw, var)
+    _, gh, gw, var = best
+    return {"grid": [gh, gw], "k": [float(k)], "sigma_dn": [float(np.sqrt(var))]}
 
 
 def combine(records: list[dict]) -> dict:

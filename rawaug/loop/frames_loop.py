@@ -10,6 +10,10 @@ points to several effects -- a fixed column pattern also raises the per-pixel fi
 spread -- and only trying them tells which one the data hold). A rejected candidate is tried
 again once another effect has been added (its estimate depends on the model); the loop ends
 when no significant residual points to an effect untried in the current model.
+
+After each added effect the base read noise is re-fitted where the model's bias frames now
+come out noisier than the measured ones (``refit``): calibration had given the read noise
+all of the temporal noise, part of which the added effect now explains.
 """
 from __future__ import annotations
 
@@ -20,6 +24,7 @@ import numpy as np
 from ..effects.k_records import merge_records
 from ..profile import NoiseProfile
 from .diagnose import FrameStack, Residual, battery_error, diagnose
+from .refit import apply_read_noise_factors, read_noise_factors
 from .registry import CANDIDATES
 
 ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
@@ -52,6 +57,7 @@ class LoopResult:
     steps: list = field(default_factory=list)
     initial: dict = field(default_factory=dict)  # stack label -> residuals
     final: dict = field(default_factory=dict)
+    refits: list = field(default_factory=list)  # read-noise re-fits after added effects
 
     @property
     def added(self) -> list[str]:
@@ -137,9 +143,9 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
     current = NoiseProfile.load(profile)
     say = log or (lambda *_: None)
 
-    def diagnose_all(prof, step_seed):
+    def diagnose_all(prof, step_seed, which=None):
         return {s.label: diagnose(s, prof, model=model, n_synth=n_synth, seed=step_seed + i, z_min=z_min, rel_min=rel_min)
-                for i, s in enumerate(stacks)}
+                for i, s in enumerate(which or stacks)}
 
     diags = diagnose_all(current, seed)
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
@@ -192,6 +198,21 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             continue
         current, diags = chosen[1], chosen[2]
         tried = {t for t in tried if t in current.effects}  # estimates depend on the model: retry the rejected
+        factors = read_noise_factors(stacks, diags, current, model, z_min=z_min)
+        if factors:  # the added effect shares the bias frames' temporal noise with the read noise
+            new_stacks, refitted = apply_read_noise_factors(stacks, current, factors, model)
+            new_diags = diagnose_all(refitted, seed + 1000 * step_no + 500, new_stacks)
+            before_b, after_b = _battery(diags), _battery(new_diags)
+            kept = (after_b["mean_rel_error"] <= before_b["mean_rel_error"]
+                    and after_b["n_significant"] <= before_b["n_significant"])
+            result.refits.append({"after": chosen[0].effect, "round": step_no, "factors": factors, "kept": kept,
+                                  "battery_before": before_b, "battery_after": after_b})
+            say(f"step {step_no}: read noise re-fitted after {chosen[0].effect} ("
+                + ", ".join(f"{label} x{f:.3f}" for label, f in factors.items())
+                + f"): battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f}: "
+                + ("kept" if kept else "dropped"))
+            if kept:
+                current, diags, stacks = refitted, new_diags, new_stacks
     result.profile = current
     result.final = {k: v[0] for k, v in diags.items()}
     return result

@@ -77,6 +77,11 @@ def outcome_summary(result) -> str:
     if result.reproduced_by_measurement:
         lines.append("Reproduced by measurement (no physical effect explained these residuals): "
                      + ", ".join(f"`{t}`" for t in result.reproduced_by_measurement) + ".")
+    for refit in getattr(result, "refits", []):
+        if refit["kept"]:
+            lines.append(f"After `{refit['after']}` was added, the base read noise was re-fitted (it had counted "
+                         f"the temporal noise `{refit['after']}` now explains): sigma x "
+                         + ", ".join(f"{f:.3f} ({label})" for label, f in refit["factors"].items()) + ".")
     left = result.unexplained()
     if left:
         lines.append("Unexplained (still significant at the end): "

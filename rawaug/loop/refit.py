@@ -1,0 +1,102 @@
+"""Re-fit the base read noise after the loop adds an effect.
+
+Stage 1 of calibration measures the read noise of bias frames as all of their temporal
+pixel noise. An effect the loop adds later (temporal column noise, a per-frame smooth
+field, ...) explains part of that same variance, so the model then counts it twice: its
+bias frames come out noisier than the measured ones (``temporal_std`` with z < 0). The
+re-fit gives the read-noise component only what the other components leave:
+
+    sigma_read_new^2 = sigma_read^2 - (synthesized temporal_std^2 - measured temporal_std^2)
+
+per bias stack where that overshoot is statistically significant (never raising the read noise;
+a cut below half the calibrated sigma is not made: the added effect's estimate is then off),
+and moves the profile's read-noise relations by a
+least-squares line through ``log(factor)`` against ``log(K)``, so that the profile a user
+trains with carries the same correction. Units: DN.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..augment import parse_model
+from ..distributions import tukey_lambda_variance
+from ..relations import LogLinear
+from .diagnose import synthesis_fixed
+
+MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated value
+
+
+def _read_variance(fixed: dict, tokens) -> float:
+    """Variance (DN^2) of the base read-noise component of a synthesis with ``fixed``."""
+    if "G*" in tokens and "sigma_tl" in fixed:
+        return float(fixed["sigma_tl"]) ** 2 * tukey_lambda_variance(float(fixed["lambda"]))
+    return float(fixed["sigma_g"]) ** 2
+
+
+def read_noise_factors(stacks, diags, profile, model=None, z_min: float = 6.0) -> dict:
+    """{bias stack label: factor on the read-noise sigma} where the model's temporal noise
+    exceeds the measured one by more than ``z_min`` spreads (statistically significant; a
+    small relative error is corrected too, since the correction is exact).
+    ``diags``: label -> (residuals, syntheses)."""
+    tokens = parse_model(model or profile.richest_model)
+    factors = {}
+    for stack in stacks:
+        if stack.kind != "bias":
+            continue
+        r = next((r for r in diags[stack.label][0] if r.statistic == "temporal_std"), None)
+        if r is None or r.z >= -z_min:
+            continue
+        var = _read_variance(synthesis_fixed(profile, stack), tokens)
+        if var <= 0:
+            continue
+        f2 = 1.0 - (r.synth_mean**2 - r.measured**2) / var
+        if f2 < MIN_FACTOR**2:
+            continue  # more than double counting: the added effect's estimate is off, not the read noise
+        factors[stack.label] = float(math.sqrt(f2))
+    return factors
+
+
+def _shift(rel: LogLinear | None, slope: float, intercept: float, k_ref: float) -> LogLinear | None:
+    """``rel`` times ``exp(slope * log K + intercept)``, every segment and the floor."""
+    if rel is None:
+        return None
+    segments = tuple(_shift(s, slope, intercept, k_ref) for s in rel.segments)
+    floor = rel.floor_dn * math.exp(slope * math.log(k_ref) + intercept)
+    return dataclasses.replace(rel, slope=rel.slope + slope, intercept=rel.intercept + intercept,
+                               segments=segments, floor_dn=floor)
+
+
+def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
+    """(stacks, profile) with the read noise scaled by ``factors`` (bias stack label ->
+    factor): every stack of that bias stack's gain gets the new sigmas in its ``base``, and
+    the profile's read-noise relations move by the line through log(factor) against log(K)
+    over all bias stacks (factor 1 where nothing was re-fitted)."""
+    by_k = {}
+    for stack in stacks:
+        if stack.kind == "bias":
+            by_k[stack.k] = factors.get(stack.label, 1.0)
+    out = []
+    for stack in stacks:
+        f = by_k.get(stack.k, 1.0)
+        if f == 1.0:
+            out.append(stack)
+            continue
+        fixed = synthesis_fixed(profile, stack)
+        base = dict(stack.base)
+        base["sigma_g"] = float(fixed["sigma_g"]) * f
+        if "sigma_tl" in fixed:
+            base["sigma_tl"] = float(fixed["sigma_tl"]) * f
+        out.append(dataclasses.replace(stack, base=base))
+    ks = np.array(sorted(by_k))
+    logf = np.log([by_k[k] for k in ks])
+    if ks.size >= 2 and np.ptp(np.log(ks)) > 0:
+        slope, intercept = np.polyfit(np.log(ks), logf, 1)
+    else:
+        slope, intercept = 0.0, float(logf.mean())
+    k_ref = float(np.exp(np.log(ks).mean()))
+    new = dataclasses.replace(profile, tukey_scale=_shift(profile.tukey_scale, float(slope), float(intercept), k_ref),
+                              gaussian_scale=_shift(profile.gaussian_scale, float(slope), float(intercept), k_ref))
+    return out, new
