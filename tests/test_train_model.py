@@ -170,3 +170,33 @@ def test_learning_rate_schedule_follows_the_paper():
     assert [m.lr_at_epoch(e) / 1e-4 for e in (4, 5, 8, 9)] == pytest.approx([1, 0.5, 0.5, 0.1])
     with pytest.raises(ValueError, match="lr_milestones"):
         _module(lr_milestones=[0.9, 0.5])
+
+
+def test_learning_rate_schedule_with_a_step_budget():
+    # max_steps without max_epochs: the milestones are fractions of the steps (before, the rate
+    # stayed constant, and at lr 1e-3 CPU-scale runs spiked and ended wherever they were)
+    m = _module(lr=1e-3)
+    m.trainer = Trainer(max_steps=1000, logger=False, enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False)
+    assert m._step_budget()
+    assert [m.lr_at_step(s) / 1e-3 for s in (0, 499, 500, 899, 900, 999)] == pytest.approx([1, 1, 0.5, 0.5, 0.1, 0.1])
+    m.trainer = Trainer(max_epochs=10, max_steps=1000, logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False)
+    assert not m._step_budget()  # an epoch budget wins: the epoch schedule applies
+
+
+def test_the_step_schedule_reaches_the_optimizer_in_a_fit():
+    from lightning.pytorch.callbacks import Callback
+
+    from rawaug.train import CleanFolder, RawDenoiseData
+
+    seen = []
+
+    class Record(Callback):
+        def on_train_batch_end(self, trainer, module, outputs, batch, batch_idx):
+            seen.append(trainer.optimizers[0].param_groups[0]["lr"])
+
+    m = _module(lr=1e-3, lr_milestones=[0.5], lr_factors=[0.1], base_channels=2, crop_size=16)
+    data = RawDenoiseData(train=CleanFolder(split="train", repeat=1), batch_size=1)
+    Trainer(max_steps=4, logger=False, enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
+            limit_val_batches=0, callbacks=[Record()], accelerator="cpu").fit(m, datamodule=data)
+    assert seen == pytest.approx([1e-3, 1e-3, 1e-4, 1e-4])

@@ -17,7 +17,11 @@ of the two held-out bundled scenes. The same U-Net is trained on the four bundle
 scenes with (a) the ELD model calibrated on the training part (stage 1: Tukey-lambda read
 noise, row noise, colour bias), (b) the closed loop's profile of the training part, (c) noise
 sampled directly from the training part (random crops added to shot noise, the way
-sampling-based methods make pairs: an upper bound for a model of this frame). Every row has
+sampling-based methods make pairs: an upper bound for a model of this frame). A fourth row,
+(b') the loop's profile without its measured code map, shows what the pair construction
+costs the loop: shot noise is added on top of the dark frame's codes, so the comb acts on
+the read-side noise only, while ``CodeMap`` applies it at the ADC, after the shot noise, as
+a sensor does. Every row has
 the same steps, seeds and recipe (the quickstart's). Each run's result is written when it
 exists and reused by the next invocation.
 """
@@ -49,7 +53,7 @@ TEST_SCENES = {"Outdoor4_1024x1024.npz": (12.5, 255), "HalideN900_256x344.npz": 
 K = 1.0  # DN/e-
 RATIOS = (50, 100, 200)
 WHITE = 4095
-ROWS = ("ELD", "loop", "sampled real")
+ROWS = ("ELD", "loop", "loop without CodeMap", "sampled real")
 SCALES = {"cpu": dict(steps=1024, seeds=(0, 1), base=16, crop=64, batch=8, tile=128, test_tiles=12, n_synth=8),
           "smoke": dict(steps=2, seeds=(0,), base=4, crop=32, batch=2, tile=32, test_tiles=2, n_synth=3)}
 
@@ -132,8 +136,8 @@ def train_and_test(row: str, seed: int, out: Path, profiles: dict, train_dark: n
     from rawaug.train import CleanFolder, DenoiseModule, RawDenoiseData
 
     torch.manual_seed(seed)
-    module = DenoiseModule(base_channels=scale["base"], depth=5, residual=True, profile=str(profiles["loop" if row == "loop" else "ELD"]),
-                           noise_model="G*+P*+R+U", include_profile_effects=row == "loop", ratio=[RATIOS[0], RATIOS[-1]], k=K,
+    module = DenoiseModule(base_channels=scale["base"], depth=5, residual=True, profile=str(profiles[row if row in profiles else "ELD"]),
+                           noise_model="G*+P*+R+U", include_profile_effects=row.startswith("loop"), ratio=[RATIOS[0], RATIOS[-1]], k=K,
                            crop_size=scale["crop"], lr=1e-3, seed=seed, image_log_size=0, eval_iso=None, eval_k=K)
     if row == "sampled real":
         module.noise = SampledRealNoise(train_dark, K, (RATIOS[0], RATIOS[-1]), WHITE)
@@ -201,22 +205,29 @@ def main(argv=None) -> int:
     profiles = {"ELD": out / "eld_profile.yaml", "loop": out / "loop_profile.yaml"}
     if not profiles["ELD"].exists():
         eld.save(profiles["ELD"])
-    if "loop" in args.rows and not profiles["loop"].exists():
+    if any(r.startswith("loop") for r in args.rows) and not profiles["loop"].exists():
         stack = FrameStack(train_dark[None].astype(np.float64), K, label="training part", base=base)
         loop = run_frame_loop([stack], eld, n_synth=scale["n_synth"], seed=0, log=print)
         loop.profile.save(profiles["loop"])
         write_text_atomic(out / "loop_steps.json", json.dumps([s.to_dict() for s in loop.steps], default=str))
         print(f"[{time.time() - start:5.0f} s] loop added {loop.added}")
+    profiles["loop without CodeMap"] = out / "loop_profile_without_codemap.yaml"
+    if profiles["loop"].exists() and not profiles["loop without CodeMap"].exists():
+        data = NoiseProfile.load(profiles["loop"]).to_dict()
+        data["effects"].pop("CodeMap", None)
+        NoiseProfile.from_dict(data).save(profiles["loop without CodeMap"])
     pairs = test_pairs(held_out, scale)
-    results = []
+    header = (f"# Real-noise test pairs ({path.name}, held-out bottom third; K = {K:g} DN/e-)\n\n"
+              f"{len(pairs) // len(RATIOS)} test tiles per ratio; scale {json.dumps(scale)}.\n\n")
     for row in args.rows:
         for seed in scale["seeds"]:
             res = train_and_test(row, seed, out, profiles, train_dark, pairs, scale)
-            results.append(res)
             print(f"[{time.time() - start:5.0f} s] {row} seed {seed}: "
                   + ", ".join(f"x{q} {v:.2f} dB" for q, v in res["psnr"].items()))
-            md = (f"# Real-noise test pairs ({path.name}, held-out bottom third; K = {K:g} DN/e-)\n\n"
-                  f"{len(pairs) // len(RATIOS)} test tiles per ratio; scale {json.dumps(scale)}.\n\n" + table(results))
+            # every finished run in the folder, this invocation's and earlier ones'
+            results = [json.loads(p.read_text()) for r in ROWS for sd in scale["seeds"]
+                       if (p := out / "runs" / f"{r.replace(' ', '_')}_seed{sd}.json").exists()]
+            md = header + table(results)
             write_text_atomic(out / "results.md", md)
             write_text_atomic(out / "results.json", json.dumps(results, indent=1))
     print(md)

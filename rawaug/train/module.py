@@ -68,7 +68,8 @@ class DenoiseModule(L.LightningModule):
         clip_input: clip the noisy input to [0, 1] as the ELD evaluation does with real data.
         loss: ``l1`` (paper) or ``l2``.
         lr, lr_milestones, lr_factors: Adam learning rate; at each milestone (fraction of
-            ``max_epochs``) the rate becomes ``lr * factor`` (paper: 0.5 at 100/200, 0.1 at 180/200).
+            ``max_epochs``, or of ``max_steps`` when only a step budget is set) the rate becomes
+            ``lr * factor`` (paper: 0.5 at 100/200, 0.1 at 180/200).
         eval_iso, eval_k, eval_ratio, eval_seed: the fixed noise at which clean-only validation
             and test frames are evaluated (same noise every epoch and run).
         eval_crop: evaluate centre crops of this size (packed pixels); ``None`` = whole frames.
@@ -248,13 +249,37 @@ class DenoiseModule(L.LightningModule):
         epochs = [max(1, math.ceil(m * max_epochs - 1e-9)) for m in self.lr_milestones]
         return float(self.hparams.lr) * _lr_factor(int(epoch), epochs, self.lr_factors)
 
-    def on_train_epoch_start(self) -> None:
-        # Set from the epoch number, not by stepping a scheduler: exact after a resume.
-        lr = self.lr_at_epoch(self.current_epoch)
+    def lr_at_step(self, step: int) -> float:
+        """With a step budget (``max_steps``, no ``max_epochs``) the milestones are fractions of
+        ``max_steps``: ``lr`` times the factor of the last one reached by ``step``."""
+        max_steps = self._trainer.max_steps if self._trainer is not None else -1
+        if not max_steps or max_steps < 0:
+            return float(self.hparams.lr)
+        steps = [max(1, math.ceil(m * max_steps - 1e-9)) for m in self.lr_milestones]
+        return float(self.hparams.lr) * _lr_factor(int(step), steps, self.lr_factors)
+
+    def _step_budget(self) -> bool:
+        t = self._trainer
+        return t is not None and (not t.max_epochs or t.max_epochs < 0) and t.max_steps is not None and t.max_steps > 0
+
+    def _set_lr(self, lr: float) -> None:
         for optimizer in self.trainer.optimizers:
             for group in optimizer.param_groups:
                 group["lr"] = lr
+
+    def on_train_epoch_start(self) -> None:
+        # Set from the epoch (or step) number, not by stepping a scheduler: exact after a resume.
+        if self._step_budget():
+            return
+        lr = self.lr_at_epoch(self.current_epoch)
+        self._set_lr(lr)
         self.log("train/lr", lr, on_step=False, on_epoch=True, batch_size=1)
 
+    def on_train_batch_start(self, batch, batch_idx) -> None:
+        if self._step_budget():
+            lr = self.lr_at_step(self.global_step)
+            self._set_lr(lr)
+            self.log("train/lr", lr, on_step=True, on_epoch=False, batch_size=1)
+
     def configure_optimizers(self):
-        return torch.optim.Adam(self.parameters(), lr=self.lr_at_epoch(0))
+        return torch.optim.Adam(self.parameters(), lr=self.lr_at_step(0) if self._step_budget() else self.lr_at_epoch(0))
