@@ -86,7 +86,7 @@ def per_image(stat, frames):
 
 def test_full_model_pixel_and_row_mean_variance_match_analytic():
     k, level, sigma_tl, lam, sigma_r, q = 1.2, 20.0, 1.7, 0.05, 0.6, 1.0
-    frames = synth_dn("G*+P*+R+U", level, batch=48, size=64, k=k, sigma_tl=sigma_tl, sigma_r=sigma_r, step_dn=q, **{"lambda": lam})
+    frames = synth_dn("G*+P*+R+U", level, batch=24, size=64, k=k, sigma_tl=sigma_tl, sigma_r=sigma_r, step_dn=q, **{"lambda": lam})
     read_var = sigma_tl**2 * tukey_lambda_variance(lam)
     pixel_var = k * level + read_var + sigma_r**2 + q**2 / 12
     mean, se = per_image(lambda f: f.var(), frames)
