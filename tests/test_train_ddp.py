@@ -2,21 +2,17 @@
 for the same clean batch and the same step seed (RawNoiseAugment offsets by the rank)."""
 from __future__ import annotations
 
-import socket
+import os
+import sys
 
 import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _worker(rank: int, port: int, out_path: str) -> None:
-    dist.init_process_group("gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=2)
+def _worker(rank: int, store_path: str, out_path: str) -> None:
+    # a file store: no rank hosts a server the other still needs while it leaves
+    dist.init_process_group("gloo", init_method=f"file://{store_path}", rank=rank, world_size=2)
     try:
         from rawaug.train.module import DenoiseModule
 
@@ -30,14 +26,20 @@ def _worker(rank: int, port: int, out_path: str) -> None:
         dist.all_gather(gathered, stacked)
         if rank == 0:
             torch.save(torch.stack(gathered), out_path)
-        dist.barrier()  # neither rank tears down its gloo pairs while the other still uses them
-    finally:
+        dist.barrier()  # rank 0 has written the result
+    except BaseException:
         dist.destroy_process_group()
+        raise
+    # Leave without C++ teardown: in 2 of 4 full test runs (2026-11-23) a rank aborted on its way
+    # out ("terminate called without an active exception"); alone, 0 of 16 runs did.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 def test_ranks_draw_different_noise(tmp_path):
     out = tmp_path / "gathered.pt"
-    mp.spawn(_worker, args=(_free_port(), str(out)), nprocs=2, join=True)
+    mp.spawn(_worker, args=(str(tmp_path / "store"), str(out)), nprocs=2, join=True)
     g = torch.load(out)  # (rank, [input, target, replay], B, 4, 16, 16)
     noisy0, target0, replay0 = g[0]
     noisy1, target1, _ = g[1]
