@@ -12,18 +12,20 @@
 #         loop_profile.yaml, loop/ (the loop's report), run/ (checkpoints, val_results.csv,
 #         TensorBoard), denoised/ (.npy and .dng)
 # Environment: CAMERA (the name results carry, default: OUT's name), RATIO (the shots'
-# amplification, the low-light ratio the network undoes; default 100). fit.py options
-# (e.g. --trainer.max_epochs 64) go to training and prediction alike.
+# amplification, the low-light ratio the network undoes; default 100), LOOP_OPTIONS (more
+# options of rawaug loop, e.g. "--n-synth 16"). fit.py options (e.g. --trainer.max_epochs 64)
+# go to training and prediction alike.
 set -euo pipefail
 
 if [ "$#" -lt 4 ]; then
-    sed -n '2,16p' "$0" | sed 's/^# \{0,1\}//' >&2
+    sed -n '2,17p' "$0" | sed 's/^# \{0,1\}//' >&2
     exit 2
 fi
 frames=$1 clean=$2 shots=$3 out=$4
 shift 4
 camera=${CAMERA:-$(basename "$out")}
 ratio=${RATIO:-100}
+read -r -a loop_options <<< "${LOOP_OPTIONS:-}"
 app="$(cd "$(dirname "$0")/.." && pwd)/lightning_app/fit.py"
 config="$(dirname "$app")/../configs/quickstart.yaml"
 mkdir -p "$out"
@@ -32,7 +34,7 @@ echo "== 1/4 calibrate: $frames"
 rawaug calibrate "$frames" --camera "$camera" --out "$out/profile.yaml" --report "$out/calibration"
 
 echo "== 2/4 close the loop"
-rawaug loop "$frames" --camera "$camera" --out "$out/loop_profile.yaml" --report "$out/loop"
+rawaug loop "$frames" --camera "$camera" --out "$out/loop_profile.yaml" --report "$out/loop" ${loop_options[@]+"${loop_options[@]}"}
 
 run=("--config" "$config" "--model.profile" "$out/loop_profile.yaml"
      "--trainer.default_root_dir" "$out/run" "--trainer.logger.init_args.save_dir" "$out/run"

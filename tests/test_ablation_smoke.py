@@ -5,9 +5,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 RUN = Path(__file__).resolve().parents[1] / "benchmarks" / "ablation" / "run.py"
 
 
+@pytest.mark.slow  # 21 s: the default run stays under 3 minutes in a fresh clone
 def test_ablation_smoke(tmp_path):
     out = tmp_path / "ablation"
     proc = subprocess.run([sys.executable, str(RUN), "--out", str(out), "--scale", "smoke", "--rows", "G", "loop", "paired real"],

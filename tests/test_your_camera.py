@@ -82,7 +82,7 @@ def test_your_camera_end_to_end(tmp_path):
              "--trainer.max_epochs", "1", "--trainer.check_val_every_n_epoch", "1",
              "--data.init_args.train.init_args.repeat", "2", "--data.init_args.num_workers", "0",
              "--trainer.accelerator", "cpu"]
-    env = {**os.environ, "RATIO": "100"}
+    env = {**os.environ, "RATIO": "100", "LOOP_OPTIONS": "--n-synth 6"}
     done = subprocess.run(["bash", str(REPO / "scripts" / "your_camera.sh"), str(frames), str(tmp_path / "clean"),
                            str(tmp_path / "shots"), str(out), *small], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -47,7 +47,7 @@ SCALES = {
     # steps: optimizer steps per run; base: U-Net width; crop: packed training crop; tile: packed test tile
     # residual/lr: the CPU recipe of configs/quickstart.yaml (a residual U-Net at lr 1e-3 converges in
     # minutes); the gpu scale is the paper's (direct U-Net, lr 1e-4).
-    "smoke": dict(seeds=[0], steps=2, base=4, crop=32, batch=2, tile=32, test_tiles=2, frame=64, n_bias=2, bm3d=False, residual=True, lr=1e-3),
+    "smoke": dict(seeds=[0], steps=2, base=4, crop=32, batch=2, tile=32, test_tiles=2, frame=64, n_bias=2, bm3d=False, residual=True, lr=1e-3, n_synth=6),
     "cpu": dict(seeds=[0, 1], steps=500, base=16, crop=64, batch=8, tile=128, test_tiles=6, frame=256, n_bias=8, bm3d=True, residual=True, lr=1e-3),
     "gpu": dict(seeds=[0, 1], steps=20000, base=32, crop=256, batch=4, tile=256, test_tiles=8, frame=512, n_bias=8, bm3d=True, residual=False, lr=1e-4),
 }
@@ -85,12 +85,13 @@ def run_cli(args: list[str], log: Path) -> None:
         raise RuntimeError(f"rawaug {' '.join(args)} failed (exit {proc.returncode}); see {log}")
 
 
-def calibrate(out: Path, data: dict, with_loop: bool = True) -> dict:
+def calibrate(out: Path, data: dict, with_loop: bool = True, n_synth: int = 12) -> dict:
     profiles = {"eld": out / "testcam_eld.yaml", "loop": out / "testcam_loop.yaml"}
     if not profiles["eld"].exists():
         run_cli(["calibrate", str(data["manifest"]), "--out", str(profiles["eld"]), "--report", str(out / "calibration_report")], out / "calibrate.log")
     if with_loop and not profiles["loop"].exists():
-        run_cli(["loop", str(data["manifest"]), "--out", str(profiles["loop"]), "--report", str(out / "loop_report")], out / "loop.log")
+        run_cli(["loop", str(data["manifest"]), "--out", str(profiles["loop"]), "--report", str(out / "loop_report"),
+                 "--n-synth", str(n_synth)], out / "loop.log")
     return profiles
 
 
@@ -272,7 +273,7 @@ def main(argv=None) -> int:
     data = make_data(out, scale)
     print(f"[{time.time() - start:6.0f} s] TestCam frames and pairs in {out}")
     order = MODELS + ["loop", "paired real"]
-    profiles = calibrate(out, data, with_loop="loop" in (args.rows or order))
+    profiles = calibrate(out, data, with_loop="loop" in (args.rows or order), n_synth=scale.get("n_synth", 12))
     print(f"[{time.time() - start:6.0f} s] profiles: {profiles['eld']} (calibrate), {profiles['loop']} (loop)")
     rows = []
     for row in args.rows or order:
