@@ -120,8 +120,10 @@ def test_manifest_loop_rates_over_seeds(tmp_path, case):
     # same checks (a success rate of 0.95 passes with probability 0.91, one of 0.7 with 0.15)
     passed = 0
     for seed in range(1, 11):
+        folder = tmp_path / str(seed)
+        folder.mkdir()
         try:
-            check_case(tmp_path / str(seed), case, seed)
+            check_case(folder, case, seed)
             passed += 1
         except AssertionError:
             pass
