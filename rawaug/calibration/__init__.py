@@ -7,6 +7,6 @@ from .stage1 import (
 
 __all__ = [
     "IsoParameters", "fit_joint", "fit_log_linear", "read_parameter_table", "read_parameter_tables",
-    "GainEstimate", "ReadNoiseEstimate", "RowNoiseEstimate", "calibrate_iso", "estimate_color_bias", "estimate_gain", "estimate_read_noise",
-    "estimate_row_noise",
+    "GainEstimate", "ReadNoiseEstimate", "RowNoiseEstimate", "calibrate_iso", "estimate_color_bias", "estimate_gain",
+    "estimate_read_noise", "estimate_row_noise",
 ]

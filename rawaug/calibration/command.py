@@ -310,7 +310,8 @@ def _calibrate_table(source: Path, args: CalibrationOptions) -> Calibration:
         raise ValueError(f"{source}: the table does not give {', '.join(missing)}; pass them on the command line")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        profile = fit_joint(params, camera=chosen if len(tables) > 1 else (args.camera or chosen or source.stem), black_level=float(black),
+        camera = chosen if len(tables) > 1 else (args.camera or chosen or source.stem)  # --camera only names a lone table
+        profile = fit_joint(params, camera=camera, black_level=float(black),
                             white_level=float(white), bit_depth=_bit_depth(white, args.bit_depth), cfa=cfa,
                             quantization_step_dn=args.quantization_step or 1.0,
                             source=f"rawaug calibrate (stage 2) of per-ISO table {source.name}")

@@ -152,9 +152,8 @@ def read_parameter_tables(path) -> dict[str, list[IsoParameters]]:
         lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
         tables: dict[str, list] = {}
         for i, row in enumerate(csv.DictReader(lines, skipinitialspace=True), start=2):
-            named = {str(k).strip().lower(): v for k, v in row.items() if k is not None}
-            camera = str(named.pop("camera", "") or "").strip()
-            row = {k: v for k, v in row.items() if k is None or str(k).strip().lower() != "camera"}
+            key = next((k for k in row if k is not None and k.strip().lower() == "camera"), None)
+            camera = str(row.pop(key, "") or "").strip() if key is not None else ""
             tables.setdefault(camera, []).append(_row_to_params(row, f"{path.name} row {i}"))
     elif suffix == ".json":
         try:

@@ -78,15 +78,6 @@ def _centered_fields(frames) -> np.ndarray:
     return (f - f.mean(axis=(2, 3), keepdims=True)).mean(axis=1)
 
 
-def block_variance(frames, gh: int, gw: int) -> float:
-    """Variance of the channel-averaged, per-frame-centered block means on a gh x gw grid, DN^2."""
-    f = _centered_fields(frames)
-    n, h, w = f.shape
-    bh, bw = h // gh, w // gw
-    blocks = f[:, : bh * gh, : bw * gw].reshape(n, gh, bh, gw, bw).mean(axis=(2, 4))
-    return float(blocks.var(axis=(1, 2), ddof=1).mean())
-
-
 def _rings(h: int, w: int):
     """Ring index of every rfft2 bin in cycles per frame (1, 2, ... up to the statistics' low
     band, 1/16 of Nyquist along the shorter side); -1 outside."""
@@ -111,10 +102,11 @@ def ring_power(frames) -> np.ndarray:
 def _unit_field(h: int, w: int, gh: int, gw: int) -> np.ndarray:
     """Simulated frames of the unit field (sigma 1) itself: the stage's bilinear upsampling
     of standard-normal grids (the same in every channel, so one is enough); about 4096
-    blocks in all, at most 256 frames, so large frames cost little."""
+    grid values in all, at most 256 frames and about 2^24 pixels (4 frames at least), so a
+    12 MP frame needs about 100 MB, not gigabytes."""
     from .dark_shading import upsample_grid
 
-    n = int(min(256, max(4, 4096 // (gh * gw))))
+    n = int(max(4, min(256, 4096 // (gh * gw), 2**24 // (h * w))))
     z = np.random.default_rng(0).standard_normal((n, gh, gw))
     return upsample_grid(z, h, w)[:, None]
 

@@ -240,23 +240,22 @@ class DenoiseModule(L.LightningModule):
         self.logger.experiment.add_image("val/noisy_denoised_target", grid.cpu(), self.global_step)
 
     # ------------------------------------------------------------------ optimization
-    def lr_at_epoch(self, epoch: int) -> float:
-        """The learning rate of an epoch: ``lr`` times the factor of the last milestone
-        (fraction of ``max_epochs``) reached; constant when the trainer has no epoch budget."""
-        max_epochs = self._trainer.max_epochs if self._trainer is not None else None
-        if not max_epochs or max_epochs < 0:
+    def _lr_at(self, position: int, budget) -> float:
+        """``lr`` times the factor of the last milestone (fraction of ``budget``) reached by
+        ``position``; constant without a budget."""
+        if not budget or budget < 0:
             return float(self.hparams.lr)
-        epochs = [max(1, math.ceil(m * max_epochs - 1e-9)) for m in self.lr_milestones]
-        return float(self.hparams.lr) * _lr_factor(int(epoch), epochs, self.lr_factors)
+        marks = [max(1, math.ceil(m * budget - 1e-9)) for m in self.lr_milestones]
+        return float(self.hparams.lr) * _lr_factor(int(position), marks, self.lr_factors)
+
+    def lr_at_epoch(self, epoch: int) -> float:
+        """The learning rate of an epoch, milestones as fractions of ``max_epochs``."""
+        return self._lr_at(epoch, self._trainer.max_epochs if self._trainer is not None else None)
 
     def lr_at_step(self, step: int) -> float:
-        """With a step budget (``max_steps``, no ``max_epochs``) the milestones are fractions of
-        ``max_steps``: ``lr`` times the factor of the last one reached by ``step``."""
-        max_steps = self._trainer.max_steps if self._trainer is not None else -1
-        if not max_steps or max_steps < 0:
-            return float(self.hparams.lr)
-        steps = [max(1, math.ceil(m * max_steps - 1e-9)) for m in self.lr_milestones]
-        return float(self.hparams.lr) * _lr_factor(int(step), steps, self.lr_factors)
+        """The learning rate at a step, milestones as fractions of ``max_steps`` (used when the
+        trainer has a step budget and no epoch budget)."""
+        return self._lr_at(step, self._trainer.max_steps if self._trainer is not None else None)
 
     def _step_budget(self) -> bool:
         t = self._trainer
