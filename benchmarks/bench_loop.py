@@ -33,8 +33,12 @@ def write_session(folder: Path, megapixels: float) -> Path:
         k = 0.0009563 * iso
         frames = ([("bias", 1e-4, 0.0)] * 8 + [("dark", 2.0, 0.0)] * 4
                   + [("flat", 0.01 * (j // 2 + 1), 0.02 * (2 ** (j // 2))) for j in range(10)])
+        # one camera: the ELD model's parameters fixed per ISO (medians of its relations), as a
+        # sensor has them; drawn anew for every frame they would vary as no sensor's do
+        lam = base.tukey_shape.values[min(range(len(base.tukey_shape.k)), key=lambda j: abs(base.tukey_shape.k[j] - k))]
+        per_iso = {"k": k, "sigma_tl": base.tukey_scale.median(k), "lambda": float(lam), "sigma_r": base.row_scale.median(k)}
         for n, (kind, exposure, level) in enumerate(frames):
-            fixed = {"k": k, "exposure_s": exposure}
+            fixed = {**per_iso, "exposure_s": exposure}
             aug = RawNoiseAugment(camera, model="G*+P*+R", ratio=1.0, fixed=fixed,
                                   generator=torch.Generator().manual_seed(1000 * i + n), rank_seeding=False)
             dn = aug(torch.full((1, 4, side, side), min(level, 0.6))).numpy()[0] * base.span_dn
@@ -52,6 +56,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--megapixels", type=float, default=0.25, help="frame size, MP (the target: 12)")
     ap.add_argument("--n-synth", type=int, default=12)
+    ap.add_argument("--loop-size", type=int, default=256, help="rawaug loop --loop-size (packed pixels per side diagnosed)")
     ap.add_argument("--keep", default=None, help="folder to keep the loop's report in (default: discarded)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
@@ -63,10 +68,11 @@ def main(argv=None):
         start = time.perf_counter()
         report = Path(args.keep) if args.keep else tmp / "report"
         code = rawaug_main(["loop", str(manifest), "--out", str(tmp / "loop.yaml"), "--report", str(report),
-                            "--n-synth", str(args.n_synth), "--no-progress"])
+                            "--n-synth", str(args.n_synth), "--no-progress", "--loop-size", str(args.loop_size)])
         took = time.perf_counter() - start
         added = NoiseProfile.load(tmp / "loop.yaml").effects if code == 0 else {}
     print(f"{len(ISOS)} ISOs x (8 bias + 4 dark + 10 flat) frames of {args.megapixels:g} MP, n_synth {args.n_synth}, "
+          f"loop size {args.loop_size}, "
           f"{torch.get_num_threads()} threads: writing the frames {made:.0f} s; rawaug loop (calibration included) "
           f"{took:.0f} s (exit {code}); added {sorted(added)} (planted: Col). Target: 12 MP in < 300 s.")
 

@@ -190,13 +190,18 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
             seed = (seed + _rank() * _GOLDEN) % (2**63 - 1)
         return seed
 
-    def draw_parameters(self, batch: int, device: torch.device | str = "cpu", seed: int | None = None) -> dict:
+    def draw_parameters(self, batch: int, device: torch.device | str = "cpu", seed: int | None = None,
+                        shape: tuple | None = None) -> dict:
         """All per-sample parameters of one call as ``values`` (B, P) float64 on ``device``
-        (columns: ``rawaug.engine.layout.COLUMNS``), drawn counter-based from one seed."""
+        (columns: ``rawaug.engine.layout.COLUMNS``), drawn counter-based from one seed.
+        ``shape`` (H, W) of the input's packed channels places patterns measured on a larger
+        sensor (``FPN`` shading, ``LowFreq``) at their measured scale; without it the input
+        is taken for the whole sensor."""
         seed = self._new_seed() if seed is None else int(seed)
         device = torch.device(device)
         n = 1 if self.same_on_batch else batch
-        ctx = DrawContext(self.profile, torch.ones(batch, dtype=torch.float64, device=device), batch, n, seed, self.fixed)
+        ctx = DrawContext(self.profile, torch.ones(batch, dtype=torch.float64, device=device), batch, n, seed, self.fixed,
+                          None if shape is None else (int(shape[0]), int(shape[1])))
         lo, hi = math.log(self.k_range[0]), math.log(self.k_range[1])
         k = torch.exp(lo + (hi - lo) * ctx.uniform("k")) if "k" not in self.fixed else as_sample(self.fixed["k"], batch, device)
         ratio = (self.ratio[0] + (self.ratio[1] - self.ratio[0]) * ctx.uniform("ratio") if "ratio" not in self.fixed
@@ -251,12 +256,13 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         self._check_input(input)
         if params is None:
             batch = input.shape[0] if input.ndim == 4 else 1
-            params = self.draw_parameters(batch, input.device)
+            params = self.draw_parameters(batch, input.device, shape=input.shape[-2:])
         return super().forward(input, params=params, **kwargs)
 
     def apply_transform(self, input, params, flags, transform=None) -> torch.Tensor:
         if "values" not in params:  # container path: finish the (deterministic) draws on the device
-            drawn = self.draw_parameters(input.shape[0], input.device, seed=int(params["seed"].reshape(-1)[0]))
+            drawn = self.draw_parameters(input.shape[0], input.device, seed=int(params["seed"].reshape(-1)[0]),
+                                         shape=input.shape[-2:])
             params = {**drawn, **params}
         values = params["values"]
         if values.shape[0] != input.shape[0]:

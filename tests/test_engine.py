@@ -14,13 +14,14 @@ CUDA = torch.cuda.is_available()
 
 LOOP_EFFECTS = {
     "Col": {"seed": 7, "k": [1.0, 3.0], "sigma_dn": [0.5, 0.9], "fixed_dn": [0.7, 1.1]},
-    "FPN": {"seed": 11, "k": [1.0, 3.0], "sigma_dn": [0.4, 0.6], "shading_dn": [[[0.0, 1.0], [2.0, -1.0]], [[1.0, 0.5], [0.0, 3.0]]]},
+    "FPN": {"seed": 11, "k": [1.0, 3.0], "sigma_dn": [0.4, 0.6], "shading_dn": [[[0.0, 1.0], [2.0, -1.0]], [[1.0, 0.5], [0.0, 3.0]]],
+            "frame_h": 48, "frame_w": 64},  # larger than the test inputs: a window per sample
     "Hot": {"seed": 13, "density": 0.01, "log_std": 0.5, "k": [1.0], "median_dn": [50.0]},
     "Clip": {"floor_dn": -3.0},
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
     "PRNU": {"seed": 17, "sigma": 0.02},
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2]},
-    "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8]},
+    "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]]},
 }
 

@@ -128,3 +128,15 @@ def test_manifest_loop_rates_over_seeds(tmp_path, case):
         except AssertionError:
             pass
     assert passed >= 9, f"{case}: {passed} of 10 sessions"
+
+
+def test_loop_diagnoses_the_central_view_of_large_frames(tmp_path):
+    manifest = write_frames(tmp_path, "Col", COLUMN)  # 64 x 64 per packed channel
+    out, report = tmp_path / "loop.yaml", tmp_path / "report"
+    assert main(["loop", str(manifest), "--out", str(out), "--report", str(report), "--n-synth", "8", "--loop-size", "48"]) == 0
+    data = json.loads((report / "report.json").read_text())
+    assert data["loop_view"] == {"frame": [64, 64], "diagnosed": [48, 48]}
+    assert "central 48 x 48" in (report / "report.md").read_text()
+    assert list(yaml.safe_load(out.read_text())["effects"]) == ["Col"]  # still found on the view
+    assert main(["loop", str(manifest), "--out", str(tmp_path / "x.yaml"), "--report", str(tmp_path / "r2"),
+                 "--loop-size", "8"]) == 2 and not (tmp_path / "x.yaml").exists()

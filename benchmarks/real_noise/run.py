@@ -18,10 +18,10 @@ scenes with (a) the ELD model calibrated on the training part (stage 1: Tukey-la
 noise, row noise, colour bias), (b) the closed loop's profile of the training part, (c) noise
 sampled directly from the training part (random crops added to shot noise, the way
 sampling-based methods make pairs: an upper bound for a model of this frame). A fourth row,
-(b') the loop's profile without its measured code map, shows what the pair construction
-costs the loop: shot noise is added on top of the dark frame's codes, so the comb acts on
-the read-side noise only, while ``CodeMap`` applies it at the ADC, after the shot noise, as
-a sensor does. Every row has
+(b') the loop's profile without its measured code map, is run only when the loop added
+``CodeMap``: shot noise is added on top of the dark frame's codes, so in these pairs the
+comb acts on the read-side noise only, while ``CodeMap`` applies it at the ADC, after the
+shot noise, as a sensor does. Every row has
 the same steps, seeds and recipe (the quickstart's). Each run's result is written when it
 exists and reused by the next invocation.
 """
@@ -55,7 +55,7 @@ RATIOS = (50, 100, 200)
 WHITE = 4095
 ROWS = ("ELD", "loop", "loop without CodeMap", "sampled real")
 SCALES = {"cpu": dict(steps=1024, seeds=(0, 1), base=16, crop=64, batch=8, tile=128, test_tiles=12, n_synth=8),
-          "smoke": dict(steps=2, seeds=(0,), base=4, crop=32, batch=2, tile=32, test_tiles=2, n_synth=3)}
+          "smoke": dict(steps=2, seeds=(0,), base=4, crop=32, batch=2, tile=32, test_tiles=2, n_synth=8)}
 
 
 def read_dark(path: Path) -> np.ndarray:
@@ -191,8 +191,11 @@ def main(argv=None) -> int:
     ap.add_argument("--dark", default=str(DARK), help="the whole dark frame (default: beside the checkout)")
     ap.add_argument("--smoke", action="store_true", help="tiny scale, seconds (for tests)")
     ap.add_argument("--rows", nargs="*", default=list(ROWS), choices=ROWS)
+    ap.add_argument("--seeds", type=int, nargs="*", default=None, help="training seeds (default: the scale's)")
     args = ap.parse_args(argv)
-    scale = SCALES["smoke" if args.smoke else "cpu"]
+    scale = dict(SCALES["smoke" if args.smoke else "cpu"])
+    if args.seeds:
+        scale["seeds"] = tuple(args.seeds)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.time()
@@ -216,17 +219,19 @@ def main(argv=None) -> int:
         data = NoiseProfile.load(profiles["loop"]).to_dict()
         data["effects"].pop("CodeMap", None)
         NoiseProfile.from_dict(data).save(profiles["loop without CodeMap"])
+    rows = [r for r in args.rows if r != "loop without CodeMap" or "CodeMap" in NoiseProfile.load(profiles["loop"]).effects]
     pairs = test_pairs(held_out, scale)
     header = (f"# Real-noise test pairs ({path.name}, held-out bottom third; K = {K:g} DN/e-)\n\n"
-              f"{len(pairs) // len(RATIOS)} test tiles per ratio; scale {json.dumps(scale)}.\n\n")
-    for row in args.rows:
+              f"{len(pairs) // len(RATIOS)} test tiles per ratio; scale {json.dumps({k: v for k, v in scale.items() if k != 'seeds'})}; "
+              "every finished seed in the folder counts.\n\n")
+    for row in rows:
         for seed in scale["seeds"]:
             res = train_and_test(row, seed, out, profiles, train_dark, pairs, scale)
             print(f"[{time.time() - start:5.0f} s] {row} seed {seed}: "
                   + ", ".join(f"x{q} {v:.2f} dB" for q, v in res["psnr"].items()))
             # every finished run in the folder, this invocation's and earlier ones'
-            results = [json.loads(p.read_text()) for r in ROWS for sd in scale["seeds"]
-                       if (p := out / "runs" / f"{r.replace(' ', '_')}_seed{sd}.json").exists()]
+            results = sorted((json.loads(p.read_text()) for p in (out / "runs").glob("*_seed*.json")),
+                             key=lambda r: (ROWS.index(r["row"]), r["seed"]))
             md = header + table(results)
             write_text_atomic(out / "results.md", md)
             write_text_atomic(out / "results.json", json.dumps(results, indent=1))

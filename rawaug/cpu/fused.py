@@ -23,6 +23,7 @@ _K, _PRNU = L.COLUMN["k"], L.COLUMN["prnu_sigma"]
 _TL, _G, _R = L.COLUMN["sigma_tl"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
 _CS, _CF = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"]
 _FS, _FR = L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
+_FOY, _FOX, _FH, _FW = L.COLUMN["fpn_oy"], L.COLUMN["fpn_ox"], L.COLUMN["fpn_h"], L.COLUMN["fpn_w"]
 _HD, _HM, _HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
 _Q, _B0 = L.COLUMN["step_dn"], L.COLUMN["bias_r"]
 _BS, _BC, _CL = L.COLUMN["ble_sigma"], L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"]
@@ -106,6 +107,11 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         table = read_tables[read_index[b]]
         key_fine, key_rest, key_coarse = keys[_SHOT], keys[_SHOT_REST], keys[_SHOT_COARSE]
         record = int(v[_FR])
+        # FPN shading: a window at (fpn_oy, fpn_ox) of a frame of fpn_h x fpn_w (0: this input)
+        fy0 = y + v[_FOY]
+        fh = v[_FH] if v[_FH] > 0.0 else float(h)
+        fw = v[_FW] if v[_FW] > 0.0 else float(w)
+        fox = v[_FOX]
         g0 = r * w
         p0 = (c * h + y) * w
         for x in range(w):
@@ -139,7 +145,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             elif stages & L.SHOT_GAUSS:
                 s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
             if stages & L.FPN:
-                s += v[_FS] * symmetric(normal, draw(keys[_FPN_PATTERN], p)) + shading_at(grids, record, y, x, h, w)
+                s += v[_FS] * symmetric(normal, draw(keys[_FPN_PATTERN], p)) + shading_at(grids, record, fy0, x + fox, fh, fw)
             if stages & L.HOT:
                 if unit(draw(keys[_HOT_WHERE], p)) < v[_HD]:
                     s += v[_HM] * math.exp(v[_HL] * symmetric(normal, draw(keys[_HOT_SIZE], p)))

@@ -53,6 +53,7 @@ class DrawContext:
     n_draw: int  # B, or 1 when same_on_batch
     seed: int
     fixed: dict  # user-fixed parameter values by key
+    shape: tuple | None = None  # (H, W) per packed channel of the input, when known
 
     @property
     def device(self):

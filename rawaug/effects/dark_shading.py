@@ -11,13 +11,17 @@ the profile holds
 * ``seed`` and ``sigma_dn``: the white part is a seeded standard-normal realization scaled
   by the measured per-pixel std. Its statistics (what a denoiser learns from) are the
   sensor's; its exact pixel values are not -- they cannot be from a profile of this size;
-* ``shading_dn``: a low-resolution grid (at most 8x8) of the measured smooth shading,
-  bilinearly upsampled to the synthesized frame (which is treated as the whole sensor),
-  shared by the four packed channels (their mean differences are the colour bias ``C``).
+* ``shading_dn``: a low-resolution grid (at most 8x8) of the measured smooth shading over
+  the measured frame of ``frame_h x frame_w`` packed pixels, shared by the four packed
+  channels (their mean differences are the colour bias ``C``). A smaller input is a
+  window of that frame at a random position (per sample), so the shading keeps its
+  measured scale on training crops; an input as large or larger (or a profile without
+  ``frame_h``/``frame_w``) gets the grid stretched over it: the input is the sensor.
 
 Both are per-K records (nearest record in log K)::
 
-    FPN: {seed: 11, k: [K, ...], sigma_dn: [..], shading_dn: [[[..gw..], ..gh..], ...]}
+    FPN: {seed: 11, k: [K, ...], sigma_dn: [..], shading_dn: [[[..gw..], ..gh..], ...],
+          frame_h: H, frame_w: W}
 
 Detected by ``fixed_std`` (stack-mean spread), ``psd2d_lowfreq``, ``row_lowfreq`` and
 ``col_lowfreq`` (smooth shading), see ``rawaug.statistics``. Estimated by
@@ -35,7 +39,7 @@ import torch.nn.functional as F
 from ..engine import layout as L
 from ..statistics import fixed_std
 from .base import DARK, NoiseEffect, pattern_key, register
-from .k_records import check_seed, record_index, validate_records, value_at_k
+from .k_records import check_seed, frame_size, record_index, validate_records, value_at_k
 
 STATISTICS = ("fixed_std", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
 MAX_GRID = 8
@@ -59,11 +63,21 @@ class DarkShading(NoiseEffect):
     token = "FPN"
     order = DARK
     flag = L.FPN
-    columns = ("fpn_sigma", "fpn_record")
+    columns = ("fpn_sigma", "fpn_record", "fpn_oy", "fpn_ox", "fpn_h", "fpn_w")
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        return {"fpn_sigma": value_at_k(p, "sigma_dn", ctx.k), "fpn_record": record_index(p, ctx.k).to(torch.float64)}
+        out = {"fpn_sigma": value_at_k(p, "sigma_dn", ctx.k), "fpn_record": record_index(p, ctx.k).to(torch.float64)}
+        frame = frame_size(self.token, p)
+        zero = torch.zeros_like(ctx.k)
+        for axis, (oy, size) in enumerate((("fpn_oy", "fpn_h"), ("fpn_ox", "fpn_w"))):
+            if frame is None or ctx.shape is None or ctx.shape[axis] >= frame[axis]:
+                out[oy], out[size] = zero, zero  # the input is the sensor
+            else:  # a window of the measured frame, at a whole-pixel offset drawn per sample
+                room = frame[axis] - ctx.shape[axis] + 1
+                out[oy] = torch.floor(ctx.uniform(oy) * room).clamp(max=room - 1)
+                out[size] = torch.full_like(ctx.k, float(frame[axis]))
+        return out
 
     def pattern_streams(self):
         return {"fpn_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
@@ -75,6 +89,7 @@ class DarkShading(NoiseEffect):
     def validate_params(cls, params):
         validate_records(cls.token, params, ("sigma_dn", "shading_dn"), nonnegative=("sigma_dn",))
         check_seed(cls.token, params)
+        frame_size(cls.token, params)
         shape = None
         for i, grid in enumerate(params["shading_dn"]):
             arr = np.asarray(grid, dtype=np.float64) if isinstance(grid, (list, tuple)) else None
@@ -141,4 +156,5 @@ def estimate(frames, synthesized, k: float, seed: int = 11, **_) -> dict:
         base = [np.asarray(s, dtype=np.float64) for s in synthesized]
         excess = _white_var(frames, grid) - float(np.mean([_white_var(s, shading_grid(s)) for s in base]))
         sigma = float(np.sqrt(max(excess, 0.0)))
-    return {"seed": int(seed), "k": [float(k)], "sigma_dn": [sigma], "shading_dn": [fixed_shading_grid(frames).tolist()]}
+    return {"seed": int(seed), "k": [float(k)], "sigma_dn": [sigma], "shading_dn": [fixed_shading_grid(frames).tolist()],
+            "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3])}

@@ -42,6 +42,18 @@ def validate_records(token: str, params, keys: tuple[str, ...], nonnegative: tup
                 raise ValueError(f"effect {token!r}: {key} must be >= 0, got {v}")
 
 
+def frame_size(token: str, params: dict) -> tuple[int, int] | None:
+    """``(frame_h, frame_w)``: the packed frame size a spatial pattern was measured on
+    (optional; None for profiles written before it was stored)."""
+    if "frame_h" not in params and "frame_w" not in params:
+        return None
+    h, w = params.get("frame_h"), params.get("frame_w")
+    for name, v in (("frame_h", h), ("frame_w", w)):
+        if not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= 1 << 20:
+            raise ValueError(f"effect {token!r}: {name} must be a whole number of packed pixels in [1, 2^20], got {v!r}")
+    return h, w
+
+
 def record_index(params: dict, k: torch.Tensor) -> torch.Tensor:
     """(B,) index of the record nearest each K (log distance; first of ties)."""
     table = KTable(tuple(float(v) for v in params["k"]), tuple(float(i) for i in range(len(params["k"]))))

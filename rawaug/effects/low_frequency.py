@@ -12,7 +12,10 @@ Stage (DN, after quantization): ``s -> s + sigma_dn * Z(y, x)``, Z the bilinear 
 of a ``gh x gw`` grid of standard normals drawn anew for every frame (shared by the four
 channels; counter ``(b * gh + i) * gw + j`` of its stream).
 
-Profile entry (per-K records)::  ``LowFreq: {grid: [gh, gw], k: [K, ...], sigma_dn: [...]}``
+Profile entry (per-K records)::  ``LowFreq: {grid: [gh, gw], k: [K, ...], sigma_dn: [...], frame_h: H, frame_w: W}``
+(the grid spans the measured frame of ``frame_h x frame_w`` packed pixels; an input of
+another size gets the grid that keeps the measured cell size, ``round(gh * h / H)`` cells
+down, so a training crop sees the field at its measured scale).
 
 Estimated by ``estimate``: the excess low-frequency power over the current model, ring by
 ring of the 2-D spectrum (channel-averaged frames, per-frame mean removed), fitted by the
@@ -27,7 +30,7 @@ import torch
 
 from ..engine import layout as L
 from .base import ADC, NoiseEffect, register
-from .k_records import validate_records, value_at_k
+from .k_records import frame_size, validate_records, value_at_k
 
 STATISTICS = ("psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
 MEASURED = True
@@ -43,9 +46,12 @@ class LowFrequencyNoise(NoiseEffect):
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        gh, gw = (float(v) for v in p["grid"])
-        return {"lowfreq_sigma": value_at_k(p, "sigma_dn", ctx.k), "lowfreq_gh": torch.full_like(ctx.k, gh),
-                "lowfreq_gw": torch.full_like(ctx.k, gw)}
+        grid = [float(v) for v in p["grid"]]
+        frame = frame_size(self.token, p)
+        if frame is not None and ctx.shape is not None:  # the measured cell size, on an input of any size
+            grid = [float(min(256, max(1, round(g * n / f)))) for g, n, f in zip(grid, ctx.shape, frame)]
+        return {"lowfreq_sigma": value_at_k(p, "sigma_dn", ctx.k), "lowfreq_gh": torch.full_like(ctx.k, grid[0]),
+                "lowfreq_gw": torch.full_like(ctx.k, grid[1])}
 
     @classmethod
     def validate_params(cls, params):
@@ -53,6 +59,7 @@ class LowFrequencyNoise(NoiseEffect):
         grid = params.get("grid")
         if not (isinstance(grid, (list, tuple)) and len(grid) == 2 and all(isinstance(v, int) and 1 <= v <= 256 for v in grid)):
             raise ValueError(f"effect 'LowFreq' needs grid: [gh, gw], integers in [1, 256], got {grid!r}")
+        frame_size(cls.token, params)
 
 
 def grid_shape(h: int, w: int, cell: int = CELL) -> tuple[int, int]:
@@ -129,7 +136,7 @@ def estimate(frames, synthesized, k: float, **_) -> dict:
         if best is None or misfit < best[0]:
             best = (misfit, gh, gw, var)
     _, gh, gw, var = best
-    return {"grid": [gh, gw], "k": [float(k)], "sigma_dn": [float(np.sqrt(var))]}
+    return {"grid": [gh, gw], "k": [float(k)], "sigma_dn": [float(np.sqrt(var))], "frame_h": int(h), "frame_w": int(w)}
 
 
 def combine(records: list[dict]) -> dict:
@@ -139,4 +146,6 @@ def combine(records: list[dict]) -> dict:
     for r in records:
         by_k.setdefault(r["k"][0], []).append(r["sigma_dn"][0])
     ks = sorted(by_k)
-    return {"grid": list(records[0]["grid"]), "k": ks, "sigma_dn": [float(np.mean(by_k[k])) for k in ks]}
+    out = {"grid": list(records[0]["grid"]), "k": ks, "sigma_dn": [float(np.mean(by_k[k])) for k in ks]}
+    out.update({key: records[0][key] for key in ("frame_h", "frame_w") if key in records[0]})
+    return out

@@ -40,6 +40,7 @@ COLUMNS = (
     "clip_floor",
     "lowfreq_sigma", "lowfreq_gh", "lowfreq_gw",
     "codemap_record", "codemap_lo", "codemap_n",
+    "fpn_oy", "fpn_ox", "fpn_h", "fpn_w",  # FPN shading window in sensor pixels (fpn_h 0: the input is the sensor)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 N_COLUMNS = len(COLUMNS)

@@ -19,6 +19,7 @@ C_LF, C_LF_GH, C_LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.CO
 C_CM_REC, C_CM_LO, C_CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
 C_TL, C_LAM, C_G, C_R = L.COLUMN["sigma_tl"], L.COLUMN["lambda"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
 C_CS, C_CF, C_FS, C_FR = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"], L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
+C_FOY, C_FOX, C_FH, C_FW = L.COLUMN["fpn_oy"], L.COLUMN["fpn_ox"], L.COLUMN["fpn_h"], L.COLUMN["fpn_w"]
 C_HD, C_HM, C_HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
 C_Q, C_B0, C_BS, C_BC, C_CL = (L.COLUMN["step_dn"], L.COLUMN["bias_r"], L.COLUMN["ble_sigma"],
                                L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"])
@@ -93,8 +94,13 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s = tl.where((lam == lam) & (tl.abs(lam) < float("inf")), counted, s)  # NaN/Inf pass through
     elif FLAGS & 4:  # P
         s += tl.sqrt(k * tl.maximum(s, 0.0)) * _normal(draw(_key(keys_ptr, K_SHOT), g))
-    if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading
-        y0, x0, y1, x1, fy, fx = _bilinear(y, x, H, W, GH.to(tl.int64), GW.to(tl.int64))
+    if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading, a window (fpn_oy, fpn_ox) of fpn_h x fpn_w
+        fh = _col(v, C_FH)
+        fw = _col(v, C_FW)
+        fh = tl.where(fh > 0.0, fh, H.to(tl.float64))
+        fw = tl.where(fw > 0.0, fw, W.to(tl.float64))
+        y0, x0, y1, x1, fy, fx = _bilinear(y.to(tl.float64) + _col(v, C_FOY), x.to(tl.float64) + _col(v, C_FOX), fh, fw,
+                                           GH.to(tl.int64), GW.to(tl.int64))
         base = grids_ptr + _col(v, C_FR).to(tl.int64) * GH * GW
         top = tl.load(base + y0 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y0 * GW + x1, mask=live, other=0.0) * fx
         bottom = tl.load(base + y1 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y1 * GW + x1, mask=live, other=0.0) * fx

@@ -40,9 +40,24 @@ def add_arguments(parser) -> None:
                         help="sensor size of the frames of a per-frame table (raw rows, columns)")
     parser.add_argument("--n-synth", type=int, default=12, help="syntheses per diagnosis (frame loop)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--loop-size", type=int, default=LOOP_SIZE, metavar="PIXELS",
+                        help="the frame loop diagnoses the central PIXELS x PIXELS of each packed channel "
+                             f"(default {LOOP_SIZE}; calibration uses whole frames): the loop's time is then "
+                             "independent of the sensor size")
     from ..calibration.command import add_calibration_options
 
     add_calibration_options(parser)  # the same options, and meaning, as rawaug calibrate
+
+
+LOOP_SIZE = 256
+
+
+def central(packed: np.ndarray, size: int) -> np.ndarray:
+    """The central ``size`` x ``size`` of a packed (4, h, w) frame (all of a smaller side), as
+    a copy: the whole frame is not kept."""
+    _, h, w = packed.shape
+    top, left = max(0, (h - size) // 2), max(0, (w - size) // 2)
+    return np.array(packed[:, top : top + size, left : left + size])
 
 
 def _is_frame_table(path: Path) -> bool:
@@ -110,14 +125,17 @@ def _run_manifest(args, path):
     for entry in read_manifest(path):
         kind = getattr(entry, "kind", "bias")
         frame = entry.read()
+        whole = frame.packed_dn()
+        packed = central(whole, args.loop_size)
+        shapes = (whole.shape[1:], packed.shape[1:])
         if kind == "flat":
-            flats.setdefault((frame.iso, float(frame.exposure_s or 0.0)), []).append((frame.packed_dn(), frame.white_level - frame.black_packed()))
+            flats.setdefault((frame.iso, float(frame.exposure_s or 0.0)), []).append((packed, frame.white_level - frame.black_packed()))
         elif kind == "dark":
             if not frame.exposure_s:
                 raise ValueError(f"{entry.path}: a dark frame needs its exposure_s (manifest column or EXIF)")
-            darks.setdefault((frame.iso, float(frame.exposure_s)), []).append(frame.packed_dn())
+            darks.setdefault((frame.iso, float(frame.exposure_s)), []).append(packed)
         else:
-            bias.setdefault(frame.iso, []).append(frame.packed_dn())
+            bias.setdefault(frame.iso, []).append(packed)
     if not bias:
         raise ValueError(f"{path}: no bias frames in the manifest")
     stacks, measured = [], {}
@@ -150,11 +168,17 @@ def _run_manifest(args, path):
         stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in level], base=base, offsets_dn=offsets,
                                  label=f"ISO {iso:g} flat {float(level.mean()):.0f} DN"))
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
-    md = [f"# rawaug loop: {path.name}", "", outcome_summary(result), "", steps_table([s.to_dict() for s in result.steps])]
+    (h, w), (ch, cw) = shapes
+    view = (f"The frame loop diagnosed the central {ch} x {cw} of each frame's packed channels ({h} x {w}; "
+            "`--loop-size`); calibration used whole frames." if (ch, cw) != (h, w) else
+            f"The frame loop diagnosed whole frames ({h} x {w} per packed channel).")
+    md = [f"# rawaug loop: {path.name}", "", outcome_summary(result), "", view, "",
+          steps_table([s.to_dict() for s in result.steps])]
     for label in result.initial:
         md += [residual_table([r.to_dict() for r in result.initial[label]], f"{label}: before"),
                residual_table([r.to_dict() for r in result.final[label]], f"{label}: after")]
-    report = {"input": str(path), "kind": "frames", "steps": [s.to_dict() for s in result.steps],
+    report = {"input": str(path), "kind": "frames", "loop_view": {"frame": [h, w], "diagnosed": [ch, cw]},
+              "steps": [s.to_dict() for s in result.steps],
               "explained_physically": result.explained_physically,
               "reproduced_by_measurement": result.reproduced_by_measurement,
               "unexplained": [{"stack": label, **r.to_dict()} for label, r in result.unexplained()],
@@ -180,6 +204,8 @@ def run(args) -> int:
         raise ValueError(f"--k (system gain, DN/e-) must be > 0, got {args.k}")
     if args.n_synth < 3:
         raise ValueError(f"--n-synth must be >= 3 (the spread of the syntheses), got {args.n_synth}")
+    if args.loop_size < 16:
+        raise ValueError(f"--loop-size must be >= 16 (packed pixels per side the frame loop diagnoses), got {args.loop_size}")
     from ..calibration.command import input_paths
 
     check_outputs(args.out, args.report, input_paths(path))

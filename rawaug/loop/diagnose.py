@@ -11,6 +11,7 @@ and residuals are ranked by ``|z|`` and traced to the effects that explain them.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import asdict, dataclass, field
 
@@ -61,10 +62,15 @@ class FrameStack:
             raise ValueError(f"offsets_dn must hold 4 values (R, G1, B, G2), got {self.offsets_dn!r}")
         self.label = self.label or f"{self.kind} K={self.k:.4g}"
 
-    @property
+    @functools.cached_property
     def integer(self) -> bool:
         """Whole-number codes (a real raw file): syntheses are then rounded, not dithered."""
         return bool(np.all(self.frames_dn == np.rint(self.frames_dn)))
+
+    @functools.cached_property
+    def measured(self) -> dict:
+        """The battery's statistics of the measured frames (computed once: frames never change)."""
+        return frame_statistics(self.frames_dn, self.kind, self.level_dn)
 
 
 @dataclass
@@ -148,7 +154,7 @@ def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int
 
 def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float = 0.1) -> list[Residual]:
     """Residuals of every applicable statistic, ranked by ``|z|`` (largest first)."""
-    measured = frame_statistics(stack.frames_dn, stack.kind, stack.level_dn)
+    measured = stack.measured
     synth = [frame_statistics(s, stack.kind, stack.level_dn) for s in synthesized]
     out = []
     for name, m in measured.items():

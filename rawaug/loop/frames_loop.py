@@ -17,9 +17,11 @@ all of the temporal noise, part of which the added effect now explains.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
 from ..effects.k_records import merge_records
 from ..profile import NoiseProfile
@@ -144,8 +146,19 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
     say = log or (lambda *_: None)
 
     def diagnose_all(prof, step_seed, which=None):
-        return {s.label: diagnose(s, prof, model=model, n_synth=n_synth, seed=step_seed + i, z_min=z_min, rel_min=rel_min)
-                for i, s in enumerate(which or stacks)}
+        # stacks on parallel threads (NumPy's partitions and FFTs release the GIL); each
+        # stack's result depends on its own seed only, so the outcome does not depend on them
+        which = list(which or stacks)
+        prof = NoiseProfile.load(prof)
+        job = lambda i: diagnose(which[i], prof, model=model, n_synth=n_synth, seed=step_seed + i,  # noqa: E731
+                                 z_min=z_min, rel_min=rel_min)
+        workers = min(len(which), torch.get_num_threads())
+        if workers < 2:
+            results = [job(i) for i in range(len(which))]
+        else:
+            with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="rawaug-loop") as pool:
+                results = list(pool.map(job, range(len(which))))
+        return {s.label: r for s, r in zip(which, results)}
 
     diags = diagnose_all(current, seed)
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})

@@ -2,12 +2,14 @@
 
 1. Per-ISO tables (stage 1 of calibration, or a published table): each relation
    ``log(sigma)`` against ``log(K)`` starts as the ELD single line; its residuals are
-   tested for structure -- a *jump* (a change of regime across ISO, e.g. a conversion-gain
-   switch: two lines, the break chosen by least squares), a *floor* (``sigma =
+   tested for structure -- a *jump* (a change of regime across ISO: a conversion-gain
+   switch, or digital gain above the top analog ISO or below the base ISO; each jump adds
+   a line, its break chosen by least squares; at most ``MAX_JUMPS``), a *floor* (``sigma =
    sqrt(line^2 + floor^2)``: a read-noise floor) and *curvature* (a quadratic, diagnostic
-   only) -- and the loop adds the structure with the best BIC while it is significant
-   (BIC drop > 10 and nested F-test p < 1e-3). Jump and floor are stored in the profile's
-   ``LogLinear.segments`` / ``floor_dn``. Errors are rms residuals of ``log(sigma)``.
+   only) -- and the loop keeps the structure with the best BIC when it is significant
+   against the line (BIC drop > ``BIC_DROP`` and nested F-test p < ``F_TEST_P``). Jumps and floor are stored
+   in the profile's ``LogLinear.segments`` / ``floor_dn``. Errors are rms residuals of
+   ``log(sigma)``.
 
 2. Per-frame fit tables (one row per bias frame and channel with the frame's mean): the
    covariance of the four channel means across frames against the model's prediction
@@ -19,6 +21,7 @@
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,9 +33,11 @@ from scipy import stats as sstats
 from ..effects.frame_black_level import split_excess
 from ..profile import LogLinear
 
-BIC_DROP = 10.0
-F_TEST_P = 1e-3
+BIC_DROP = 6.0  # 'strong' evidence (Kass & Raftery); with F_TEST_P, 0-3 % false structure on pure lines
+F_TEST_P = 1e-2
 MIN_SEGMENT = 3  # points per segment of a jump
+MAX_JUMPS = 2  # low-ISO pull, analog range, high-ISO push
+SCREENED = 12  # break sets refined with a floor, best by the closed-form fit without one
 
 
 # ----------------------------------------------------------------------------- relation fits
@@ -45,7 +50,12 @@ class RelationFit:
     rss: float
     residuals: np.ndarray
     relation: LogLinear | None  # None for the diagnostic-only curvature
-    break_k: float | None = None
+    breaks_k: tuple = ()
+
+    @property
+    def break_k(self) -> float | None:
+        """The first break (K), None without a jump."""
+        return self.breaks_k[0] if self.breaks_k else None
 
     @property
     def name(self) -> str:
@@ -107,18 +117,45 @@ def _relation(x, residuals, pieces, floor, breaks_k) -> LogLinear:
     return LogLinear(segs[0].slope, segs[0].intercept, segs[0].residual_std, 0.0, tuple(segs), float(floor))
 
 
-def fit_structure(k, sigma, structures: tuple = ()) -> RelationFit:
-    """Fit ``log(sigma)`` against ``log(K)`` with the given structures (see module doc).
+def _break_sets(x, n_jumps: int):
+    """Every set of ``n_jumps`` breaks (log K, midway between distinct K values) leaving at
+    least ``MIN_SEGMENT`` points in each segment."""
+    ux = np.unique(x)
+    mids = 0.5 * (ux[:-1] + ux[1:])
+    for breaks in itertools.combinations(mids, n_jumps):
+        edges = (-np.inf,) + breaks + (np.inf,)
+        if all(((x >= edges[i]) & (x < edges[i + 1])).sum() >= MIN_SEGMENT for i in range(n_jumps + 1)):
+            yield breaks
 
-    A jump's break is searched over every gap between consecutive distinct K values
-    leaving at least ``MIN_SEGMENT`` points on each side (least squares); its ``k_from``
-    is the geometric mean of the two K values around the gap."""
+
+def _pieces_rss(x, y, breaks) -> float:
+    """Residual sum of squares of independent lines per segment (closed form)."""
+    edges = (-np.inf,) + tuple(breaks) + (np.inf,)
+    rss = 0.0
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (x >= lo) & (x < hi)
+        coef = np.polyfit(x[sel], y[sel], 1)
+        rss += float(np.sum((y[sel] - np.polyval(coef, x[sel])) ** 2))
+    return rss
+
+
+def fit_structure(k, sigma, structures: tuple = ()) -> RelationFit:
+    """Fit ``log(sigma)`` against ``log(K)`` with the given structures (see module doc;
+    ``"jump"`` may appear up to ``MAX_JUMPS`` times).
+
+    Breaks are searched over every gap between consecutive distinct K values leaving at
+    least ``MIN_SEGMENT`` points in each segment (least squares; with a floor, the
+    ``SCREENED`` best break sets without it are refined); a break's ``k_from`` is the
+    geometric mean of the two K values around its gap."""
     k = np.asarray(k, dtype=np.float64)
     sigma = np.asarray(sigma, dtype=np.float64)
     if k.shape != sigma.shape or k.ndim != 1 or k.size < 3:
         raise ValueError(f"k and sigma must be 1-D of equal length >= 3, got {k.shape} and {sigma.shape}")
     if np.any(k <= 0) or np.any(sigma <= 0) or not (np.isfinite(k).all() and np.isfinite(sigma).all()):
         raise ValueError("k and sigma must be positive and finite")
+    n_jumps = structures.count("jump")
+    if n_jumps > MAX_JUMPS:
+        raise ValueError(f"at most {MAX_JUMPS} jumps, got {n_jumps}")
     order = np.argsort(k)
     x, y = np.log(k[order]), np.log(sigma[order])
     floor = "floor" in structures
@@ -126,24 +163,22 @@ def fit_structure(k, sigma, structures: tuple = ()) -> RelationFit:
         coef = np.polyfit(x, y, 2)
         r = y - np.polyval(coef, x)
         return RelationFit(("curvature",), 3, float(np.sum(r**2)), r, None)
-    if "jump" not in structures:
+    if not n_jumps:
         pieces, fl, r = _fit(x, y, (), floor)
         return RelationFit(tuple(structures), 2 + floor, float(np.sum(r**2)), r, _relation(x, r, pieces, fl, []))
+    sets = sorted(_break_sets(x, n_jumps), key=lambda b: _pieces_rss(x, y, b))
+    if not sets:
+        raise ValueError(f"{n_jumps} jump(s) need >= {(n_jumps + 1) * MIN_SEGMENT} points in distinct K, "
+                         f"got {len(np.unique(x))} distinct K")
     best = None
-    ux = np.unique(x)
-    for i in range(len(ux) - 1):
-        xb = 0.5 * (ux[i] + ux[i + 1])
-        if (x < xb).sum() < MIN_SEGMENT or (x >= xb).sum() < MIN_SEGMENT:
-            continue
-        pieces, fl, r = _fit(x, y, (xb,), floor)
+    for breaks in sets[:SCREENED] if floor else sets[:1]:
+        pieces, fl, r = _fit(x, y, breaks, floor)
         rss = float(np.sum(r**2))
         if best is None or rss < best[0]:
-            best = (rss, xb, pieces, fl, r)
-    if best is None:
-        raise ValueError(f"a jump needs >= {2 * MIN_SEGMENT} distinct K values, got {len(ux)}")
-    rss, xb, pieces, fl, r = best
-    kb = float(math.exp(xb))
-    return RelationFit(tuple(structures), 5 + floor, rss, r, _relation(x, r, pieces, fl, [kb]), kb)
+            best = (rss, breaks, pieces, fl, r)
+    rss, breaks, pieces, fl, r = best
+    ks = tuple(float(math.exp(b)) for b in breaks)
+    return RelationFit(tuple(structures), 2 + 3 * n_jumps + floor, rss, r, _relation(x, r, pieces, fl, list(ks)), ks)
 
 
 def f_test(simple: RelationFit, rich: RelationFit, n: int) -> float:
@@ -161,48 +196,56 @@ def diagnose_relation(k, sigma) -> dict:
     residual-structure diagnosis: which of jump, curvature, floor the residuals show)."""
     n = len(k)
     out = {}
-    for st in ((), ("jump",), ("floor",), ("curvature",), ("jump", "floor")):
+    for st in ((), ("jump",), ("floor",), ("curvature",), ("jump", "floor"), ("jump", "jump"), ("jump", "jump", "floor")):
         try:
             fit = fit_structure(k, sigma, st)
         except ValueError:
             continue
-        out[fit.name] = {"rms_log": fit.rms, "bic": fit.bic(n), "n_params": fit.n_params, "break_k": fit.break_k}
+        out[fit.name] = {"rms_log": fit.rms, "bic": fit.bic(n), "n_params": fit.n_params, "break_k": fit.break_k,
+                         "breaks_k": list(fit.breaks_k)}
     return out
 
 
-def relation_loop(k, sigma, name: str = "sigma") -> tuple[RelationFit, list[dict]]:
-    """Start from the single line; add jump or floor (best BIC) while significant.
+STRUCTURES = ((), ("floor",), ("jump",), ("jump", "floor"), ("jump", "jump"), ("jump", "jump", "floor"))
 
-    Returns the final fit and the steps ``{structure, evidence, error_before, error_after,
-    ...}`` with errors as rms residuals of log(sigma) (natural log: 0.1 = about 10 %)."""
+
+def relation_loop(k, sigma, name: str = "sigma") -> tuple[RelationFit, list[dict]]:
+    """Fit every structure of ``STRUCTURES``; keep the best BIC if it beats the single line
+    by more than ``BIC_DROP`` with a nested F-test p < ``F_TEST_P`` (a global choice: a
+    floor and a jump can be significant together where neither is alone).
+
+    Returns the chosen fit and its steps from the line, one structure added at a time
+    along the best BIC, ``{structure, evidence, error_before, error_after, ...}``, with
+    errors as rms residuals of log(sigma) (natural log: 0.1 = about 10 %)."""
     n = len(k)
-    current = fit_structure(k, sigma, ())
-    steps = []
-    while True:
+    fits = {}
+    for st in STRUCTURES:
+        try:
+            fits[st] = fit_structure(k, sigma, st)
+        except ValueError:
+            continue
+    line = fits[()]
+    best = min(fits.values(), key=lambda f: f.bic(n))
+    if best is line or not (best.bic(n) < line.bic(n) - BIC_DROP and f_test(line, best, n) < F_TEST_P):
+        return line, []
+    target_jumps, target_floor = best.structures.count("jump"), "floor" in best.structures
+    current, steps = line, []
+    while current is not best:
+        jumps, floor = current.structures.count("jump"), "floor" in current.structures
         options = []
-        for add in ("jump", "floor"):
-            if add in current.structures:
-                continue
-            st = tuple(s for s in ("jump", "floor") if s in current.structures or s == add)
-            try:
-                options.append((add, fit_structure(k, sigma, st)))
-            except ValueError:
-                continue
-        if not options:
-            break
-        add, best = min(options, key=lambda o: o[1].bic(n))
-        drop = best.bic(n) - current.bic(n)
-        p = f_test(current, best, n)
-        if not (drop < -BIC_DROP and p < F_TEST_P):
-            break
+        if jumps < target_jumps:
+            options.append(("jump", fits.get(("jump",) * (jumps + 1) + ("floor",) * floor)))
+        if target_floor and not floor:
+            options.append(("floor", fits.get(("jump",) * jumps + ("floor",))))
+        add, nxt = min(((a, f) for a, f in options if f is not None), key=lambda o: o[1].bic(n))
         steps.append({
-            "relation": name, "structure": add, "break_k": best.break_k,
-            "floor_dn": best.relation.floor_dn if best.relation else None,
-            "evidence": f"BIC {current.bic(n):.1f} -> {best.bic(n):.1f}, F-test p = {p:.2g}",
-            "error_before": current.rms, "error_after": best.rms,
-            "max_abs_before": float(np.abs(current.residuals).max()), "max_abs_after": float(np.abs(best.residuals).max()),
+            "relation": name, "structure": add, "break_k": nxt.break_k, "breaks_k": list(nxt.breaks_k),
+            "floor_dn": nxt.relation.floor_dn if nxt.relation else None,
+            "evidence": f"BIC {current.bic(n):.1f} -> {nxt.bic(n):.1f}, F-test p = {f_test(current, nxt, n):.2g}",
+            "error_before": current.rms, "error_after": nxt.rms,
+            "max_abs_before": float(np.abs(current.residuals).max()), "max_abs_after": float(np.abs(nxt.residuals).max()),
         })
-        current = best
+        current = nxt
     return current, steps
 
 

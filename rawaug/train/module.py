@@ -155,7 +155,7 @@ class DenoiseModule(L.LightningModule):
             noisy = torch.empty_like(target)
             for i, name in enumerate(batch["name"]):
                 seed = int(self.hparams.eval_seed) * 1_000_003 + zlib.crc32(str(name).encode())
-                params = self.eval_noise.draw_parameters(1, target.device, seed=seed)
+                params = self.eval_noise.draw_parameters(1, target.device, seed=seed, shape=target.shape[-2:])
                 noisy[i : i + 1] = self.eval_noise(target[i : i + 1], params=params)
         if self.hparams.clip_input:
             noisy = noisy.clamp(0, 1)

@@ -1,0 +1,52 @@
+"""The parameter diagnosis on darktable's measured noise profiles: how well the chosen
+structure (jumps, floor) fits sigma_G against K, over every camera with >= 8 ISOs.
+
+    python benchmarks/darktable_relations.py /usr/share/darktable/noiseprofiles.json
+
+darktable's file is GPL-3: this reads the user's own installed copy (Debian package
+``darktable``) and ships nothing of it. Per camera, K and sigma_G per ISO come from
+``rawaug.calibration.darktable.gains_and_read_noise`` (ISOs with a resolved read noise,
+b > 0); the error is the rms residual of log(sigma_G) of the single ELD line and of the
+structure ``relation_loop`` keeps. Prints the medians over cameras and the structures kept.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections import Counter
+
+import numpy as np
+
+from rawaug.calibration.darktable import DEBIAN_PATH, gains_and_read_noise
+from rawaug.loop.parameters import BIC_DROP, F_TEST_P, fit_structure, relation_loop
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("noiseprofiles", nargs="?", default=DEBIAN_PATH, help="darktable's noiseprofiles.json (yours)")
+    ap.add_argument("--min-isos", type=int, default=8)
+    args = ap.parse_args(argv)
+    data = json.loads(open(args.noiseprofiles).read())
+    start = time.perf_counter()
+    rows = []
+    for maker in data.get("noiseprofiles", []):
+        for model in maker.get("models", []):
+            gains, read = gains_and_read_noise(model.get("profiles", []), 1.0)  # the span cancels in log residuals
+            isos = sorted(set(gains) & set(read))
+            if len(isos) < args.min_isos:
+                continue
+            k, sigma = np.array([gains[i] for i in isos]), np.array([read[i] for i in isos])
+            fit, _ = relation_loop(k, sigma, "sigma_g")
+            rows.append((f"{maker.get('maker')} {model.get('model')}", len(isos), fit_structure(k, sigma).rms, fit.rms, fit.name))
+    line, kept = np.array([r[2] for r in rows]), np.array([r[3] for r in rows])
+    print(f"{len(rows)} cameras with >= {args.min_isos} ISOs of resolved read noise in {args.noiseprofiles}")
+    print(f"median rms(log sigma_G): single line {np.median(line):.4f} -> kept structure {np.median(kept):.4f} "
+          f"(BIC drop > {BIC_DROP:g}, F-test p < {F_TEST_P:g}); {time.perf_counter() - start:.0f} s")
+    print("structures kept: " + ", ".join(f"{name} {count}" for name, count in Counter(r[4] for r in rows).most_common()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,76 @@
+"""The measured code map is the ADC's transfer: written codes stay, missing codes go to a
+neighbour, and a signal keeps its DN at every level."""
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rawaug import NoiseProfile, RawNoiseAugment
+from rawaug.effects.code_map import MAX_GAP, estimate, written_codes
+from rawaug.io import read_frame
+
+DATA = Path(__file__).parent / "data"
+
+
+def _apply(m, values):
+    lut, lo = np.asarray(m["map_dn"][0]), m["lo_dn"][0]
+    r = np.rint(values)
+    i = (r - lo).astype(np.int64)
+    inside = (i >= 0) & (i < lut.size)
+    return np.where(inside, lut[np.clip(i, 0, lut.size - 1)], r)
+
+
+def test_digital_gain_comb_is_mapped_onto_the_written_codes():
+    rng = np.random.default_rng(0)
+    adc = np.rint(rng.normal(300.0, 150.0, 400_000))
+    frames = np.rint(adc * 1.5)  # gain 1.5 after the ADC: every third code is missing
+    m = estimate(frames.reshape(1, 4, 500, 200), rng.normal(450.0, 225.0, 400_000), k=1.0)
+    written = set(np.unique(frames).tolist())
+    r = np.arange(0.0, 900.0)
+    out = _apply(m, r)
+    assert set(out.tolist()) <= written  # only codes the camera writes
+    on = np.isin(r, list(written))
+    assert np.array_equal(out[on], r[on])  # written codes map to themselves
+    assert np.abs(out - r).max() <= 1  # a missing code goes to a neighbour: the signal keeps its DN
+    assert abs(np.mean(out - r)) < 0.25
+
+
+def test_no_missing_codes_in_a_smooth_histogram_or_its_sparse_tail():
+    rng = np.random.default_rng(1)
+    v = np.rint(np.concatenate([rng.normal(0, 3, 200_000), rng.standard_cauchy(2000) * 30]))
+    assert written_codes(v).all()
+    m = estimate(v.reshape(1, 1, 1, -1), rng.normal(0, 3, v.size), k=1.0)
+    assert len(m["map_dn"][0]) == 1  # nothing to map
+
+
+def test_real_dark_frame_comb_and_its_stuck_column():
+    # InfiniteISP's dark frame: codes 0, 4, 5, 8, 9, 10, ... and a column stuck near 960 DN,
+    # hundreds of codes above the rest: that empty run is no comb (longer than MAX_GAP)
+    frame = read_frame(DATA / "InfiniteISP_BlackImage_crop512_y0_x1408_12bits_BGGR.raw", width=512, height=512,
+                       dtype="<u2", cfa="BGGR", black_level=0, white_level=4095).packed_dn().astype(np.float64)
+    assert frame.max() > 100 * MAX_GAP
+    m = estimate(frame[None], np.random.default_rng(2).normal(3.7, 3.0, frame.shape)[None], k=1.0)
+    assert m["lo_dn"] == [0.0] and len(m["map_dn"][0]) == 9  # codes 0 .. 8: the gaps 1-3 and 6-7
+    lut = np.asarray(m["map_dn"][0])
+    assert set(lut.tolist()) <= {0.0, 4.0, 5.0, 8.0} and lut[[0, 4, 5, 8]].tolist() == [0.0, 4.0, 5.0, 8.0]
+
+
+def test_a_signal_through_the_stage_keeps_its_level():
+    # the stage on a flat 200 DN signal: the mean stays within the comb's rounding of 200 DN
+    rng = np.random.default_rng(3)
+    frames = np.rint(np.rint(rng.normal(0, 4, 400_000)) * 1.5)
+    m = estimate(frames.reshape(1, 4, 500, 200), rng.normal(0, 6, 400_000), k=1.0)
+    base = NoiseProfile.load("SonyA7S2")
+    profile = base.with_effect("CodeMap", {"k": [1.0], "lo_dn": m["lo_dn"], "map_dn": m["map_dn"]})
+    fixed = {"k": 1.0, "sigma_tl": 4.0, "lambda": 0.0, "sigma_r": 0.0}
+    level = 20.0 / base.span_dn
+    out = {}
+    for p in (base, profile):
+        aug = RawNoiseAugment(p, model="G*+R", ratio=1.0, fixed=fixed, include_profile_effects=True,
+                              generator=torch.Generator().manual_seed(0), rank_seeding=False)
+        out[p is profile] = aug(torch.full((2, 4, 128, 128), level)).double().numpy() * base.span_dn
+    assert abs(out[True].mean() - out[False].mean()) < 0.3  # DN; the old histogram map moved it by tens
+    codes = np.unique(np.rint(out[True]))
+    lo, n = m["lo_dn"][0], len(m["map_dn"][0])
+    inside = codes[(codes >= lo) & (codes < lo + n)]  # where the comb was measured (not its sparse tail)
+    assert inside.size > 10 and np.isin(inside, np.unique(frames)).all()  # the comb, at 20 DN as at 0
