@@ -73,6 +73,47 @@ def col_excess(frames, level_dn=None):
     return _profile_excess(frames, 2)
 
 
+DEFECT_Z = 8.0  # robust sigmas from its neighbours: a line this far off is a defect, not noise
+
+
+def _defects(means):
+    """Defect lines among line means (..., n): residuals from a running median of 5 lines
+    (smooth shading does not count) beyond ``DEFECT_Z`` x 1.4826 MAD of the residuals.
+    Returns (mask, residuals)."""
+    from scipy.ndimage import median_filter
+
+    size = [1] * (means.ndim - 1) + [5]
+    resid = means - median_filter(means, size=size, mode="mirror")  # an edge line is judged by its inner neighbours
+    _, scale = _robust_scale(resid, axis=-1)
+    return np.abs(resid) > DEFECT_Z * scale, resid
+
+
+def defect_line_masks(frames):
+    """(rows (N, 4, h), columns (N, 4, w)) boolean masks of the defect lines of every frame
+    and channel: a stuck or dead column or row, whose mean stands out from its neighbours."""
+    c = np.asarray(frames, dtype=np.float64)
+    return _defects(c.mean(axis=3))[0], _defects(c.mean(axis=2))[0]
+
+
+def levelled(frames):
+    """The frames with every defect line brought to its neighbours' level (its excess mean
+    subtracted; its pixel noise kept), DN: what the spectral statistics and the shading
+    estimators look at, so a stuck column is not read as low-frequency power."""
+    c = np.array(frames, dtype=np.float64)
+    rows, r_res = _defects(c.mean(axis=3))
+    c -= np.where(rows, r_res, 0.0)[..., None]
+    cols, c_res = _defects(c.mean(axis=2))
+    c -= np.where(cols, c_res, 0.0)[..., None, :]
+    return c
+
+
+def defect_lines(frames, level_dn=None):
+    """Fraction of rows and columns (per frame and channel) that are defect lines
+    (``defect_line_masks``): stuck or dead columns and rows."""
+    rows, cols = defect_line_masks(frames)
+    return float((rows.sum() + cols.sum()) / (rows.size + cols.size))
+
+
 def _lowfreq_ratio(profiles):
     """Mean power of the lowest 1/16 frequencies over the mean power (DC excluded) of
     1-D profiles along the last axis: 1 for white noise, large for smooth shading."""
@@ -83,19 +124,22 @@ def _lowfreq_ratio(profiles):
 
 
 def row_lowfreq(frames, level_dn=None):
-    """Low-frequency power ratio of the row-mean profile (shading along columns)."""
-    return _lowfreq_ratio(frames.mean(axis=3))
+    """Low-frequency power ratio of the row-mean profile (shading along columns), defect
+    lines levelled."""
+    return _lowfreq_ratio(levelled(frames).mean(axis=3))
 
 
 def col_lowfreq(frames, level_dn=None):
-    """Low-frequency power ratio of the column-mean profile (shading along rows)."""
-    return _lowfreq_ratio(frames.mean(axis=2))
+    """Low-frequency power ratio of the column-mean profile (shading along rows), defect
+    lines levelled."""
+    return _lowfreq_ratio(levelled(frames).mean(axis=2))
 
 
 def psd2d_lowfreq(frames, level_dn=None):
     """2-D power spectrum: mean power in the low-frequency disk (radius below 1/16 of the
-    Nyquist frequency, DC excluded) over the mean power of all non-DC frequencies."""
-    c = _centered(frames)
+    Nyquist frequency, DC excluded) over the mean power of all non-DC frequencies; defect
+    lines levelled (a stuck column puts power at every frequency along one axis)."""
+    c = _centered(levelled(frames))
     p = np.abs(np.fft.rfft2(c, axes=(2, 3))) ** 2
     fy = np.fft.fftfreq(c.shape[2])[:, None]
     fx = np.fft.rfftfreq(c.shape[3])[None, :]
@@ -220,6 +264,7 @@ class Statistic:
     kind: str = "any"  # "any", "bias" or "flat"
     pixel_fraction: bool = False  # resolution: one pixel of the stack
     mad_of_mean: bool = False  # a robust (MAD) scale of the N-frame mean map: a grid of 1/(2N) DN on whole codes
+    line_fraction: bool = False  # resolution: one line of the stack
     base: str = ""  # the base-model parameter it checks ("" when only effects explain it)
 
     def applies(self, n_frames: int, kind: str) -> bool:
@@ -237,6 +282,9 @@ class Statistic:
             integer = bool(np.all(frames == np.rint(frames)))
             step = 1.482602218505602 / (2 * frames.shape[0]) if integer else 1e-9
             return step
+        if self.line_fraction:  # counts lines, as a pixel fraction counts pixels
+            n = frames.shape[0] * frames.shape[1] * (frames.shape[2] + frames.shape[3])
+            return float(np.sqrt(max(value * n, 1.0)) / n)
         if not self.pixel_fraction:
             return 1e-9
         n = frames[0].size
@@ -254,6 +302,8 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("row_lowfreq", row_lowfreq),
         Statistic("col_lowfreq", col_lowfreq),
         Statistic("psd2d_lowfreq", psd2d_lowfreq),
+        Statistic("defect_lines", defect_lines, line_fraction=True,
+                  base="defect lines (a stuck column, a dead row): no stage models them"),
         Statistic("hot_fraction", hot_fraction, pixel_fraction=True),
         Statistic("missing_codes", missing_codes, base="ADC codes (a comb means digital gain: no effect models it)"),
         Statistic("clip_low", clip_low, pixel_fraction=True),
