@@ -10,6 +10,7 @@ to a refit, not to a new effect.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Callable
 
@@ -95,15 +96,23 @@ def defect_line_masks(frames):
     return _defects(c.mean(axis=3))[0], _defects(c.mean(axis=2))[0]
 
 
+_last = threading.local()  # the last levelled stack of this thread: three statistics read it
+
+
 def levelled(frames):
     """The frames with every defect line brought to its neighbours' level (its excess mean
     subtracted; its pixel noise kept), DN: what the spectral statistics and the shading
-    estimators look at, so a stuck column is not read as low-frequency power."""
+    estimators look at, so a stuck column is not read as low-frequency power. Read-only;
+    computed once for the same array in a row (the battery's three spectral statistics)."""
+    if getattr(_last, "source", None) is frames:
+        return _last.result
     c = np.array(frames, dtype=np.float64)
     rows, r_res = _defects(c.mean(axis=3))
     c -= np.where(rows, r_res, 0.0)[..., None]
     cols, c_res = _defects(c.mean(axis=2))
     c -= np.where(cols, c_res, 0.0)[..., None, :]
+    c.flags.writeable = False
+    _last.source, _last.result = frames, c
     return c
 
 

@@ -191,39 +191,41 @@ def f_test(simple: RelationFit, rich: RelationFit, n: int) -> float:
     return float(sstats.f.sf(f, dp, dof))
 
 
-def diagnose_relation(k, sigma) -> dict:
-    """Every candidate structure of one relation with its rms residual and BIC (the
-    residual-structure diagnosis: which of jump, curvature, floor the residuals show)."""
-    n = len(k)
-    out = {}
-    for st in ((), ("jump",), ("floor",), ("curvature",), ("jump", "floor"), ("jump", "jump"), ("jump", "jump", "floor")):
-        try:
-            fit = fit_structure(k, sigma, st)
-        except ValueError:
-            continue
-        out[fit.name] = {"rms_log": fit.rms, "bic": fit.bic(n), "n_params": fit.n_params, "break_k": fit.break_k,
-                         "breaks_k": list(fit.breaks_k)}
-    return out
-
-
 STRUCTURES = ((), ("floor",), ("jump",), ("jump", "floor"), ("jump", "jump"), ("jump", "jump", "floor"))
 
 
-def relation_loop(k, sigma, name: str = "sigma") -> tuple[RelationFit, list[dict]]:
+def fit_all(k, sigma, structures=STRUCTURES + (("curvature",),)) -> dict:
+    """``{structures: RelationFit}`` of every structure the data can carry (too few points
+    for a jump leaves it out)."""
+    fits = {}
+    for st in structures:
+        try:
+            fits[st] = fit_structure(k, sigma, st)
+        except ValueError:
+            continue
+    return fits
+
+
+def diagnose_relation(k, sigma, fits: dict | None = None) -> dict:
+    """Every candidate structure of one relation with its rms residual and BIC (the
+    residual-structure diagnosis: which of jump, curvature, floor the residuals show)."""
+    n = len(k)
+    return {f.name: {"rms_log": f.rms, "bic": f.bic(n), "n_params": f.n_params, "break_k": f.break_k,
+                     "breaks_k": list(f.breaks_k)} for f in (fits or fit_all(k, sigma)).values()}
+
+
+def relation_loop(k, sigma, name: str = "sigma", fits: dict | None = None) -> tuple[RelationFit, list[dict]]:
     """Fit every structure of ``STRUCTURES``; keep the best BIC if it beats the single line
     by more than ``BIC_DROP`` with a nested F-test p < ``F_TEST_P`` (a global choice: a
     floor and a jump can be significant together where neither is alone).
 
     Returns the chosen fit and its steps from the line, one structure added at a time
     along the best BIC, ``{structure, evidence, error_before, error_after, ...}``, with
-    errors as rms residuals of log(sigma) (natural log: 0.1 = about 10 %)."""
+    errors as rms residuals of log(sigma) (natural log: 0.1 = about 10 %). ``fits``: those
+    of ``fit_all`` when already made."""
     n = len(k)
-    fits = {}
-    for st in STRUCTURES:
-        try:
-            fits[st] = fit_structure(k, sigma, st)
-        except ValueError:
-            continue
+    fits = fits or fit_all(k, sigma, STRUCTURES)
+    fits = {st: f for st, f in fits.items() if st in STRUCTURES}  # curvature is a diagnostic only
     line = fits[()]
     best = min(fits.values(), key=lambda f: f.bic(n))
     if best is line or not (best.bic(n) < line.bic(n) - BIC_DROP and f_test(line, best, n) < F_TEST_P):
@@ -264,8 +266,9 @@ def parameter_loop(params) -> dict:
         series["sigma_g"] = np.array([p.sigma_g for p in params])
     fits, steps, diagnosis = {}, [], {}
     for name, s in series.items():
-        diagnosis[name] = diagnose_relation(k, s)
-        fits[name], st = relation_loop(k, s, name)
+        every = fit_all(k, s)  # once, for the diagnosis and the loop
+        diagnosis[name] = diagnose_relation(k, s, every)
+        fits[name], st = relation_loop(k, s, name, every)
         steps += st
     return {"fits": fits, "steps": steps, "diagnosis": diagnosis}
 
