@@ -36,11 +36,17 @@ def test_digital_gain_comb_is_mapped_onto_the_written_codes():
 
 
 def test_no_missing_codes_in_a_smooth_histogram_or_its_sparse_tail():
-    rng = np.random.default_rng(1)
-    v = np.rint(np.concatenate([rng.normal(0, 3, 200_000), rng.standard_cauchy(2000) * 30]))
-    assert written_codes(v).all()
-    m = estimate(v.reshape(1, 1, 1, -1), rng.normal(0, 3, v.size), k=1.0)
-    assert len(m["map_dn"][0]) == 1  # nothing to map
+    # false missing codes over 20 seeds: none (a code expecting >= 10 pixels is empty with
+    # probability 4.5e-5, and the sparse tail never counts)
+    false = 0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        v = np.rint(np.concatenate([rng.normal(0, 3, 200_000), rng.standard_cauchy(2000) * 30]))
+        false += int((~written_codes(v)).sum())
+        if seed == 0:
+            m = estimate(v.reshape(1, 1, 1, -1), rng.normal(0, 3, v.size), k=1.0)
+            assert len(m["map_dn"][0]) == 1  # nothing to map
+    assert false == 0, false
 
 
 def test_real_dark_frame_comb_and_its_stuck_column():
