@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from rawaug.calibration import calibrate_iso, estimate_read_noise
-from rawaug.calibration.stage1 import estimate_row_noise, row_corrected
+from rawaug.calibration.stage1 import estimate_row_noise, read_residual
 from rawaug.calibration.synthetic import synthesize_packed
 from rawaug.profile import NoiseProfile
 
@@ -66,7 +66,7 @@ def main(argv=None):
             print(f"  {name:9s} true {true:8.4f}  estimated {got:8.4f}")
 
         bias = np.load(bias_paths[0]).astype(np.float32) - black
-        residual = row_corrected(bias, estimate_row_noise(bias).row_means).astype(np.float32).ravel()
+        residual = read_residual(bias, estimate_row_noise(bias).row_means).astype(np.float32)
         del bias
         sizes = [20_000, 200_000, 2_000_000] + ([None] if args.full else [])
         print(f"\nPPCC read-noise fit on one bias frame ({residual.size / 1e6:.0f} M values):")

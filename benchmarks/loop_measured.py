@@ -18,7 +18,7 @@ import numpy as np
 
 from rawaug import NoiseProfile
 from rawaug.calibration.joint import read_parameter_table
-from rawaug.calibration.stage1 import estimate_read_noise, estimate_row_noise, row_corrected
+from rawaug.calibration.stage1 import estimate_read_noise, estimate_row_noise, read_residual
 from rawaug.io import read_frame
 from rawaug.loop import FrameStack, run_frame_loop
 from rawaug.loop.parameters import frame_table_loop, parameter_loop, read_frame_table
@@ -57,6 +57,10 @@ def _summary(token, params):
     if token == "CodeMap":
         m = params["map_dn"][0]
         return f"{len(set(m))} codes used for {len(m)} whole DN from {params['lo_dn'][0]:g} DN"
+    if token == "ReadDist":
+        q = np.asarray(params["quantiles_dn"][0])
+        return (f"measured quantiles per channel, {q.shape[-1]} normal scores; 1 / 50 / 99 % of G1: "
+                + " / ".join(f"{v:.2f}" for v in np.interp([-2.326, 0.0, 2.326], np.linspace(-6, 6, q.shape[-1]), q[1])) + " DN")
     return str({k: v for k, v in params.items() if k != "seed"})
 
 
@@ -67,7 +71,7 @@ def dark(path, n_synth):
     frame = read_frame(path, width=width, height=height, dtype="<u2", cfa="BGGR", black_level=0, white_level=4095)
     packed = frame.packed_dn()[None].astype(np.float64)
     row = estimate_row_noise(packed[0])
-    read = estimate_read_noise(row_corrected(packed[0], row.row_means))
+    read = estimate_read_noise(read_residual(packed[0], row.row_means))
     data = NoiseProfile.load("SonyA7S2").to_dict()
     data["camera"] = "InfiniteISP dark frame"
     data["sensor"].update(black_level=0, white_level=4095, bit_depth=12, cfa="BGGR")

@@ -167,6 +167,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         tables = {name: t for e in self.effects for name, t in e.tables().items()}
         self._grids = tables.get("grids", torch.zeros(1, 1, 1, dtype=torch.float64))
         self._code_lut = tables.get("code_lut", torch.zeros(1, 1, dtype=torch.float64))
+        self._read_lut = tables.get("read_lut", torch.zeros(1, 2, dtype=torch.float64))
         self.ratio = _range(ratio, "ratio")
         if iso is not None:
             k = self.profile.k_at_iso(iso)
@@ -271,7 +272,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         if work.dtype not in (torch.float32, torch.float64):
             work = work.to(torch.float32)  # half inputs: computed in float32, rounded once at the end
         keys = self._stream_keys(int(params["seed"].reshape(-1)[0]))
-        noisy = synthesize_op(work.contiguous(), values.to(work.device), keys, float(self.profile.span_dn), self._flags, self._grids, self._code_lut,
+        noisy = synthesize_op(work.contiguous(), values.to(work.device), keys, float(self.profile.span_dn), self._flags, self._grids, self._code_lut, self._read_lut,
                              self.check_finite is not False)
         noisy = noisy.to(input.dtype)
         if input.requires_grad:  # straight-through: d noisy / d clean = d E[noisy] / d clean = 1

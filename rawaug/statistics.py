@@ -6,7 +6,9 @@ the frame kind it applies to (``bias``: dark/bias frames, ``flat``: uniformly li
 ``any``) and the resolution below which a difference means nothing (one pixel for a
 pixel fraction). Which effect a statistic points to is declared by the effects themselves
 (``rawaug.loop.registry``); statistics of the base model (read noise, row noise) point
-to a refit, not to a new effect.
+to a refit, not to a new effect. ``frame_statistics`` computes every statistic but
+``defect_lines`` on the frames with their defect lines repaired (``repaired``): a stuck
+column is one defect, not also hot pixels, heavy tails and low-frequency power.
 """
 from __future__ import annotations
 
@@ -96,21 +98,35 @@ def defect_line_masks(frames):
     return _defects(c.mean(axis=3))[0], _defects(c.mean(axis=2))[0]
 
 
-_last = threading.local()  # the last levelled stack of this thread: three statistics read it
+_last = threading.local()  # the last repaired stack of this thread
 
 
-def levelled(frames):
-    """The frames with every defect line brought to its neighbours' level (its excess mean
-    subtracted; its pixel noise kept), DN: what the spectral statistics and the shading
-    estimators look at, so a stuck column is not read as low-frequency power. Read-only;
-    computed once for the same array in a row (the battery's three spectral statistics)."""
+def _nearest_good(bad) -> np.ndarray:
+    """Index of the nearest line that is not ``bad`` (1-D mask), for every line."""
+    good = np.flatnonzero(~bad)
+    idx = np.arange(bad.size)
+    if good.size == 0:
+        return idx
+    pos = np.clip(np.searchsorted(good, idx), 1, max(good.size - 1, 1)) if good.size > 1 else np.zeros_like(idx)
+    left, right = good[np.maximum(pos - 1, 0)], good[pos]
+    return np.where(np.abs(idx - left) <= np.abs(right - idx), left, right)
+
+
+def repaired(frames):
+    """The frames with every defect line (``defect_line_masks``) replaced by its nearest
+    normal line of the same frame and channel, DN: what every statistic but
+    ``defect_lines`` and the shading estimators look at, so that a stuck column is counted
+    once, as a defect, and not also as hot pixels, heavy tails, pixel noise or
+    low-frequency power. Read-only; computed once for the same array in a row."""
     if getattr(_last, "source", None) is frames:
         return _last.result
     c = np.array(frames, dtype=np.float64)
-    rows, r_res = _defects(c.mean(axis=3))
-    c -= np.where(rows, r_res, 0.0)[..., None]
-    cols, c_res = _defects(c.mean(axis=2))
-    c -= np.where(cols, c_res, 0.0)[..., None, :]
+    rows, _ = _defects(c.mean(axis=3))
+    for n, ch in zip(*np.nonzero(rows.any(axis=2))):
+        c[n, ch] = c[n, ch][_nearest_good(rows[n, ch])]
+    cols, _ = _defects(c.mean(axis=2))
+    for n, ch in zip(*np.nonzero(cols.any(axis=2))):
+        c[n, ch] = c[n, ch][:, _nearest_good(cols[n, ch])]
     c.flags.writeable = False
     _last.source, _last.result = frames, c
     return c
@@ -133,22 +149,19 @@ def _lowfreq_ratio(profiles):
 
 
 def row_lowfreq(frames, level_dn=None):
-    """Low-frequency power ratio of the row-mean profile (shading along columns), defect
-    lines levelled."""
-    return _lowfreq_ratio(levelled(frames).mean(axis=3))
+    """Low-frequency power ratio of the row-mean profile (shading along columns)."""
+    return _lowfreq_ratio(frames.mean(axis=3))
 
 
 def col_lowfreq(frames, level_dn=None):
-    """Low-frequency power ratio of the column-mean profile (shading along rows), defect
-    lines levelled."""
-    return _lowfreq_ratio(levelled(frames).mean(axis=2))
+    """Low-frequency power ratio of the column-mean profile (shading along rows)."""
+    return _lowfreq_ratio(frames.mean(axis=2))
 
 
 def psd2d_lowfreq(frames, level_dn=None):
     """2-D power spectrum: mean power in the low-frequency disk (radius below 1/16 of the
-    Nyquist frequency, DC excluded) over the mean power of all non-DC frequencies; defect
-    lines levelled (a stuck column puts power at every frequency along one axis)."""
-    c = _centered(levelled(frames))
+    Nyquist frequency, DC excluded) over the mean power of all non-DC frequencies."""
+    c = _centered(frames)
     p = np.abs(np.fft.rfft2(c, axes=(2, 3))) ** 2
     fy = np.fft.fftfreq(c.shape[2])[:, None]
     fx = np.fft.rfftfreq(c.shape[3])[None, :]
@@ -346,9 +359,12 @@ def frame_statistics(frames, kind: str = "bias", level_dn=None, names=None) -> d
     if kind not in ("bias", "dark", "flat"):
         raise ValueError(f"kind must be 'bias', 'dark' or 'flat', got {kind!r}")
     out = {}
+    view = None
     for name, stat in STATISTICS.items():
         if names is not None and name not in names:
             continue
         if stat.applies(frames.shape[0], kind):
-            out[name] = stat.fn(frames, level_dn)
+            if name != "defect_lines" and view is None:
+                view = repaired(frames)  # a defect line counts once: as a defect line
+            out[name] = stat.fn(frames if name == "defect_lines" else view, level_dn)
     return out

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from rawaug.calibration import (IsoParameters, calibrate_iso, estimate_gain, estimate_read_noise, estimate_row_noise,
+from rawaug.calibration import (IsoParameters, calibrate_iso, estimate_color_bias, estimate_gain, estimate_read_noise, estimate_row_noise,
                                 fit_joint, fit_log_linear, read_parameter_table)
 from rawaug.calibration.diagnostics import CalibrationWarning, analyse_bias_frame
 from rawaug.calibration.synthetic import synthesize_iso_set
@@ -210,3 +210,36 @@ def test_frames_of_different_sizes_and_missing_inputs():
         calibrate_iso(bias, pairs, None)
     with pytest.raises(ValueError, match=">= 2 ISOs"):
         fit_joint([IsoParameters(100, 1.0, 2.0, 0.3, 0.0)], camera="x", black_level=0, white_level=1, bit_depth=8, cfa="RGGB")
+
+
+# ----------------------------------------------------------------------------- defect lines
+def _bias_with_defects(seed):
+    """A packed bias frame (Tukey lambda 0.1, sigma 2 DN, row noise 0.5 DN, offsets 20 DN) and
+    the same frame with a hot column (2000 DN in every other pixel, as the real InfiniteISP
+    frame's) and a dead row (0 DN)."""
+    rng = np.random.default_rng(seed)
+    clean = 20.0 + 2.0 * stats.tukeylambda.ppf(rng.random((4, 256, 320)), 0.1) + 0.5 * rng.standard_normal((2, 256, 1))[[0, 0, 1, 1]]
+    defects = clean.copy()
+    defects[0, :, 200] = np.where(np.arange(256) % 2 == 0, 2000.0, clean[0, :, 200])
+    defects[3, :, 200] = np.where(np.arange(256) % 2 == 0, 2000.0, clean[3, :, 200])
+    defects[1, 100, :] = 0.0
+    return clean, defects
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_defect_lines_are_left_out_of_the_noise_estimates(seed):
+    from rawaug.calibration.stage1 import defect_mask, read_residual
+
+    clean, defects = _bias_with_defects(seed)
+    mask = defect_mask(defects)
+    assert mask[0, :, 200].all() and mask[3, :, 200].all() and mask[1, 100, :].all()
+    assert mask.sum() == 2 * 256 + 320  # nothing else
+    a, b = estimate_read_noise(read_residual(clean), max_samples=None), estimate_read_noise(read_residual(defects), max_samples=None)
+    # one column and one row of 327,680 pixels left out: the fit moves by sampling noise only
+    assert abs(a.lam - b.lam) < 0.01 and abs(a.sigma_tl / b.sigma_tl - 1) < 0.01, (a, b)
+    ra, rb = estimate_row_noise(clean), estimate_row_noise(defects)
+    assert abs(ra.sigma_r / rb.sigma_r - 1) < 0.05, (ra.sigma_r, rb.sigma_r)
+    np.testing.assert_allclose(estimate_color_bias(defects), estimate_color_bias(clean), atol=0.02)
+    # kept in, the hot column would have made the tails: lambda at the grid's end
+    with_defects = estimate_read_noise(defects - defects.mean(axis=(1, 2), keepdims=True), max_samples=None)
+    assert with_defects.lam < a.lam - 0.3

@@ -20,7 +20,7 @@ from rawaug.rng import bits_at, stream_key, torch_bits
 P_MIN = 1e-3  # a correct sampler fails each goodness-of-fit test at this rate
 
 
-def run_stages(flags, dn, columns=None, seed=1, which="numba", grids=None):
+def run_stages(flags, dn, columns=None, seed=1, which="numba", grids=None, read_lut=None):
     """The fused kernel on DN values (span 1, ratio 1: the kernel's DN in and out)."""
     dn = torch.as_tensor(dn, dtype=torch.float64)
     if dn.ndim == 2:
@@ -36,7 +36,9 @@ def run_stages(flags, dn, columns=None, seed=1, which="numba", grids=None):
     grids = torch.zeros(1, 1, 1, dtype=torch.float64) if grids is None else grids
     previous = backend.set_backend(which)
     try:
-        return backend.run(dn.contiguous(), values, torch.tensor(keys), 1.0, flags, grids, torch.zeros(1, 1, dtype=torch.float64))
+        read_lut = torch.zeros(1, 2, dtype=torch.float64) if read_lut is None else read_lut
+        return backend.run(dn.contiguous(), values, torch.tensor(keys), 1.0, flags, grids, torch.zeros(1, 1, dtype=torch.float64),
+                           read_lut)
     finally:
         backend.set_backend(previous)
 
@@ -153,6 +155,23 @@ def test_gaussian_stages_match_scipy():
     assert stats.kstest(z, "norm").pvalue > P_MIN
     shot = run_stages(L.SHOT_GAUSS, torch.full((1, 300_000), 40.0), {"k": 2.0}, seed=22).numpy().ravel()
     assert stats.kstest(shot, stats.norm(40.0, math.sqrt(80.0)).cdf).pvalue > P_MIN
+
+
+@pytest.mark.parametrize("which", ["numba", "triton"])
+def test_measured_read_table_stage_draws_its_distribution(which):
+    # a skewed law (gamma, shape 2) as a quantile table on the normal-score grid: record 1,
+    # channel c scaled by c + 1, the per-sample scale 2 on top
+    from rawaug.effects.read_distribution import grid
+
+    law = stats.gamma(2.0, loc=-2.0)
+    q = law.ppf(stats.norm.cdf(grid()))
+    q[0], q[-1] = law.ppf(1e-12), law.ppf(1 - 1e-12)
+    lut = torch.from_numpy(np.stack([np.zeros_like(q)] * 4 + [q * (c + 1) for c in range(4)]))  # (2 records x 4, n)
+    n = 20_000 if which == "triton" else 200_000
+    out = run_stages(L.READ_TABLE, torch.zeros(1, 4, 1, n), {"readq_record": 1.0, "readq_scale": 2.0}, seed=9, which=which,
+                     read_lut=lut).numpy()
+    for c in range(4):
+        assert stats.kstest(out[0, c].ravel() / (2.0 * (c + 1)), law.cdf).pvalue > P_MIN
 
 
 def test_uniform_stage_matches_scipy():

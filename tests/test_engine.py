@@ -23,6 +23,8 @@ LOOP_EFFECTS = {
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2]},
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]]},
+    "ReadDist": {"k": [1.0, 3.0], "quantiles_dn": (np.linspace(-6, 6, 257)[None, None] ** 3 / 20
+                                                  * np.array([1.0, 2.0])[:, None, None] * np.ones((1, 4, 1))).tolist()},
 }
 
 
@@ -131,7 +133,7 @@ def test_compiled_operator_equals_eager():
     values, keys = aug._params["values"], aug._stream_keys(int(aug._params["seed"]))
 
     def op(clean):
-        return synthesize_op(clean * 1.0, values, keys, float(aug.profile.span_dn), aug._flags, aug._grids, aug._code_lut) + 0.0
+        return synthesize_op(clean * 1.0, values, keys, float(aug.profile.span_dn), aug._flags, aug._grids, aug._code_lut, aug._read_lut) + 0.0
 
     compiled = torch.compile(op, fullgraph=True, backend="aot_eager")  # fullgraph: no graph break at the op
     assert torch.equal(compiled(x), op(x))

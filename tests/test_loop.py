@@ -35,7 +35,24 @@ def measured_stack(effects, seed=123, n=8, size=128, label="measured", exposure_
 
 BLE = {"BLE": {"k": [K], "sigma_dn": [0.6], "channel_sigma_dn": [0.0]}}
 CLIP = {"Clip": {"floor_dn": -2.0}}
-CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "mixed": {**COL, **FPN, **HOT}}
+
+
+def two_level_read_noise():
+    """A read chain that settles at one of two levels: read noise 0.75 N(-2, 2) + 0.25 N(6, 2)
+    (DN; variance 14, the base model's), as a quantile table: no Tukey lambda, no physical
+    effect of the set; only the measured distribution reproduces it."""
+    from scipy import stats
+
+    from rawaug.effects.read_distribution import grid
+
+    x = np.linspace(-30.0, 40.0, 200_001)
+    cdf = 0.75 * stats.norm.cdf(x, -2.0, 2**0.5) + 0.25 * stats.norm.cdf(x, 6.0, 2**0.5)
+    q = np.interp(stats.norm.cdf(grid()), cdf, x)
+    return {"ReadDist": {"k": [K], "quantiles_dn": [[q.tolist()] * 4]}}
+
+
+CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "mixed": {**COL, **FPN, **HOT},
+         "two-level read": two_level_read_noise()}
 
 
 def loop_succeeds(effects, seed):
@@ -90,6 +107,19 @@ def test_loop_finds_dark_current_in_dark_frames_only_where_there_is_some(effects
         rec = result.profile.effects["Dark"]
         # rate: mean excess of 6 x 4 x 96 x 96 pixels, ~1 % spread; DSNU from a 221k-pixel map
         assert abs(rec["rate_e_per_s"][0] - 4.0) < 0.2 and abs(rec["dsnu"][0] - 0.3) < 0.05, rec
+
+
+def test_a_defect_line_counts_once_as_a_defect_line():
+    clean = measured_stack({}, seed=7, n=2).frames_dn
+    defects = clean.copy()
+    defects[:, 0, :, 50] = np.where(np.arange(clean.shape[2]) % 2 == 0, 3000.0, clean[:, 0, :, 50])  # hot column
+    defects[:, 2, 40, :] = -clean.mean()  # dead row (code 0)
+    a, b = frame_statistics(clean), frame_statistics(defects)
+    assert a["defect_lines"] == 0.0 and b["defect_lines"] > 0.0
+    # every other statistic reads the repaired frames: the defects do not show there
+    for name in ("pixel_std", "tail_mass", "hot_fraction", "ppcc_r2", "row_excess", "col_excess", "psd2d_lowfreq",
+                 "col_lowfreq", "row_lowfreq", "mean_dn", "clip_low", "fixed_std"):
+        assert abs(b[name] - a[name]) <= 0.05 * abs(a[name]) + 1e-3, (name, a[name], b[name])
 
 
 def test_statistics_reject_bad_input():

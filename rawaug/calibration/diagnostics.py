@@ -9,7 +9,7 @@ import numpy as np
 
 from ..io import Frame
 from .stage1 import (banding_ratios, centered_spectrum, estimate_color_bias, estimate_quantization_step,
-                     estimate_read_noise, estimate_row_noise, missing_code_fraction, row_corrected)
+                     estimate_read_noise, estimate_row_noise, missing_code_fraction, read_residual)
 
 
 class CalibrationWarning(UserWarning):
@@ -63,7 +63,7 @@ def analyse_bias_frame(frame: Frame, *, max_samples: int | None = 200_000, emit:
     notes = frame_anomalies(frame)
     bias = frame.packed_dn()
     row = estimate_row_noise(bias)
-    read = estimate_read_noise(row_corrected(bias, row.row_means), max_samples=max_samples)
+    read = estimate_read_noise(read_residual(bias, row.row_means), max_samples=max_samples)
     band = banding_ratios(frame.mosaic.astype(np.float64))
     if band["column"] > 3:
         notes.append(f"{frame.path or 'bias frame'}: column banding (power on the column axis {band['column']:.1f}x "

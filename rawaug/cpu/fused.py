@@ -32,6 +32,8 @@ _DARK_E, _DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
 _DSNU_PATTERN = L.STREAM["dsnu_pattern"]
 _LF, _LF_GH, _LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
 _CM_REC, _CM_LO, _CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
+_RQ_REC, _RQ_SCALE = L.COLUMN["readq_record"], L.COLUMN["readq_scale"]
+Z_MAX = L.READ_TABLE_Z
 _LOWFREQ = L.STREAM["lowfreq"]
 _ROW = L.STREAM["row"]
 _BLE = L.STREAM["ble"]
@@ -80,9 +82,20 @@ def lowfreq_at(normal, key, b, y, x, h, w, gh, gw):
     return (z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy
 
 
+@njit(inline="always")
+def table_at(lut, row, z):
+    """Row ``row`` of ``lut`` (values on a uniform grid of normal scores in [-Z_MAX, Z_MAX])
+    at score ``z``, linear between grid points, the end values beyond."""
+    n = lut.shape[1]
+    t = min(max((z + Z_MAX) * ((n - 1) / (2.0 * Z_MAX)), 0.0), n - 1.0)
+    i = min(int(t), n - 2)
+    f = t - i
+    return lut[row, i] * (1.0 - f) + lut[row, i + 1] * f
+
+
 @njit(nogil=True, cache=True)
 def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read_index, normal, fine, coarse, grids,
-          code_lut):
+          code_lut, read_lut):
     """Rows ``r0 .. r1`` of the (B * 4 * H) rows of a (B, 4, H, W) batch, flattened; returns
     the count of non-finite clean values met (their outputs are NaN)."""
     bad = 0
@@ -149,7 +162,9 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.HOT:
                 if unit(draw(keys[_HOT_WHERE], p)) < v[_HD]:
                     s += v[_HM] * math.exp(v[_HL] * symmetric(normal, draw(keys[_HOT_SIZE], p)))
-            if stages & L.READ_TUKEY:
+            if stages & L.READ_TABLE:  # measured quantiles on a grid of normal scores, linear between
+                s += v[_RQ_SCALE] * table_at(read_lut, int(v[_RQ_REC]) * 4 + c, symmetric(normal, draw(keys[_READ], g)))
+            elif stages & L.READ_TUKEY:
                 s += v[_TL] * symmetric(table, draw(keys[_READ], g))
             elif stages & L.READ_GAUSS:
                 s += v[_G] * symmetric(normal, draw(keys[_READ], g))
@@ -174,7 +189,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
 
 
 def synthesize(clean, out, values, flags, keys, span, read_tables, read_index, normal, fine, coarse, grids, code_lut,
-               threads=1):
+               read_lut, threads=1):
     """Run the fused chain over a (B, 4, H, W) NumPy batch into ``out`` (may be ``clean``);
     returns the count of non-finite clean values."""
     from .parallel import run_ranges
@@ -183,4 +198,4 @@ def synthesize(clean, out, values, flags, keys, span, read_tables, read_index, n
     x, o = clean.reshape(-1), out.reshape(-1)
     keys = np.asarray(keys, dtype=np.uint64)
     return run_ranges(lambda r0, r1: _rows(x, o, values, np.int64(flags), keys, float(span), h, w, r0, r1, read_tables,
-                                    read_index, normal, fine, coarse, grids, code_lut), b * 4 * h, w, threads)
+                                    read_index, normal, fine, coarse, grids, code_lut, read_lut), b * 4 * h, w, threads)

@@ -106,8 +106,8 @@ class NoiseEffect:
         return {}
 
     def tables(self) -> dict[str, torch.Tensor]:
-        """Small tables the kernels read, by name: ``grids`` (records, gh, gw) or ``code_lut``
-        (records, n), float64."""
+        """Small tables the kernels read, by name: ``grids`` (records, gh, gw), ``code_lut``
+        (records, n) or ``read_lut`` (records x 4, n), float64."""
         return {}
 
     @classmethod

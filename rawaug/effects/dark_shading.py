@@ -37,7 +37,7 @@ import torch
 import torch.nn.functional as F
 
 from ..engine import layout as L
-from ..statistics import fixed_std, levelled
+from ..statistics import fixed_std, repaired
 from .base import DARK, NoiseEffect, pattern_key, register
 from .k_records import check_seed, frame_size, record_index, validate_records, value_at_k
 
@@ -114,7 +114,7 @@ def _upsampling_matrix(n_out, n_grid):
 def shading_grid(frames) -> np.ndarray:
     """(gh, gw) grid whose bilinear upsampling best fits (least squares) the
     channel-averaged, zero-mean stack-mean map, DN."""
-    m = levelled(frames).mean(axis=0)  # a stuck column is a defect, not shading
+    m = repaired(frames).mean(axis=0)  # a stuck column is a defect, not shading
     m = (m - m.mean(axis=(1, 2), keepdims=True)).mean(axis=0)  # (h, w)
     gh, gw = _grid_shape(*m.shape)
     uy, ux = _upsampling_matrix(m.shape[0], gh), _upsampling_matrix(m.shape[1], gw)

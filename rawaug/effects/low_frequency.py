@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import levelled
+from ..statistics import repaired
 from .base import ADC, NoiseEffect, register
 from .k_records import frame_size, validate_records, value_at_k
 
@@ -82,8 +82,8 @@ def candidate_grids(h: int, w: int) -> list[tuple[int, int]]:
 
 def _centered_fields(frames) -> np.ndarray:
     """(N, h, w) channel-averaged frames, each with its own mean removed and its defect
-    lines levelled (as ``psd2d_lowfreq`` sees them), DN."""
-    f = levelled(frames)
+    lines repaired (as ``psd2d_lowfreq`` sees them), DN."""
+    f = repaired(frames)
     return (f - f.mean(axis=(2, 3), keepdims=True)).mean(axis=1)
 
 

@@ -53,7 +53,7 @@ def _read_table(lam):
     return normal_table() if lam is None else tukey_lambda_table(lam)
 
 
-def _numba(clean, out, values, keys, span, flags, grids, code_lut, check_finite=False):
+def _numba(clean, out, values, keys, span, flags, grids, code_lut, read_lut, check_finite=False):
     from ..cpu.fused import synthesize
     from ..cpu.poisson import tables
     from ..cpu.quantile_table import normal_table
@@ -70,24 +70,26 @@ def _numba(clean, out, values, keys, span, flags, grids, code_lut, check_finite=
     fine, coarse = tables()
     bad = synthesize(clean.numpy(), out.numpy(), v, flags, keys.cpu().numpy().astype(np.uint64), span, read_tables, read_index,
                normal_table(), fine, coarse, grids.cpu().numpy().astype(np.float64),
-                     code_lut.cpu().numpy().astype(np.float64), threads=torch.get_num_threads())
+                     code_lut.cpu().numpy().astype(np.float64), read_lut.cpu().numpy().astype(np.float64),
+                     threads=torch.get_num_threads())
     if bad and check_finite:
         raise ValueError(f"input holds {bad} NaN or Inf values; expected finite normalized intensities")
     return out
 
 
-def _triton(clean, out, values, keys, span, flags, grids, code_lut):
+def _triton(clean, out, values, keys, span, flags, grids, code_lut, read_lut):
     from ..gpu.fused import launch
 
     if clean.device.type == "cpu" and os.environ.get("TRITON_INTERPRET") != "1":
         raise RuntimeError("the Triton backend runs CPU tensors only under TRITON_INTERPRET=1 (set before importing triton)")
     fine, coarse = poisson_tables(str(clean.device))
     return launch(clean, out, values.to(torch.float64), keys, span, flags, fine, coarse, grids.to(clean.device, torch.float64),
-                  normal_table_on(str(clean.device)), code_lut.to(clean.device, torch.float64).contiguous())
+                  normal_table_on(str(clean.device)), code_lut.to(clean.device, torch.float64).contiguous(),
+                  read_lut.to(clean.device, torch.float64).contiguous())
 
 
 def run(clean: torch.Tensor, values: torch.Tensor, keys: torch.Tensor, span: float, flags: int,
-        grids: torch.Tensor, code_lut: torch.Tensor, check_finite: bool = False) -> torch.Tensor:
+        grids: torch.Tensor, code_lut: torch.Tensor, read_lut: torch.Tensor, check_finite: bool = False) -> torch.Tensor:
     """Noisy batch (normalized) from a contiguous clean (B, 4, H, W) float32/float64 batch.
     ``check_finite``: refuse non-finite clean values where that costs no synchronization
     (the CPU kernel counts them as it goes); elsewhere they come out as NaN."""
@@ -96,17 +98,17 @@ def run(clean: torch.Tensor, values: torch.Tensor, keys: torch.Tensor, span: flo
         return out
     if backend_for(clean.device) == "numba":
         if clean.device.type != "cpu":  # no Triton here: the CPU kernel, same noise
-            return _numba(clean.cpu(), out.cpu(), values, keys, span, flags, grids, code_lut, check_finite).to(clean.device)
-        return _numba(clean, out, values, keys, span, flags, grids, code_lut, check_finite)
-    return _triton(clean, out, values, keys.to(clean.device), span, flags, grids, code_lut)
+            return _numba(clean.cpu(), out.cpu(), values, keys, span, flags, grids, code_lut, read_lut, check_finite).to(clean.device)
+        return _numba(clean, out, values, keys, span, flags, grids, code_lut, read_lut, check_finite)
+    return _triton(clean, out, values, keys.to(clean.device), span, flags, grids, code_lut, read_lut)
 
 
 @torch.library.custom_op("rawaug::synthesize", mutates_args=())
 def synthesize_op(clean: torch.Tensor, values: torch.Tensor, keys: torch.Tensor, span: float, flags: int,
-                  grids: torch.Tensor, code_lut: torch.Tensor, check_finite: bool = False) -> torch.Tensor:
-    return run(clean.contiguous(), values, keys, span, flags, grids, code_lut, check_finite)
+                  grids: torch.Tensor, code_lut: torch.Tensor, read_lut: torch.Tensor, check_finite: bool = False) -> torch.Tensor:
+    return run(clean.contiguous(), values, keys, span, flags, grids, code_lut, read_lut, check_finite)
 
 
 @synthesize_op.register_fake
-def _(clean, values, keys, span, flags, grids, code_lut, check_finite=False):
+def _(clean, values, keys, span, flags, grids, code_lut, read_lut, check_finite=False):
     return torch.empty_like(clean)

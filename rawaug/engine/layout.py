@@ -24,6 +24,7 @@ CLIP_WHITE = 1 << 13  # clipping at white
 DARK_CURRENT = 1 << 14  # dark electrons (and their non-uniformity), before shot noise
 LOW_FREQ = 1 << 15  # measured fallback: per-frame low-frequency field (bilinear random grid)
 CODE_MAP = 1 << 16  # measured fallback: output codes mapped to the codes the camera uses
+READ_TABLE = 1 << 17  # measured fallback: read noise from a measured quantile table (in place of G* / G)
 
 COLUMNS = (
     "k", "ratio",
@@ -41,8 +42,11 @@ COLUMNS = (
     "lowfreq_sigma", "lowfreq_gh", "lowfreq_gw",
     "codemap_record", "codemap_lo", "codemap_n",
     "fpn_oy", "fpn_ox", "fpn_h", "fpn_w",  # FPN shading window in sensor pixels (fpn_h 0: the input is the sensor)
+    "readq_record", "readq_scale",
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
+
+READ_TABLE_Z = 6.0  # a read_lut row holds values on a uniform grid of normal scores in [-READ_TABLE_Z, READ_TABLE_Z]
 N_COLUMNS = len(COLUMNS)
 
 # Random stream slots (one 63-bit key each, per call or per fixed pattern).

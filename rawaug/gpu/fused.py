@@ -17,6 +17,8 @@ C_K, C_RATIO, C_PRNU = L.COLUMN["k"], L.COLUMN["ratio"], L.COLUMN["prnu_sigma"]
 C_DARK_E, C_DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
 C_LF, C_LF_GH, C_LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
 C_CM_REC, C_CM_LO, C_CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
+C_RQ_REC, C_RQ_SCALE = L.COLUMN["readq_record"], L.COLUMN["readq_scale"]
+Z_MAX = tl.constexpr(L.READ_TABLE_Z)
 C_TL, C_LAM, C_G, C_R = L.COLUMN["sigma_tl"], L.COLUMN["lambda"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
 C_CS, C_CF, C_FS, C_FR = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"], L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
 C_FOY, C_FOX, C_FH, C_FW = L.COLUMN["fpn_oy"], L.COLUMN["fpn_ox"], L.COLUMN["fpn_h"], L.COLUMN["fpn_w"]
@@ -63,7 +65,7 @@ def _col(v_ptr, col: tl.constexpr):
 def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
                  f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
                  c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin,
-                 grids_ptr, GH, GW, normal_ptr, code_ptr, CODE_N,
+                 grids_ptr, GH, GW, normal_ptr, code_ptr, CODE_N, read_ptr, READ_N,
                  FLAGS: tl.constexpr, P: tl.constexpr, BLOCK: tl.constexpr):
     plane = tl.program_id(1)  # b * 4 + c
     b = plane // 4
@@ -109,7 +111,14 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         hot = unit(draw(_key(keys_ptr, K_HOT_WHERE), p)) < _col(v, C_HD)
         size = _col(v, C_HM) * tl.exp(_col(v, C_HL) * _normal(draw(_key(keys_ptr, K_HOT_SIZE), p)))
         s += tl.where(hot, size, 0.0)
-    if FLAGS & 32:  # G*
+    if FLAGS & 131072:  # measured read-noise quantiles on a grid of normal scores, linear between
+        n1 = (READ_N - 1).to(tl.float64)
+        t = tl.minimum(tl.maximum((_normal(draw(_key(keys_ptr, K_READ), g)) + Z_MAX) * (n1 / (2.0 * Z_MAX)), 0.0), n1)
+        i = tl.minimum(t.to(tl.int64), READ_N - 2)
+        f = t - i.to(tl.float64)
+        row = read_ptr + (_col(v, C_RQ_REC).to(tl.int64) * 4 + c) * READ_N
+        s += _col(v, C_RQ_SCALE) * (tl.load(row + i, mask=live, other=0.0) * (1.0 - f) + tl.load(row + i + 1, mask=live, other=0.0) * f)
+    elif FLAGS & 32:  # G*
         t, sign = tail_of(draw(_key(keys_ptr, K_READ), g))
         s += _col(v, C_TL) * (sign * tukey_upper(t, _col(v, C_LAM).to(tl.float32))).to(tl.float64)
     elif FLAGS & 64:  # G
@@ -152,12 +161,13 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     tl.store(out_ptr + plane.to(tl.int64) * hw + idx, (s * (ratio / span)).to(out_ptr.dtype.element_ty), mask=live)
 
 
-def launch(clean, out, values, keys, span, flags, fine, coarse, grids, normal, code_lut, block: int = 1024):
+def launch(clean, out, values, keys, span, flags, fine, coarse, grids, normal, code_lut, read_lut, block: int = 1024):
     """One launch over a contiguous (B, 4, H, W) batch; tables and grids on clean's device."""
     b, _, h, w = clean.shape
     if b == 0 or h * w == 0:
         return out
     grid = (triton.cdiv(h * w, block), b * 4)
     fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2], normal, code_lut, code_lut.shape[1],
+                       read_lut, read_lut.shape[1],
                        FLAGS=int(flags), P=values.shape[1], BLOCK=block)
     return out

@@ -102,7 +102,7 @@ def _run_frame_table(args, path):
 
 
 def _run_manifest(args, path):
-    from ..calibration.stage1 import estimate_read_noise, estimate_row_noise, row_corrected
+    from ..calibration.stage1 import estimate_read_noise, estimate_row_noise, read_residual
     from ..io import read_manifest
     from .diagnose import FrameStack, channel_offsets
     from .frames_loop import run_frame_loop
@@ -142,7 +142,7 @@ def _run_manifest(args, path):
     for iso, frames in sorted(bias.items()):
         frames = np.stack(frames).astype(np.float64)
         row = estimate_row_noise(frames[0])
-        read = estimate_read_noise(row_corrected(frames[0], row.row_means))
+        read = estimate_read_noise(read_residual(frames[0], row.row_means))
         k = profile.k_at_iso(iso) if iso else 1.0
         measured[iso] = ({"sigma_tl": read.sigma_tl, "lambda": read.lam, "sigma_g": read.sigma_g, "sigma_r": row.sigma_r},
                          channel_offsets(frames), k)

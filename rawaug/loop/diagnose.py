@@ -21,7 +21,7 @@ import torch
 from ..augment import RawNoiseAugment, parse_model
 from ..profile import NoiseProfile
 from .registry import effects_for
-from ..statistics import STATISTICS, frame_statistics
+from ..statistics import STATISTICS, frame_statistics, repaired
 
 
 @dataclass
@@ -89,11 +89,13 @@ class Residual:
         return asdict(self)
 
 
+PILOT_STEPS = 3  # offset fits per bias synthesis (the error shrinks by the clipped fraction per step)
+
+
 def channel_offsets(frames) -> list[float]:
-    """Per-channel 10-90 % trimmed mean (DN): the black-level error the synthesis copies."""
-    x = np.sort(np.moveaxis(frames, 1, 0).reshape(4, -1), axis=1)
-    n = x.shape[1]
-    return [float(v) for v in x[:, n // 10 : max(n // 10 + 1, n - n // 10)].mean(axis=1)]
+    """Per-channel mean (DN) with defect lines repaired: the black-level error the synthesis
+    copies (a trimmed mean, used before, is biased on the skewed codes of real dark frames)."""
+    return [float(v) for v in repaired(np.asarray(frames, dtype=np.float64)).mean(axis=(0, 2, 3))]
 
 
 def synthesis_fixed(profile: NoiseProfile, stack: FrameStack) -> dict:
@@ -130,25 +132,56 @@ def sensor_realization(profile: NoiseProfile, index: int) -> NoiseProfile:
     return NoiseProfile.from_dict(data)
 
 
+def _tokens(profile: NoiseProfile, stack: FrameStack, model: str | None) -> list[str]:
+    tokens = [t for t in parse_model(model or profile.richest_model) if not (t == "U" and stack.integer)]
+    return tokens + (["C"] if "C" not in tokens else [])
+
+
+def _one(profile, stack, tokens, fixed, generator, count=None) -> np.ndarray:
+    """One synthesized stack (or its first ``count`` frames) like ``stack``, DN."""
+    n, _, h, w = stack.frames_dn.shape
+    n = n if count is None else min(n, count)
+    level = np.broadcast_to(np.asarray(stack.level_dn if stack.kind == "flat" else 0.0, dtype=np.float64), (4,))
+    clean = torch.from_numpy(level / profile.span_dn).float().view(1, 4, 1, 1).expand(n, 4, h, w).contiguous()
+    aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed=fixed, generator=generator, rank_seeding=False)
+    with torch.no_grad():
+        frames = aug(clean) * profile.span_dn
+    return (torch.round(frames) if stack.integer else frames).numpy()
+
+
+def fitted_offsets(profile: NoiseProfile, stack: FrameStack, seed: int = 0, model: str | None = None) -> list[float]:
+    """The colour bias (DN per channel) a synthesis of ``stack`` uses. For a bias stack of a
+    model with effects (and no offsets of its own) it is fitted with them, as calibration would fit them jointly: a clip,
+    a code map or hot pixels move the mean, and the offsets are whatever puts the model's
+    channel means at the stack's (pilot syntheses with their own seeds; a clip makes the mean
+    move less than the offset, hence a few fixed-point steps)."""
+    fixed = synthesis_fixed(profile, stack)
+    offsets = [float(o) for o in fixed["color_bias_dn"]]
+    if stack.kind != "bias" or not profile.effects or stack.offsets_dn is not None:
+        return offsets  # given offsets are kept
+    target = np.asarray(channel_offsets(stack.frames_dn))
+    tokens = _tokens(profile, stack, model)
+    for step in range(PILOT_STEPS):
+        fixed["color_bias_dn"] = offsets
+        pilot = _one(profile, stack, tokens, fixed, torch.Generator().manual_seed(int(seed) + 7_777_777 + step))
+        delta = repaired(pilot.astype(np.float64)).mean(axis=(0, 2, 3)) - target
+        offsets = [float(o - d) for o, d in zip(offsets, delta)]
+    return offsets
+
+
 def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int, model: str | None = None) -> np.ndarray:
     """``n_synth`` stacks like ``stack`` from the model (base ``model`` + colour bias +
     every effect in the profile), each from its own realization of the fixed patterns
     (``sensor_realization``): array (n_synth, N, 4, h, w) in DN, float32. Integer measured
     codes get rounded syntheses (the ADC rounds) instead of the ``U`` dither."""
-    tokens = [t for t in parse_model(model or profile.richest_model) if not (t == "U" and stack.integer)]
-    if "C" not in tokens:
-        tokens.append("C")
-    n, _, h, w = stack.frames_dn.shape
-    level = np.broadcast_to(np.asarray(stack.level_dn if stack.kind == "flat" else 0.0, dtype=np.float64), (4,))
-    clean = torch.from_numpy(level / profile.span_dn).float().view(1, 4, 1, 1).expand(n, 4, h, w).contiguous()
+    tokens = _tokens(profile, stack, model)
+    fixed = synthesis_fixed(profile, stack)
+    fixed["color_bias_dn"] = fitted_offsets(profile, stack, seed, model)
     generator = torch.Generator().manual_seed(int(seed))
+    n, _, h, w = stack.frames_dn.shape
     out = np.empty((n_synth, n, 4, h, w), dtype=np.float32)
     for i in range(n_synth):
-        aug = RawNoiseAugment(sensor_realization(profile, i), model="+".join(tokens), ratio=1.0,
-                              fixed=synthesis_fixed(profile, stack), generator=generator, rank_seeding=False)
-        with torch.no_grad():
-            frames = aug(clean) * profile.span_dn
-        out[i] = (torch.round(frames) if stack.integer else frames).numpy()
+        out[i] = _one(sensor_realization(profile, i), stack, tokens, fixed, generator)
     return out
 
 

@@ -4,7 +4,9 @@ Each step collects the candidate effects (not in the profile, not yet rejected) 
 significant residual points to; estimates each on every stack it applies to (one record per
 gain K); re-diagnoses with it, all candidates against the same syntheses' seeds. A candidate
 is acceptable if the error of its evidence statistic fell by at least 20 % and no more
-residuals are significant than before; of the acceptable ones, the one that lowers the
+residuals are significant than before (a candidate that replaces a base stage's
+distribution, such as the measured read-noise distribution, is judged on the mean error of
+all its statistics that were significant); of the acceptable ones, the one that lowers the
 battery's mean relative error most is added (greedy model selection: one statistic often
 points to several effects -- a fixed column pattern also raises the per-pixel fixed-pattern
 spread -- and only trying them tells which one the data hold). A rejected candidate is tried
@@ -17,6 +19,7 @@ all of the temporal noise, part of which the added effect now explains.
 """
 from __future__ import annotations
 
+import dataclasses
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -25,7 +28,9 @@ import torch
 
 from ..effects.k_records import merge_records
 from ..profile import NoiseProfile
-from .diagnose import FrameStack, Residual, battery_error, diagnose
+from ..relations import KTable
+from ..statistics import repaired
+from .diagnose import FrameStack, Residual, battery_error, diagnose, fitted_offsets
 from .refit import apply_read_noise_factors, read_noise_factors
 from .registry import CANDIDATES
 
@@ -60,6 +65,7 @@ class LoopResult:
     initial: dict = field(default_factory=dict)  # stack label -> residuals
     final: dict = field(default_factory=dict)
     refits: list = field(default_factory=list)  # read-noise re-fits after added effects
+    colour_bias: dict = field(default_factory=dict)  # K -> offsets (DN) fitted with the added effects
 
     @property
     def added(self) -> list[str]:
@@ -89,16 +95,33 @@ def _options(diags, tried, present):
     best: dict = {}
     for label, (residuals, _) in diags.items():
         for r in residuals:
-            # every candidate adds something that raises the statistics it is shown by: a
-            # statistic the model overshoots (z < 0) calls for a refit, not for one more effect
-            if not r.significant or r.z <= 0:
+            # a candidate adds something that raises the statistics it is shown by: a statistic
+            # the model overshoots (z < 0) calls for a refit, not for one more effect -- unless
+            # the candidate replaces a base stage's shape (TWO_SIDED: a measured distribution)
+            if not r.significant:
                 continue
             for token in r.effects:
-                if token in tried or token in present:
+                if token in tried or token in present or (r.z <= 0 and not _two_sided(token)):
                     continue
                 if token not in best or abs(r.z) > abs(best[token][2].z):
                     best[token] = (token, label, r)
     return sorted(best.values(), key=lambda o: -abs(o[2].z))
+
+
+def _two_sided(token) -> bool:
+    return bool(getattr(CANDIDATES[token].module, "TWO_SIDED", False))
+
+
+def _evidence_error(token, evidence, before, after) -> tuple[float, float]:
+    """(before, after) error of what a candidate is judged on: the relative error of the
+    residual that suggested it; for a two-sided candidate (it replaces a distribution's
+    shape, which several statistics see) the mean relative error of its statistics that
+    were significant on that stack."""
+    if not _two_sided(token):
+        return evidence.rel_error, next(r.rel_error for r in after if r.statistic == evidence.statistic)
+    names = {r.statistic for r in before if r.significant and r.statistic in CANDIDATES[token].statistics}
+    mean = lambda res: float(np.mean([r.rel_error for r in res if r.statistic in names]))  # noqa: E731
+    return mean(before), mean(after)
 
 
 def _measured(token) -> bool:
@@ -110,7 +133,8 @@ def _estimate(token, stacks, diags, seed):
     records = []
     for stack in stacks:
         try:
-            rec = cand.estimate(stack.frames_dn, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
+            # estimated from what the statistics see: the frames with their defect lines repaired
+            rec = cand.estimate(repaired(stack.frames_dn), list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
                                 exposure_s=stack.exposure_s, seed=seed)
         except ValueError:
             continue  # this stack cannot show the effect (too few frames, not a flat)
@@ -182,9 +206,10 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 new_diags = diagnose_all(trial, seed + 1000 * step_no)
                 after = next(r for r in new_diags[label][0] if r.statistic == evidence.statistic)
                 after_b = _battery(new_diags)
+                err_before, err_after = _evidence_error(token, evidence, diags[label][0], new_diags[label][0])
                 # acceptable if its evidence improved by a fifth or more and nothing new became significant
-                ok = after.rel_error <= ACCEPT_FACTOR * evidence.rel_error and after_b["n_significant"] <= before_b["n_significant"]
-                step = Step(token, params, ok, evidence.to_dict(), label, evidence.rel_error, after.rel_error, after.z, before_b,
+                ok = err_after <= ACCEPT_FACTOR * err_before and after_b["n_significant"] <= before_b["n_significant"]
+                step = Step(token, params, ok, evidence.to_dict(), label, err_before, err_after, after.z, before_b,
                             after_b, round=step_no, kind="measured" if _measured(token) else "physical",
                             evidence_after=after.to_dict())
                 trials.append((step, trial, new_diags))
@@ -226,6 +251,27 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 + ("kept" if kept else "dropped"))
             if kept:
                 current, diags, stacks = refitted, new_diags, new_stacks
-    result.profile = current
+    result.profile, result.colour_bias = _with_fitted_colour_bias(current, stacks, model, seed)
+    if result.colour_bias:
+        say("colour bias fitted with the added effects: " + "; ".join(
+            f"K {k:g}: " + ", ".join(f"{v:.3f}" for v in row) + " DN" for k, row in result.colour_bias.items()))
     result.final = {k: v[0] for k, v in diags.items()}
     return result
+
+
+def _with_fitted_colour_bias(profile, stacks, model, seed):
+    """(profile, {K: offsets}) with the colour bias of every bias stack's gain replaced by
+    the offsets its syntheses use (``fitted_offsets``: fitted with the added effects, so that
+    a model with a clip or a code map has the measured mean); unchanged without effects."""
+    by_k: dict = {}
+    for stack in stacks:
+        if stack.kind == "bias" and profile.effects:
+            by_k.setdefault(float(stack.k), []).append(fitted_offsets(profile, stack, seed, model))
+    if not by_k:
+        return profile, {}
+    fitted = {k: tuple(float(v) for v in np.mean(rows, axis=0)) for k, rows in sorted(by_k.items())}
+    old = [(k, v) for k, v in zip(profile.color_bias.k, profile.color_bias.values)
+           if not any(abs(k - fk) <= 1e-9 * fk for fk in fitted)]
+    records = sorted(old + list(fitted.items()), key=lambda r: r[0])
+    table = KTable(tuple(r[0] for r in records), tuple(tuple(r[1]) for r in records))
+    return dataclasses.replace(profile, color_bias=table), fitted
