@@ -137,10 +137,9 @@ def _tokens(profile: NoiseProfile, stack: FrameStack, model: str | None) -> list
     return tokens + (["C"] if "C" not in tokens else [])
 
 
-def _one(profile, stack, tokens, fixed, generator, count=None) -> np.ndarray:
-    """One synthesized stack (or its first ``count`` frames) like ``stack``, DN."""
+def _one(profile, stack, tokens, fixed, generator) -> np.ndarray:
+    """One synthesized stack like ``stack``, DN."""
     n, _, h, w = stack.frames_dn.shape
-    n = n if count is None else min(n, count)
     level = np.broadcast_to(np.asarray(stack.level_dn if stack.kind == "flat" else 0.0, dtype=np.float64), (4,))
     clean = torch.from_numpy(level / profile.span_dn).float().view(1, 4, 1, 1).expand(n, 4, h, w).contiguous()
     aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed=fixed, generator=generator, rank_seeding=False)
@@ -151,10 +150,11 @@ def _one(profile, stack, tokens, fixed, generator, count=None) -> np.ndarray:
 
 def fitted_offsets(profile: NoiseProfile, stack: FrameStack, seed: int = 0, model: str | None = None) -> list[float]:
     """The colour bias (DN per channel) a synthesis of ``stack`` uses. For a bias stack of a
-    model with effects (and no offsets of its own) it is fitted with them, as calibration would fit them jointly: a clip,
-    a code map or hot pixels move the mean, and the offsets are whatever puts the model's
-    channel means at the stack's (pilot syntheses with their own seeds; a clip makes the mean
-    move less than the offset, hence a few fixed-point steps)."""
+    model with effects (and no offsets of its own) it is fitted with them, as calibration
+    would fit them jointly: a clip, a code map or hot pixels move the mean, and the offsets
+    are whatever puts the model's channel means at the stack's (pilot syntheses with their
+    own seeds; a clip makes the mean move less than the offset, hence a few fixed-point
+    steps)."""
     fixed = synthesis_fixed(profile, stack)
     offsets = [float(o) for o in fixed["color_bias_dn"]]
     if stack.kind != "bias" or not profile.effects or stack.offsets_dn is not None:
