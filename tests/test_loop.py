@@ -109,6 +109,18 @@ def test_loop_finds_dark_current_in_dark_frames_only_where_there_is_some(effects
         assert abs(rec["rate_e_per_s"][0] - 4.0) < 0.2 and abs(rec["dsnu"][0] - 0.3) < 0.05, rec
 
 
+def test_the_written_profile_carries_offsets_fitted_with_a_clip():
+    # planted: offsets 0.5 DN and a clip at -2 DN, which raises the measured mean by ~0.6 DN;
+    # the offsets are fitted with the added clip, so the profile gets 0.5 back, not the mean
+    stack = measured_stack(CLIP, seed=201)
+    assert stack.frames_dn.mean() > 1.0
+    result = run_frame_loop([stack], BASE, n_synth=10, seed=1)
+    assert result.added == ["Clip"]
+    fitted = np.asarray(result.colour_bias[K])
+    assert np.all(np.abs(fitted - 0.5) < 0.1), fitted  # pilot noise: ~0.03 DN per channel
+    np.testing.assert_allclose(result.profile.color_bias.nearest(K), fitted)
+
+
 def test_a_defect_line_counts_once_as_a_defect_line():
     clean = measured_stack({}, seed=7, n=2).frames_dn
     defects = clean.copy()
