@@ -1,6 +1,6 @@
 """The loop's profile on the real-noise pairs with some of its components only: where its gain comes from.
 
-    python benchmarks/real_noise/run.py --out runs/real_noise_v4     # first: the loop's profile
+    python benchmarks/real_noise/run.py --out runs/real_noise     # first: the loop's profile there
     python benchmarks/real_noise/variants.py "loop: ReadDist only" "loop: read side only"
 
 Rows: "loop: ReadDist only" (the base model with the measured read-noise distribution and
@@ -14,7 +14,7 @@ from rawaug import NoiseProfile
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import run as R  # noqa: E402
-src = Path('runs/real_noise_v4')
+src = Path('runs/real_noise')  # run.py's --out (the README's)
 out = Path('runs/exp/real_diag'); out.mkdir(parents=True, exist_ok=True)
 loop = NoiseProfile.load(src / 'loop_profile.yaml').to_dict()
 variants = {"loop: ReadDist only": ["ReadDist"], "loop: read side only": ["FPN", "Hot", "ReadDist", "LowFreq"]}
