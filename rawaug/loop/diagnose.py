@@ -94,7 +94,7 @@ PILOT_STEPS = 3  # offset fits per bias synthesis (the error shrinks by the clip
 
 def channel_offsets(frames) -> list[float]:
     """Per-channel mean (DN) with defect lines repaired: the black-level error the synthesis
-    copies (a trimmed mean, used before, is biased on the skewed codes of real dark frames)."""
+    copies (a 10-90 % trimmed mean, used before, is not the mean of skewed codes)."""
     return [float(v) for v in repaired(np.asarray(frames, dtype=np.float64)).mean(axis=(0, 2, 3))]
 
 
