@@ -168,6 +168,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         self._grids = tables.get("grids", torch.zeros(1, 1, 1, dtype=torch.float64))
         self._code_lut = tables.get("code_lut", torch.zeros(1, 1, dtype=torch.float64))
         self._read_lut = tables.get("read_lut", torch.zeros(1, 2, dtype=torch.float64))
+        self._tables_by_device: dict = {}  # the three tables, float64, moved once per device
         self.ratio = _range(ratio, "ratio")
         if iso is not None:
             k = self.profile.k_at_iso(iso)
@@ -272,16 +273,25 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         if work.dtype not in (torch.float32, torch.float64):
             work = work.to(torch.float32)  # half inputs: computed in float32, rounded once at the end
         keys = self._stream_keys(int(params["seed"].reshape(-1)[0]))
-        noisy = synthesize_op(work.contiguous(), values.to(work.device), keys, float(self.profile.span_dn), self._flags, self._grids, self._code_lut, self._read_lut,
+        noisy = synthesize_op(work.contiguous(), values.to(work.device), keys, float(self.profile.span_dn), self._flags, *self._tables_on(work.device),
                              self.check_finite is not False)
         noisy = noisy.to(input.dtype)
         if input.requires_grad:  # straight-through: d noisy / d clean = d E[noisy] / d clean = 1
             noisy = noisy + (input - input.detach())
         return noisy
 
+    def _tables_on(self, device) -> tuple:
+        """(grids, code_lut, read_lut) on ``device``, copied there once (not in every call)."""
+        key = str(device)
+        if key not in self._tables_by_device:
+            self._tables_by_device[key] = tuple(t.to(device, torch.float64).contiguous()
+                                                for t in (self._grids, self._code_lut, self._read_lut))
+        return self._tables_by_device[key]
+
     def __getstate__(self):
         state = self.__dict__.copy()
         state["generator"] = None  # torch.Generator does not pickle; a copy draws from the global RNG
+        state["_tables_by_device"] = {}  # device copies are made again where the copy runs
         return state
 
     def extra_repr(self) -> str:
