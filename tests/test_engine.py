@@ -55,8 +55,22 @@ def test_numba_and_triton_draw_the_same_noise(model, ratio):
     aug = RawNoiseAugment(every_effect_profile(), model=model, ratio=ratio, fixed={"exposure_s": 2.0})
     a, b = both(aug, x)
     assert not torch.equal(a, x)
-    # equal within 1e-5 relative; near zero within 1e-6 of white (cancellation in float32)
-    np.testing.assert_allclose(a.numpy(), b.numpy(), rtol=1e-5, atol=1e-6)
+    assert_same_noise(a, b, aug.profile.span_dn / ratio)
+
+
+def assert_same_noise(a, b, dn_per_unit):
+    """Equal within 1e-5 relative (near zero within 1e-6 of white: cancellation in float32),
+    but for values the ADC rounds (``CodeMap``): a pre-rounding value that lies within float32
+    error of a rounding boundary may land on either neighbouring code. Measured: 1 such element
+    in ~4.6e6 (400 seeds x 11520); allowed: 1 in 1000, each by at most the map's widest step."""
+    a, b = a.numpy(), b.numpy()
+    close = np.isclose(a, b, rtol=1e-5, atol=1e-6)
+    if close.all():
+        return
+    steps = np.diff(np.asarray(LOOP_EFFECTS["CodeMap"]["map_dn"][0]))
+    flips = np.abs(a - b)[~close] * dn_per_unit
+    assert (~close).sum() <= a.size // 1000 and flips.max() <= steps.max() + 1e-3, (
+        f"{(~close).sum()} of {a.size} values differ; largest difference {flips.max():.4g} DN")
 
 
 def test_poisson_counts_are_equal_on_both_backends():
