@@ -15,16 +15,18 @@ as the hot last column, in both parts, as they are on one sensor):
 at K = 1 DN/e- (the frame has no flats, so K is chosen), ratios x50 / x100 / x200, on tiles
 of the two held-out bundled scenes. The same U-Net is trained on the four bundled training
 scenes with (a) the ELD model calibrated on the training part (stage 1: Tukey-lambda read
-noise, row noise, colour bias), (b) the closed loop's profile of the training part, (c) noise
-sampled directly from the training part (random crops added to shot noise, the way
+noise, row noise, colour bias) as the paper trains it (G*+P*+R+U: without the colour bias),
+(a') the same with its colour bias (G*+P*+R+U+C), (b) the closed loop's profile of the
+training part with everything it calibrated (its effects and its fitted colour bias), (c)
+noise sampled directly from the training part (random crops added to shot noise, the way
 sampling-based methods make pairs: an upper bound for a model of this frame) and (c') values
 drawn independently from the training part's pixels (its distribution without its spatial
-structure). A further row,
-(b') the loop's profile without its measured code map, is run only when the loop added
-``CodeMap``: shot noise is added on top of the dark frame's codes, so in these pairs the
-comb acts on the read-side noise only, while ``CodeMap`` applies it at the ADC, after the
-shot noise, as a sensor does. Every row has
-the same steps, seeds and recipe (the quickstart's, with the gradient norm clipped at 1).
+structure). A further row, (b') the loop's profile without its measured code map, is run
+only when the loop added ``CodeMap``: shot noise is added on top of the dark frame's codes,
+so in these pairs the comb and the clip at code 0 act on the read-side noise only, while
+the loop's ``CodeMap`` and ``Clip`` act at the ADC, after the shot noise, as a sensor does.
+Every row has the same steps, seeds and recipe (the quickstart's, with the gradient norm
+clipped at 1).
 Each run's result is written when it exists and reused by the next invocation.
 """
 from __future__ import annotations
@@ -54,7 +56,9 @@ TEST_SCENES = {"Outdoor4_1024x1024.npz": (12.5, 255), "HalideN900_256x344.npz": 
 K = 1.0  # DN/e-
 RATIOS = (50, 100, 200)
 WHITE = 4095
-ROWS = ("ELD", "loop", "loop without CodeMap", "sampled real", "sampled real, shuffled")
+ROWS = ("ELD", "ELD with colour bias", "loop", "loop without CodeMap", "sampled real", "sampled real, shuffled")
+# noise model per row; the sampled rows use none
+MODELS = {"ELD": "G*+P*+R+U", "ELD with colour bias": "G*+P*+R+U+C", "loop": "G*+P*+R+U+C", "loop without CodeMap": "G*+P*+R+U+C"}
 GRADIENT_CLIP = 1.0  # max gradient norm
 SCALES = {"cpu": dict(steps=1024, seeds=(0, 1, 2), base=16, crop=64, batch=8, tile=128, test_tiles=12, n_synth=8),
           "smoke": dict(steps=2, seeds=(0,), base=4, crop=32, batch=2, tile=32, test_tiles=2, n_synth=8)}
@@ -156,7 +160,7 @@ def train_and_test(row: str, seed: int, out: Path, profiles: dict, train_dark: n
 
     torch.manual_seed(seed)
     module = DenoiseModule(base_channels=scale["base"], depth=5, residual=True, profile=str(profiles[row if row in profiles else "ELD"]),
-                           noise_model="G*+P*+R+U", include_profile_effects=row.startswith("loop"), ratio=[RATIOS[0], RATIOS[-1]], k=K,
+                           noise_model=MODELS.get(row, "G"), include_profile_effects=row.startswith("loop"), ratio=[RATIOS[0], RATIOS[-1]], k=K,
                            crop_size=scale["crop"], lr=1e-3, seed=seed, image_log_size=0, eval_iso=None, eval_k=K)
     if row.startswith("sampled real"):
         source = SampledRealDistribution if row == "sampled real, shuffled" else SampledRealNoise

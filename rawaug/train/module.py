@@ -57,7 +57,9 @@ class DenoiseModule(L.LightningModule):
         base_channels, depth: U-Net widths ``base * 2**i`` over ``depth`` levels (32, 5 in the paper).
         residual: the U-Net predicts the correction to its input (not in the paper; faster to train).
         profile: noise profile (built-in camera name or profile file).
-        noise_model: noise components, e.g. ``G``, ``G+P``, ``G+P*``, ``G*+P*``, ``G*+P*+R``, ``G*+P*+R+U``.
+        noise_model: noise components, e.g. ``G``, ``G+P``, ``G+P*``, ``G*+P*``, ``G*+P*+R``, ``G*+P*+R+U``
+            (the paper's rows), ``+C`` for the colour bias; default: the profile's fullest model
+            (``NoiseProfile.richest_model``: ``G*+P*+R+U+C`` for a calibrated profile).
         profile_effects: extra effects ``{token: params}`` added to the profile (as the closed loop
             writes them); effects already in the profile are used anyway (``include_profile_effects``).
         ratio: training low-light ratio, a number or ``[low, high]`` (default ``[100, 300]``).
@@ -78,7 +80,7 @@ class DenoiseModule(L.LightningModule):
         image_log_size: side of the noisy/denoised/target previews logged to TensorBoard (0 = none).
     """
 
-    def __init__(self, base_channels: int = 32, depth: int = 5, residual: bool = False, profile: str = "SonyA7S2", noise_model: str = "G*+P*+R+U",
+    def __init__(self, base_channels: int = 32, depth: int = 5, residual: bool = False, profile: str = "SonyA7S2", noise_model: str | None = None,
                  profile_effects: dict | None = None, include_profile_effects: bool = True,
                  ratio: float | list[float] | None = None, k: float | list[float] | None = None, iso: float | None = None,
                  crop_size: int = 512, flip: bool = True, rotate: bool = True, clip_input: bool = True, loss: str = "l1",
