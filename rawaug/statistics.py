@@ -98,6 +98,15 @@ def defect_line_masks(frames):
     return _defects(c.mean(axis=3))[0], _defects(c.mean(axis=2))[0]
 
 
+def defect_line_residuals(mean_map):
+    """Of one (4, h, w) map (a stack mean): (row mask (4, h), row offsets (4, h), column
+    mask (4, w), column offsets (4, w)), offsets in DN from the running median of 5 lines."""
+    m = np.asarray(mean_map, dtype=np.float64)
+    rows, row_res = _defects(m.mean(axis=2))
+    cols, col_res = _defects(m.mean(axis=1))
+    return rows, row_res, cols, col_res
+
+
 _last = threading.local()  # the last repaired stack of this thread
 
 
@@ -324,8 +333,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("row_lowfreq", row_lowfreq),
         Statistic("col_lowfreq", col_lowfreq),
         Statistic("psd2d_lowfreq", psd2d_lowfreq),
-        Statistic("defect_lines", defect_lines, line_fraction=True,
-                  base="defect lines (a stuck column, a dead row): no stage models them"),
+        Statistic("defect_lines", defect_lines, line_fraction=True),
         Statistic("hot_fraction", hot_fraction, pixel_fraction=True),
         Statistic("missing_codes", missing_codes, base="ADC codes (a comb means digital gain: no effect models it)"),
         Statistic("clip_low", clip_low, pixel_fraction=True),

@@ -174,6 +174,30 @@ def test_measured_read_table_stage_draws_its_distribution(which):
         assert stats.kstest(out[0, c].ravel() / (2.0 * (c + 1)), law.cdf).pvalue > P_MIN
 
 
+@pytest.mark.parametrize("which", ["numba", "triton"])
+def test_defect_line_stage_draws_its_lines(which):
+    # one packed frame of 4 x n x n: 2n sensor rows and 2n sensor columns
+    n = 2000 if which == "numba" else 400
+    cols = {"lines_row_density": 0.01, "lines_col_density": 0.03, "lines_median": 50.0, "lines_log_std": 0.4,
+            "lines_negative": 0.25}
+    out = run_stages(L.LINES, torch.zeros(1, 4, n, n), cols, seed=3, which=which).numpy()[0]
+    rows = np.median(out, axis=2)  # (4, n): the row offsets (a few defective columns cannot move a median)
+    columns = np.median(out, axis=1)  # (4, n)
+    # the two packed channels of a sensor line carry its offset: row sets (0, 0, 1, 1), column sets (0, 1, 1, 0)
+    assert np.array_equal(rows[0], rows[1]) and np.array_equal(rows[2], rows[3])
+    assert np.array_equal(columns[0], columns[3]) and np.array_equal(columns[1], columns[2])
+    for offsets, density in ((np.concatenate([rows[0], rows[2]]), 0.01), (np.concatenate([columns[0], columns[1]]), 0.03)):
+        bad = offsets != 0
+        mean, sd = 2 * n * density, math.sqrt(2 * n * density * (1 - density))
+        assert abs(bad.sum() - mean) < 5 * sd, (bad.sum(), mean)  # binomial count
+        amp = offsets[bad]
+        assert stats.kstest(np.log(np.abs(amp)), stats.norm(math.log(50.0), 0.4).cdf).pvalue > P_MIN
+        assert stats.binomtest(int((amp < 0).sum()), amp.size, 0.25).pvalue > P_MIN
+    # a row's and a column's offsets add where they cross
+    i, j = np.flatnonzero(rows[0])[0], np.flatnonzero(columns[0])[0]
+    assert out[0, i, j] == pytest.approx(rows[0, i] + columns[0, j])
+
+
 def test_uniform_stage_matches_scipy():
     u = run_stages(L.QUANT, torch.zeros(1, 300_000), {"step_dn": 2.0}, seed=4).numpy().ravel()
     assert u.min() >= -1.0 and u.max() <= 1.0

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import black_clip, column_noise, dark_shading, frame_black_level, hot_pixels, low_frequency, prnu
+from rawaug.effects import black_clip, column_noise, dark_shading, defect_lines, frame_black_level, hot_pixels, low_frequency, prnu
 
 BASE = NoiseProfile.load("SonyA7S2")
 K = 1.0
@@ -111,6 +111,23 @@ def test_hot_pixels_density_and_estimate():
     assert abs(math.log(est["median_dn"][0] / 80.0)) < 0.1
 
 
+def test_defect_lines_estimate_round_trip():
+    # 2 frames of 4 x 512 x 512 packed: 1024 sensor rows and columns; offsets 40 DN (+-0.3 in
+    # log), far above the 8-sigma detection threshold of a line mean (~0.35 DN here)
+    p = {"seed": 5, "row_density": 0.01, "col_density": 0.03, "log_std": 0.3, "negative": 0.4, "k": [K], "median_dn": [40.0]}
+    f = synth({"Lines": p}, batch=2, size=512)
+    est = defect_lines.estimate(f, [synth({}, batch=2, size=512, seed=9)], K)
+    n = 1024
+    for key, density in (("row_density", 0.01), ("col_density", 0.03)):
+        assert abs(est[key] - density) < 5 * math.sqrt(density * (1 - density) / n), (key, est[key])
+    lines = (0.01 + 0.03) * n  # ~41 lines: the log-normal's mean within 5 standard errors
+    assert abs(math.log(est["median_dn"][0] / 40.0)) < 5 * 0.3 / math.sqrt(lines)
+    assert abs(est["log_std"] - 0.3) < 0.15
+    assert abs(est["negative"] - 0.4) < 5 * math.sqrt(0.24 / lines)
+    none = defect_lines.estimate(synth({}, batch=2, size=512, seed=4), [synth({}, batch=2, size=512, seed=9)], K)
+    assert none["row_density"] == 0.0 and none["col_density"] == 0.0
+
+
 def test_black_clip_piles_up_at_the_floor():
     f = synth({"Clip": {"floor_dn": -1.0}}, sigma_g=2.0)
     assert f.min() == -1.0
@@ -155,6 +172,10 @@ def test_effects_replay_bit_exactly():
     ("FPN", {"seed": 1, "k": [1.0], "sigma_dn": [1.0], "shading_dn": [[1.0, 2.0]]}, "2-D grid"),
     ("Hot", {"seed": 1, "density": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [1.0]}, "density"),
     ("Clip", {}, "floor_dn"),
+    ("Lines", {"seed": 1, "row_density": 0.2, "col_density": 0.0, "log_std": 0.0, "negative": 0.0, "k": [1.0], "median_dn": [1.0]},
+     r"row_density \(fraction of sensor lines\) must be in \[0, 0.1\], got 0.2"),
+    ("Lines", {"seed": 1, "row_density": 0.0, "col_density": 0.0, "log_std": 0.0, "negative": 1.5, "k": [1.0], "median_dn": [1.0]},
+     "negative"),
     ("BLE", {"k": [0.0], "sigma_dn": [1.0]}, "k must be > 0"),
     ("PRNU", {"seed": -1, "sigma": 0.01}, "seed"),
 ])

@@ -34,6 +34,7 @@ def measured_stack(effects, seed=123, n=8, size=128, label="measured", exposure_
 
 
 BLE = {"BLE": {"k": [K], "sigma_dn": [0.6], "channel_sigma_dn": [0.0]}}
+LINES = {"Lines": {"seed": 29, "row_density": 0.01, "col_density": 0.02, "log_std": 0.3, "negative": 0.3, "k": [K], "median_dn": [30.0]}}
 CLIP = {"Clip": {"floor_dn": -2.0}}
 
 
@@ -51,7 +52,7 @@ def two_level_read_noise():
     return {"ReadDist": {"k": [K], "quantiles_dn": [[q.tolist()] * 4]}}
 
 
-CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "mixed": {**COL, **FPN, **HOT},
+CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "defect lines": LINES, "mixed": {**COL, **FPN, **HOT},
          "two-level read": two_level_read_noise()}
 
 

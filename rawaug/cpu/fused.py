@@ -33,6 +33,9 @@ _DSNU_PATTERN = L.STREAM["dsnu_pattern"]
 _LF, _LF_GH, _LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
 _CM_REC, _CM_LO, _CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
 _RQ_REC, _RQ_SCALE = L.COLUMN["readq_record"], L.COLUMN["readq_scale"]
+_LRD, _LCD, _LM, _LLS, _LNEG = (L.COLUMN["lines_row_density"], L.COLUMN["lines_col_density"], L.COLUMN["lines_median"],
+                                L.COLUMN["lines_log_std"], L.COLUMN["lines_negative"])
+_LINES_ROW, _LINES_COL = L.STREAM["lines_row"], L.STREAM["lines_col"]
 Z_MAX = L.READ_TABLE_Z
 _LOWFREQ = L.STREAM["lowfreq"]
 _ROW = L.STREAM["row"]
@@ -83,6 +86,16 @@ def lowfreq_at(normal, key, b, y, x, h, w, gh, gw):
 
 
 @njit(inline="always")
+def defect_line_at(normal, key, line, density, median, log_std, negative):
+    """Offset (DN) of sensor line ``line`` of a seeded defect-line pattern: 0, or
+    +-median * exp(log_std * z) where the line's U(0, 1) falls below ``density``."""
+    if unit(draw(key, 3 * line)) >= density:
+        return 0.0
+    size = median * math.exp(log_std * symmetric(normal, draw(key, 3 * line + 1)))
+    return -size if unit(draw(key, 3 * line + 2)) < negative else size
+
+
+@njit(inline="always")
 def table_at(lut, row, z):
     """Row ``row`` of ``lut`` (values on a uniform grid of normal scores in [-Z_MAX, Z_MAX])
     at score ``z``, linear between grid points, the end values beyond."""
@@ -117,6 +130,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         if stages & L.BLE:
             line += v[_BS] * symmetric(normal, draw(keys[_BLE], b * 5))
             line += v[_BC] * symmetric(normal, draw(keys[_BLE], b * 5 + 1 + c))
+        if stages & L.LINES:
+            line += defect_line_at(normal, keys[_LINES_ROW], row_set * h + y, v[_LRD], v[_LM], v[_LLS], v[_LNEG])
         table = read_tables[read_index[b]]
         key_fine, key_rest, key_coarse = keys[_SHOT], keys[_SHOT_REST], keys[_SHOT_COARSE]
         record = int(v[_FR])
@@ -171,6 +186,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.COL:
                 s += v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], col_set * w + x))
+            if stages & L.LINES:
+                s += defect_line_at(normal, keys[_LINES_COL], col_set * w + x, v[_LCD], v[_LM], v[_LLS], v[_LNEG])
             if stages & L.QUANT:
                 s += (unit(draw(keys[_QUANT], g)) - 0.5) * v[_Q]
             if stages & L.LOW_FREQ:

@@ -25,6 +25,7 @@ DARK_CURRENT = 1 << 14  # dark electrons (and their non-uniformity), before shot
 LOW_FREQ = 1 << 15  # measured fallback: per-frame low-frequency field (bilinear random grid)
 CODE_MAP = 1 << 16  # measured fallback: output codes mapped to the codes the camera uses
 READ_TABLE = 1 << 17  # measured fallback: read noise from a measured quantile table (in place of G* / G)
+LINES = 1 << 18  # defect lines: sparse sensor rows and columns with a large fixed offset
 
 COLUMNS = (
     "k", "ratio",
@@ -43,6 +44,7 @@ COLUMNS = (
     "codemap_record", "codemap_lo", "codemap_n",
     "fpn_oy", "fpn_ox", "fpn_h", "fpn_w",  # FPN shading window in sensor pixels (fpn_h 0: the input is the sensor)
     "readq_record", "readq_scale",
+    "lines_row_density", "lines_col_density", "lines_median", "lines_log_std", "lines_negative",
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -53,6 +55,7 @@ N_COLUMNS = len(COLUMNS)
 STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
+    "lines_row", "lines_col",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

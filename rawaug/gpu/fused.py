@@ -18,6 +18,8 @@ C_DARK_E, C_DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
 C_LF, C_LF_GH, C_LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
 C_CM_REC, C_CM_LO, C_CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
 C_RQ_REC, C_RQ_SCALE = L.COLUMN["readq_record"], L.COLUMN["readq_scale"]
+C_LRD, C_LCD, C_LM, C_LLS, C_LNEG = (L.COLUMN["lines_row_density"], L.COLUMN["lines_col_density"], L.COLUMN["lines_median"],
+                                     L.COLUMN["lines_log_std"], L.COLUMN["lines_negative"])
 Z_MAX = tl.constexpr(L.READ_TABLE_Z)
 C_TL, C_LAM, C_G, C_R = L.COLUMN["sigma_tl"], L.COLUMN["lambda"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
 C_CS, C_CF, C_FS, C_FR = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"], L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
@@ -29,6 +31,7 @@ S = L.STREAM
 K_SHOT, K_SHOT_REST, K_SHOT_COARSE, K_READ = S["shot"], S["shot_rest"], S["shot_coarse"], S["read"]
 K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
 K_DSNU, K_LOWFREQ = S["dsnu_pattern"], S["lowfreq"]
+K_LINES_ROW, K_LINES_COL = S["lines_row"], S["lines_col"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -49,6 +52,14 @@ def _bilinear(y, x, H, W, gh, gw):
     y0 = sy.to(tl.int64)
     x0 = sx.to(tl.int64)
     return y0, x0, tl.minimum(y0 + 1, gh - 1), tl.minimum(x0 + 1, gw - 1), sy - y0.to(tl.float64), sx - x0.to(tl.float64)
+
+
+@triton.jit
+def _defect_line(normal_ptr, key, line, density, median, log_std, negative):
+    """As ``rawaug.cpu.fused.defect_line_at``: the offset of sensor lines ``line`` (uint64)."""
+    size = median * tl.exp(log_std * symmetric_table(normal_ptr, draw(key, 3 * line + 1)))
+    size = tl.where(unit(draw(key, 3 * line + 2)) < negative, -size, size)
+    return tl.where(unit(draw(key, 3 * line)) < density, size, 0.0)
 
 
 @triton.jit
@@ -126,6 +137,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 256:  # column noise: per frame and fixed
         s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), (col_set.to(tl.int64) * W + x).to(tl.uint64)))
+    if FLAGS & 262144:  # defect lines: the sensor column's offset here, the row's below
+        s += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_COL), (col_set.to(tl.int64) * W + x).to(tl.uint64),
+                          _col(v, C_LCD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
     if FLAGS & 512:  # U
         s += (unit(draw(_key(keys_ptr, K_QUANT), g)) - 0.5) * _col(v, C_Q)
     if FLAGS & 32768:  # measured low-frequency field: a per-frame normal grid, bilinear
@@ -142,6 +156,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     line = 0.0
     if FLAGS & 128:  # R: one offset per sensor row
         line += _col(v, C_R) * _normal(draw(_key(keys_ptr, K_ROW), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
+    if FLAGS & 262144:  # defect lines: the sensor row's offset
+        line += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_ROW), (row_set.to(tl.int64) * H + y).to(tl.uint64),
+                             _col(v, C_LRD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
     if FLAGS & 1024:  # C
         line += tl.load(v + C_B0 + c)
     if FLAGS & 2048:  # BLE

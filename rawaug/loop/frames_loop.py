@@ -133,8 +133,10 @@ def _estimate(token, stacks, diags, seed):
     records = []
     for stack in stacks:
         try:
-            # estimated from what the statistics see: the frames with their defect lines repaired
-            rec = cand.estimate(repaired(stack.frames_dn), list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
+            # estimated from what the statistics see: the frames with their defect lines
+            # repaired, but for an effect that makes defect lines
+            frames = stack.frames_dn if getattr(cand.module, "RAW_FRAMES", False) else repaired(stack.frames_dn)
+            rec = cand.estimate(frames, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
                                 exposure_s=stack.exposure_s, seed=seed)
         except ValueError:
             continue  # this stack cannot show the effect (too few frames, not a flat)
