@@ -122,6 +122,21 @@ def test_the_written_profile_carries_offsets_fitted_with_a_clip():
     np.testing.assert_allclose(result.profile.color_bias.nearest(K), fitted)
 
 
+def test_dark_frames_take_the_offsets_fitted_with_a_clip():
+    # a camera that clips at -2 DN and has no dark current: its dark frames hold nothing the
+    # bias frames do not. Synthesized with the bias frames' measured means as offsets (0.6 DN
+    # too high: the clip raised them), the dark stack kept mean_dn (z ~ -42) and clip_low
+    # (z ~ 16) unexplained at seeds 300 and 310; with the offsets fitted with the clip, nothing
+    bias = measured_stack(CLIP, seed=300, n=6, size=96, label="bias")
+    dark = measured_stack(CLIP, seed=301, n=6, size=96, label="dark 5 s", exposure_s=5.0)
+    dark = FrameStack(dark.frames_dn, K, kind="dark", exposure_s=5.0, label="dark 5 s", offsets_of=bias)
+    result = run_frame_loop([bias, dark], BASE, n_synth=8, seed=1)
+    assert result.added == ["Clip"]
+    assert not result.unexplained(), result.unexplained()
+    with pytest.raises(ValueError, match="offsets_of must be a bias FrameStack"):
+        FrameStack(dark.frames_dn, K, kind="dark", exposure_s=5.0, offsets_of=dark)
+
+
 def test_a_defect_line_counts_once_as_a_defect_line():
     clean = measured_stack({}, seed=7, n=2).frames_dn
     defects = clean.copy()

@@ -144,28 +144,28 @@ def _run_manifest(args, path):
         row = estimate_row_noise(frames[0])
         read = estimate_read_noise(read_residual(frames[0], row.row_means))
         k = profile.k_at_iso(iso) if iso else 1.0
-        measured[iso] = ({"sigma_tl": read.sigma_tl, "lambda": read.lam, "sigma_g": read.sigma_g, "sigma_r": row.sigma_r},
-                         channel_offsets(frames), k)
-        stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}", base=measured[iso][0]))
+        stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}", base={"sigma_tl": read.sigma_tl, "lambda": read.lam,
+                                                                        "sigma_g": read.sigma_g, "sigma_r": row.sigma_r}))
+        measured[iso] = (stacks[-1].base, channel_offsets(frames), k, stacks[-1])
     for (iso, exposure), frames in sorted(darks.items()):
         if iso not in measured or len(frames) < 2:
             print(f"warning: dark frames at ISO {iso:g}, {exposure:g} s left out: "
                   + ("no bias frames at that ISO to compare them with" if iso not in measured else "fewer than 2 frames"))
             continue
-        base, offsets, k = measured[iso]
+        base, _, k, bias_stack = measured[iso]
         # synthesized with the bias frames' read noise and offsets: what the dark adds shows
         stacks.append(FrameStack(np.stack(frames).astype(np.float64), k, kind="dark", exposure_s=exposure,
-                                 label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_dn=offsets))
+                                 label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_of=bias_stack))
     for (iso, exposure), frames in sorted(flats.items()):
         if iso not in measured or len(frames) < 2:
             continue  # calibration reports flats it cannot use
-        base, offsets, k = measured[iso]
+        base, offsets, k, bias_stack = measured[iso]
         stack = np.stack([f for f, _ in frames]).astype(np.float64)
         level = stack.mean(axis=(0, 2, 3)) - np.asarray(offsets)
         headroom = min(float(np.min(room)) for _, room in frames)
         if level.min() < 20 * k or stack.max() >= 0.98 * headroom:
             continue  # too dark to carry shot noise, or clipped at white
-        stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in level], base=base, offsets_dn=offsets,
+        stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in level], base=base, offsets_of=bias_stack,
                                  label=f"ISO {iso:g} flat {float(level.mean()):.0f} DN"))
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
     (h, w), (ch, cw) = shapes

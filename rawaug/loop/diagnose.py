@@ -34,8 +34,11 @@ class FrameStack:
     base-model parameters measured on the bias frames of the same ISO (keys of
     ``RawNoiseAugment(fixed=...)``: ``sigma_tl``, ``lambda``, ``sigma_r``); missing ones come
     from the profile at ``k``. ``offsets_dn`` (R, G1, B, G2) are the channel offsets the
-    synthesis adds; default: the stack's own for bias frames, 0 for flats. A dark stack
-    should get those of its ISO's bias frames, so that the dark signal shows."""
+    synthesis adds; default: the stack's own for bias frames, 0 for flats. A dark or flat
+    stack should get those of its ISO's bias frames, so that the dark signal shows:
+    ``offsets_of`` (that bias stack) gives it the offsets the bias stack's syntheses use,
+    fitted with the model's effects (a clip at black raises the mean, so the measured
+    means would be too high); ``offsets_dn`` fixes them instead."""
 
     frames_dn: np.ndarray
     k: float
@@ -45,6 +48,7 @@ class FrameStack:
     base: dict = field(default_factory=dict)
     exposure_s: float | None = None
     offsets_dn: list | None = None
+    offsets_of: "FrameStack | None" = None
 
     def __post_init__(self):
         self.frames_dn = np.asarray(self.frames_dn, dtype=np.float64)
@@ -60,6 +64,8 @@ class FrameStack:
             raise ValueError(f"a dark stack needs its exposure_s (seconds, > 0), got {self.exposure_s!r}")
         if self.offsets_dn is not None and len(self.offsets_dn) != 4:
             raise ValueError(f"offsets_dn must hold 4 values (R, G1, B, G2), got {self.offsets_dn!r}")
+        if self.offsets_of is not None and not (isinstance(self.offsets_of, FrameStack) and self.offsets_of.kind == "bias"):
+            raise ValueError(f"offsets_of must be a bias FrameStack, got {self.offsets_of!r:.80}")
         self.label = self.label or f"{self.kind} K={self.k:.4g}"
 
     @functools.cached_property
@@ -154,7 +160,9 @@ def fitted_offsets(profile: NoiseProfile, stack: FrameStack, seed: int = 0, mode
     would fit them jointly: a clip, a code map or hot pixels move the mean, and the offsets
     are whatever puts the model's channel means at the stack's (pilot syntheses with their
     own seeds; a clip makes the mean move less than the offset, hence a few fixed-point
-    steps)."""
+    steps). A stack with ``offsets_of`` takes that bias stack's."""
+    if stack.offsets_of is not None:
+        return fitted_offsets(profile, stack.offsets_of, seed, model)
     fixed = synthesis_fixed(profile, stack)
     offsets = [float(o) for o in fixed["color_bias_dn"]]
     if stack.kind != "bias" or not profile.effects or stack.offsets_dn is not None:
