@@ -160,7 +160,7 @@ def train_and_test(row: str, seed: int, out: Path, profiles: dict, train_dark: n
 
     torch.manual_seed(seed)
     module = DenoiseModule(base_channels=scale["base"], depth=5, residual=True, profile=str(profiles[row if row in profiles else "ELD"]),
-                           noise_model=MODELS.get(row, "G"), include_profile_effects=row.startswith("loop"), ratio=[RATIOS[0], RATIOS[-1]], k=K,
+                           noise_model=MODELS.get(row, "G*+P*+R+U"), include_profile_effects=row.startswith("loop"), ratio=[RATIOS[0], RATIOS[-1]], k=K,
                            crop_size=scale["crop"], lr=1e-3, seed=seed, image_log_size=0, eval_iso=None, eval_k=K)
     if row.startswith("sampled real"):
         source = SampledRealDistribution if row == "sampled real, shuffled" else SampledRealNoise

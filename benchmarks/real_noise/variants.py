@@ -3,9 +3,10 @@
     python benchmarks/real_noise/run.py --out runs/real_noise     # first: the loop's profile there
     python benchmarks/real_noise/variants.py "loop: ReadDist only" "loop: read side only"
 
-Rows: "loop: ReadDist only" (the base model with the measured read-noise distribution and
-nothing else the loop added), "loop: read side only" (without the ADC-side Clip and
-CodeMap). Same recipe and seeds (0-2) as run.py; results in runs/exp/real_diag/.
+Rows: "loop: ReadDist only" (the base model, its colour bias included, with the measured
+read-noise distribution and nothing else the loop added), "loop: read side only" (without
+the ADC-side Clip and CodeMap). Same recipe and seeds (0-2) as run.py; results in
+runs/exp/real_diag/.
 """
 import sys
 from pathlib import Path
@@ -18,6 +19,7 @@ src = Path('runs/real_noise')  # run.py's --out (the README's)
 out = Path('runs/exp/real_diag'); out.mkdir(parents=True, exist_ok=True)
 loop = NoiseProfile.load(src / 'loop_profile.yaml').to_dict()
 variants = {"loop: ReadDist only": ["ReadDist"], "loop: read side only": ["FPN", "Hot", "ReadDist", "LowFreq"]}
+R.MODELS.update({row: R.MODELS["loop"] for row in variants})  # the loop row's base model, colour bias included
 profiles = {}
 for row, keep in variants.items():
     d = {**loop, "effects": {k: v for k, v in loop["effects"].items() if k in keep}}
