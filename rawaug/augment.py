@@ -111,8 +111,8 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         model: components joined by ``+``: ``G`` / ``G*`` read noise (Gaussian / Tukey lambda),
             ``P`` / ``P*`` shot noise (Gaussian approx. / Poisson), ``R`` row noise, ``U``
             quantization, ``C`` colour bias, and any registered loop effect. Default: the
-            profile's ``richest_model`` (``G*+P*+R+U+C``, or ``G+P*+U`` for a Poisson-Gaussian
-            profile without Tukey-lambda and row-noise fits and without a colour bias).
+            profile's ``richest_model`` (``G*+P*+R+U``, or ``G+P*+U`` for a Poisson-Gaussian
+            profile without Tukey-lambda and row-noise fits).
         ratio: low-light factor, a number or a ``(low, high)`` range drawn uniformly.
         k: fix the system gain K (DN/e-), or a ``(low, high)`` range drawn log-uniformly;
             default: the profile's calibrated range.

@@ -248,12 +248,13 @@ class NoiseProfile:
 
     @property
     def richest_model(self) -> str:
-        """The fullest model this profile can synthesize: the paper's ``G*+P*+R+U`` plus the
-        colour bias ``C`` it measured, without the parts it has no fit for (``G+P*+U`` for a
-        Poisson-Gaussian profile with no bias). Effects in ``effects`` come on top."""
+        """The paper's fullest model this profile can synthesize: ``G*+P*+R+U``, or without
+        the parts it has no fit for (``G+P*+U`` for a Poisson-Gaussian profile). The colour
+        bias ``C`` is left to the user: it pays when a denoiser is trained at one gain, and
+        costs where the black-level error jumps between the gains it is trained over (the
+        README's real-noise and TestCam tables)."""
         read = "G*" if self.tukey_scale is not None else "G"
-        bias = any(v != 0.0 for row in self.color_bias.values for v in row)
-        return "+".join([read, "P*"] + (["R"] if self.row_scale is not None else []) + ["U"] + (["C"] if bias else []))
+        return "+".join([read, "P*"] + (["R"] if self.row_scale is not None else []) + ["U"])
 
     def to_yaml(self) -> str:
         """The profile file's text, loaded back and validated first (so no profile that

@@ -53,6 +53,10 @@ def test_import_recovers_gain_and_read_noise(tmp_path):
     aug = RawNoiseAugment(profile, ratio=1.0, fixed={"k": 1.0, "sigma_g": 2.0})
     noise = (aug(torch.zeros(4, 4, 64, 64)) * profile.span_dn).numpy()
     assert abs(noise.std() / math.sqrt(2.0**2 + 1 / 12) - 1) < 5 * math.sqrt(1 / (2 * noise.size))
+    # the training module's default model is the profile's (G*+P*+R+U would need fits it lacks)
+    from rawaug.train import DenoiseModule
+
+    assert DenoiseModule(base_channels=2, crop_size=16, profile=str(out)).noise.model == "G+P*+U"
 
 
 def test_import_errors_name_the_problem(tmp_path, capsys):

@@ -58,8 +58,9 @@ class DenoiseModule(L.LightningModule):
         residual: the U-Net predicts the correction to its input (not in the paper; faster to train).
         profile: noise profile (built-in camera name or profile file).
         noise_model: noise components, e.g. ``G``, ``G+P``, ``G+P*``, ``G*+P*``, ``G*+P*+R``, ``G*+P*+R+U``
-            (the paper's rows), ``+C`` for the colour bias; default: the profile's fullest model
-            (``NoiseProfile.richest_model``: ``G*+P*+R+U+C`` for a calibrated profile).
+            (the paper's rows), ``+C`` for the colour bias (for a denoiser of one gain); default:
+            the profile's fullest model (``NoiseProfile.richest_model``: ``G*+P*+R+U``, or
+            ``G+P*+U`` for a Poisson-Gaussian profile).
         profile_effects: extra effects ``{token: params}`` added to the profile (as the closed loop
             writes them); effects already in the profile are used anyway (``include_profile_effects``).
         ratio: training low-light ratio, a number or ``[low, high]`` (default ``[100, 300]``).
