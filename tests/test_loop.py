@@ -138,6 +138,16 @@ def test_dark_frames_take_the_offsets_fitted_with_a_clip():
         FrameStack(dark.frames_dn, K, kind="dark", exposure_s=5.0, offsets_of=dark)
 
 
+def test_a_read_noise_refit_moves_the_dark_stack_to_the_refitted_bias_stack():
+    from rawaug.loop.refit import apply_read_noise_factors
+
+    bias = measured_stack({}, seed=5, n=2, size=32, label="bias")
+    dark = FrameStack(bias.frames_dn, K, kind="dark", exposure_s=1.0, label="dark", offsets_of=bias)
+    (new_bias, new_dark), _ = apply_read_noise_factors([bias, dark], BASE, {"bias": 0.8})
+    assert new_bias is not bias and new_dark.offsets_of is new_bias
+    assert new_dark.offsets_of.base["sigma_g"] == new_bias.base["sigma_g"] != bias.base.get("sigma_g")
+
+
 def test_a_defect_line_counts_once_as_a_defect_line():
     clean = measured_stack({}, seed=7, n=2).frames_dn
     defects = clean.copy()

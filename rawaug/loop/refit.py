@@ -90,6 +90,9 @@ def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
         if "sigma_tl" in fixed:
             base["sigma_tl"] = float(fixed["sigma_tl"]) * f
         out.append(dataclasses.replace(stack, base=base))
+    # a dark or flat stack takes its offsets from its bias stack: from the re-fitted one
+    renewed = {id(old): new for old, new in zip(stacks, out) if old.kind == "bias" and new is not old}
+    out = [dataclasses.replace(s, offsets_of=renewed[id(s.offsets_of)]) if id(s.offsets_of) in renewed else s for s in out]
     ks = np.array(sorted(by_k))
     logf = np.log([by_k[k] for k in ks])
     if ks.size >= 2 and np.ptp(np.log(ks)) > 0:
