@@ -98,12 +98,37 @@ def check_case(tmp_path, case, seed):
         for k in (0.75, 3.0):
             true = BASE.tukey_scale.median(k)
             assert abs(loop.tukey_scale.median(k) / true - 1) <= 0.5 * abs(base.tukey_scale.median(k) / true - 1)
+    check_setting_curves(report, data, dark_added="Dark" in expected)
     if not expected:
         assert accepted == [], steps
         assert "Nothing was added" in (report / "report.md").read_text()
         assert not (report / "steps.png").exists()
     else:
         assert (report / "steps.png").stat().st_size > 1000 and "![steps](steps.png)" in (report / "report.md").read_text()
+
+
+def check_setting_curves(report, data, dark_added):
+    """The report's statistics against exposure (bias 1e-4 s, dark 4 s) and level (bias at 0,
+    two flats) at each ISO; with dark current planted, the model's dark signal, its shot
+    noise and DSNU are off at 4 s before the loop and within its spread after."""
+    from rawaug.loop.report import setting_curves
+
+    curves = {(g["iso"], g["axis"], g["statistic"]): g["points"] for g in setting_curves(data)}
+    for iso in (800, 3200):
+        dark = {name: curves[(iso, "exposure_s", name)] for name in ("mean_dn", "temporal_std", "fixed_std")}
+        for points in dark.values():
+            assert [p["x"] for p in points] == [1e-4, 4.0] and points[1]["stack"] == f"ISO {iso} dark 4 s"
+        light = curves[(iso, "level_dn", "temporal_std")]
+        assert [p["x"] for p in light][0] == 0.0 and len(light) == 3 and all(np.diff([p["x"] for p in light]) > 0)
+        assert light[-1]["measured"] > 5 * light[0]["measured"]  # shot noise grows with the level
+        for name, points in dark.items():
+            before, after = points[1]["before"], points[1]["after"]
+            if dark_added:
+                assert before[2] and not after[2], (iso, name, points)
+                assert abs(after[0] - points[1]["measured"]) < abs(before[0] - points[1]["measured"]) / 4, (iso, name, points)
+    text = (report / "report.md").read_text()
+    assert "## Statistics across settings" in text and "![curves](curves.png)" in text
+    assert (report / "curves.png").stat().st_size > 1000
 
 
 # Measured over sessions 1-10 (python -m pytest -m slow tests/test_loop_manifest.py): Col, Dark,

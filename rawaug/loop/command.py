@@ -19,6 +19,7 @@ INPUT is one of
 from __future__ import annotations
 
 import csv
+import math
 import time
 from pathlib import Path
 
@@ -27,7 +28,8 @@ import numpy as np
 from ..profile import NoiseProfile
 from . import parameters
 from ..outputs import check_outputs, write_set
-from .report import figure_steps, outcome_summary, residual_table, steps_table, write_report
+from .report import (curves_table, figure_curves, figure_steps, outcome_summary, residual_table, setting_curves, steps_table,
+                     write_report)
 
 
 def add_arguments(parser) -> None:
@@ -122,6 +124,7 @@ def _run_manifest(args, path):
     bias: dict = {}
     darks: dict = {}
     flats: dict = {}
+    bias_exposure: dict = {}  # ISO -> shortest exposure of its bias frames (s)
     for entry in read_manifest(path):
         kind = getattr(entry, "kind", "bias")
         frame = entry.read()
@@ -136,14 +139,16 @@ def _run_manifest(args, path):
             darks.setdefault((frame.iso, float(frame.exposure_s)), []).append(packed)
         else:
             bias.setdefault(frame.iso, []).append(packed)
+            bias_exposure[frame.iso] = min(bias_exposure.get(frame.iso, math.inf), float(frame.exposure_s or 0.0))
     if not bias:
         raise ValueError(f"{path}: no bias frames in the manifest")
-    stacks, measured = [], {}
+    stacks, measured, settings = [], {}, {}  # settings: label -> what the report's curves need
     for iso, frames in sorted(bias.items()):
         frames = np.stack(frames).astype(np.float64)
         row = estimate_row_noise(frames[0])
         read = estimate_read_noise(read_residual(frames[0], row.row_means))
         k = profile.k_at_iso(iso) if iso else 1.0
+        settings[f"ISO {iso:g}"] = {"kind": "bias", "iso": iso, "k": k, "exposure_s": bias_exposure[iso], "level_dn": None}
         stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}", base={"sigma_tl": read.sigma_tl, "lambda": read.lam,
                                                                         "sigma_g": read.sigma_g, "sigma_r": row.sigma_r}))
         measured[iso] = (stacks[-1].base, channel_offsets(frames), k, stacks[-1])
@@ -154,6 +159,7 @@ def _run_manifest(args, path):
             continue
         base, _, k, bias_stack = measured[iso]
         # synthesized with the bias frames' read noise and offsets: what the dark adds shows
+        settings[f"ISO {iso:g} dark {exposure:g} s"] = {"kind": "dark", "iso": iso, "k": k, "exposure_s": exposure, "level_dn": None}
         stacks.append(FrameStack(np.stack(frames).astype(np.float64), k, kind="dark", exposure_s=exposure,
                                  label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_of=bias_stack))
     for (iso, exposure), frames in sorted(flats.items()):
@@ -165,8 +171,12 @@ def _run_manifest(args, path):
         headroom = min(float(np.min(room)) for _, room in frames)
         if level.min() < 20 * k or stack.max() >= 0.98 * headroom:
             continue  # too dark to carry shot noise, or clipped at white
+        label = f"ISO {iso:g} flat {float(level.mean()):.0f} DN"
+        while label in settings:  # two flat settings of one rounded level
+            label += "'"
+        settings[label] = {"kind": "flat", "iso": iso, "k": k, "exposure_s": exposure, "level_dn": float(level.mean())}
         stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in level], base=base, offsets_of=bias_stack,
-                                 label=f"ISO {iso:g} flat {float(level.mean()):.0f} DN"))
+                                 label=label))
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
     (h, w), (ch, cw) = shapes
     view = (f"The frame loop diagnosed the central {ch} x {cw} of each frame's packed channels ({h} x {w}; "
@@ -177,7 +187,7 @@ def _run_manifest(args, path):
     for label in result.initial:
         md += [residual_table([r.to_dict() for r in result.initial[label]], f"{label}: before"),
                residual_table([r.to_dict() for r in result.final[label]], f"{label}: after")]
-    report = {"input": str(path), "kind": "frames", "loop_view": {"frame": [h, w], "diagnosed": [ch, cw]},
+    report = {"input": str(path), "kind": "frames", "loop_view": {"frame": [h, w], "diagnosed": [ch, cw]}, "stacks": settings,
               "steps": [s.to_dict() for s in result.steps],
               "explained_physically": result.explained_physically,
               "reproduced_by_measurement": result.reproduced_by_measurement,
@@ -186,6 +196,9 @@ def _run_manifest(args, path):
               "colour_bias_fitted_dn": {str(k): list(v) for k, v in result.colour_bias.items()},
               "initial": {k: [r.to_dict() for r in v] for k, v in result.initial.items()},
               "final": {k: [r.to_dict() for r in v] for k, v in result.final.items()}}
+    curves = setting_curves(report)
+    if curves:
+        md += ["## Statistics across settings", "", curves_table(curves)]
     return result.profile, report, "\n".join(md), calibration
 
 
@@ -222,6 +235,8 @@ def run(args) -> int:
         text = md
         if report.get("kind") == "frames" and figure_steps(report["steps"], Path(folder) / "steps.png"):
             text += "\n\n## What each added effect changed\n\n![steps](steps.png)\n"
+        if report.get("kind") == "frames" and figure_curves(setting_curves(report), Path(folder) / "curves.png"):
+            text += "\n\n## Statistics against exposure and level\n\n![curves](curves.png)\n"
         write_report(folder, report, text)
         if calibration is not None:  # the base model and its calibration report
             calibration.write_report(Path(folder) / "calibration")

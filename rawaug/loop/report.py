@@ -120,3 +120,92 @@ def figure_steps(steps: list[dict], path) -> bool:
     atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
     plt.close(fig)
     return True
+
+
+# ----------------------------------------------------------------------------- curves across settings
+CURVE_STATISTICS = {"exposure_s": ("mean_dn", "temporal_std", "fixed_std"),  # dark signal, its shot noise, DSNU
+                    "level_dn": ("temporal_std", "fixed_std", "flat_fixed_rel")}  # photon transfer, PRNU
+
+
+def setting_curves(report: dict) -> list[dict]:
+    """Each statistic against exposure (the bias and dark stacks of one ISO) and against
+    level (its bias and flat stacks; bias at level 0): measured, and the model's syntheses
+    before and after the loop (mean, spread, significance), one point per stack.
+
+    Shown per group: the statistics of ``CURVE_STATISTICS`` and every one significant at
+    one of the group's stacks before or after, where at least two of its stacks have it.
+    Needs ``report["stacks"]`` (label -> kind, iso, exposure_s, level_dn)."""
+    stacks = report.get("stacks") or {}
+    initial, final = report.get("initial") or {}, report.get("final") or {}
+    groups = []
+    for iso in sorted({s["iso"] for s in stacks.values()}):
+        for axis, kind in (("exposure_s", "dark"), ("level_dn", "flat")):
+            members = [(label, s) for label, s in stacks.items() if s["iso"] == iso and s["kind"] in ("bias", kind)]
+            if not any(s["kind"] == kind for _, s in members) or len(members) < 2:
+                continue
+            x_of = {label: float(s.get(axis) or 0.0) for label, s in members}  # bias: its exposure, level 0
+            before = {label: {r["statistic"]: r for r in map(_jsonable, initial.get(label, []))} for label, _ in members}
+            after = {label: {r["statistic"]: r for r in map(_jsonable, final.get(label, []))} for label, _ in members}
+            flagged = {name for d in (before, after) for res in d.values() for name, r in res.items() if r["significant"]}
+            names = [n for n in dict.fromkeys(CURVE_STATISTICS[axis] + tuple(sorted(flagged)))
+                     if sum(n in before[label] and n in after[label] for label, _ in members) >= 2]
+            for name in names:
+                points = []
+                for label, _ in sorted(members, key=lambda m: x_of[m[0]]):
+                    if name in before[label] and name in after[label]:
+                        b, a = before[label][name], after[label][name]
+                        points.append({"x": float(x_of[label]), "stack": label, "measured": b["measured"],
+                                       "before": (b["synth_mean"], b["synth_std"], bool(b["significant"])),
+                                       "after": (a["synth_mean"], a["synth_std"], bool(a["significant"]))})
+                groups.append({"iso": iso, "axis": axis, "statistic": name, "points": points})
+    return groups
+
+
+def curves_table(groups: list[dict]) -> str:
+    """Markdown: one table per ISO and axis, a row per statistic and setting (* significant)."""
+    out = []
+    for (iso, axis) in dict.fromkeys((g["iso"], g["axis"]) for g in groups):
+        what = "exposure (s)" if axis == "exposure_s" else "level (DN above black)"
+        out += [f"**ISO {iso:g}: statistics against {what}** (model: mean ± spread of its syntheses; * significant)", "",
+                f"| statistic | {what} | stack | measured | model before | model after |", "|---|---|---|---|---|---|"]
+        for g in (g for g in groups if (g["iso"], g["axis"]) == (iso, axis)):
+            for p in g["points"]:
+                fmt = lambda m: f"{m[0]:.4g} ± {m[1]:.2g}{' *' if m[2] else ''}"  # noqa: E731
+                out.append(f"| {g['statistic']} | {p['x']:.4g} | {p['stack']} | {p['measured']:.4g} | {fmt(p['before'])} | {fmt(p['after'])} |")
+        out.append("")
+    return "\n".join(out)
+
+
+def figure_curves(groups: list[dict], path, max_panels: int = 24) -> bool:
+    """One panel per statistic and group: measured (black) against the model before (red)
+    and after (green), mean +- spread, along exposure or level. False when there is none."""
+    groups = [g for g in groups if len(g["points"]) >= 2][:max_panels]
+    if not groups:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from ..atomic import atomic_write
+
+    cols = min(3, len(groups))
+    rows = -(-len(groups) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 2.6 * rows), squeeze=False)
+    for ax in axes.ravel()[len(groups):]:
+        ax.axis("off")
+    for ax, g in zip(axes.ravel(), groups):
+        x = np.array([p["x"] for p in g["points"]])
+        ax.plot(x, [p["measured"] for p in g["points"]], "ko-", lw=2, label="measured")
+        for key, colour in (("before", "tab:red"), ("after", "tab:green")):
+            mean = np.array([p[key][0] for p in g["points"]])
+            std = np.array([p[key][1] for p in g["points"]])
+            ax.errorbar(x, mean, yerr=std, fmt="s--", color=colour, ms=4, capsize=2, label=f"model {key}")
+        ax.set_xlabel("exposure (s)" if g["axis"] == "exposure_s" else "level (DN)", fontsize=7)
+        ax.set_title(f"ISO {g['iso']:g}: {g['statistic']}", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=6, loc="best")
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
+    plt.close(fig)
+    return True
