@@ -9,7 +9,7 @@ from kornia.augmentation import IntensityAugmentationBase2D
 
 from .cpu.poisson import stream_keys as shot_streams
 from .effects import EFFECTS
-from .effects.base import DrawContext, as_sample
+from .effects.base import DrawContext, as_sample, stack_grids
 from .engine import layout as L
 from .engine.backend import synthesize_op
 from .profile import NoiseProfile
@@ -164,8 +164,8 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
             EFFECTS[t].check(self.profile, self.fixed)
         self.effects = sorted((EFFECTS[t](self.profile) for t in tokens), key=lambda e: e.order)
         self._flags = sum(e.flag for e in self.effects) | (L.CLIP_WHITE if clip_white else 0)
-        tables = {name: t for e in self.effects for name, t in e.tables().items()}
-        self._grids = tables.get("grids", torch.zeros(1, 1, 1, dtype=torch.float64))
+        tables = {name: t for e in self.effects for name, t in e.tables().items() if name != "grids"}
+        self._grids, self._grid_slots = stack_grids({e.token: e.tables()["grids"] for e in self.effects if "grids" in e.tables()})
         self._code_lut = tables.get("code_lut", torch.zeros(1, 1, dtype=torch.float64))
         self._read_lut = tables.get("read_lut", torch.zeros(1, 2, dtype=torch.float64))
         self._tables_by_device: dict = {}  # the three tables, float64, moved once per device
@@ -203,7 +203,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         device = torch.device(device)
         n = 1 if self.same_on_batch else batch
         ctx = DrawContext(self.profile, torch.ones(batch, dtype=torch.float64, device=device), batch, n, seed, self.fixed,
-                          None if shape is None else (int(shape[0]), int(shape[1])))
+                          None if shape is None else (int(shape[0]), int(shape[1])), self._grid_slots)
         lo, hi = math.log(self.k_range[0]), math.log(self.k_range[1])
         k = torch.exp(lo + (hi - lo) * ctx.uniform("k")) if "k" not in self.fixed else as_sample(self.fixed["k"], batch, device)
         ratio = (self.ratio[0] + (self.ratio[1] - self.ratio[0]) * ctx.uniform("ratio") if "ratio" not in self.fixed

@@ -7,17 +7,18 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import black_clip, column_noise, dark_shading, defect_lines, frame_black_level, hot_pixels, low_frequency, prnu
+from rawaug.effects import (amp_glow, black_clip, column_noise, dark_shading, defect_lines, frame_black_level, hot_pixels,
+                            low_frequency, prnu)
 
 BASE = NoiseProfile.load("SonyA7S2")
 K = 1.0
 
 
-def synth(effects, batch=8, size=64, level_dn=0.0, model="G", seed=0, sigma_g=1.0):
+def synth(effects, batch=8, size=64, level_dn=0.0, model="G", seed=0, sigma_g=1.0, exposure_s=0.0):
     prof = BASE
     for token, params in effects.items():
         prof = prof.with_effect(token, params)
-    aug = RawNoiseAugment(prof, model=model, ratio=1.0, fixed={"k": K, "sigma_g": sigma_g},
+    aug = RawNoiseAugment(prof, model=model, ratio=1.0, fixed={"k": K, "sigma_g": sigma_g, "exposure_s": exposure_s},
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     x = torch.full((batch, 4, size, size), level_dn / prof.span_dn, dtype=torch.float64)
     return (aug(x) * prof.span_dn).numpy()
@@ -98,6 +99,74 @@ def test_low_frequency_estimate_finds_the_field_scale(grid):
         sigmas.append(est["sigma_dn"][0])
     se = truth * math.sqrt(1 / (2 * n)) / math.sqrt(len(sigmas))
     assert abs(np.mean(sigmas) - truth) < 4 * se + 0.1 * truth
+
+
+GLOW_GRID = np.outer([0.0, 0.5, 1.0, 3.0], [0.0, 1.0, 2.0, 4.0, 8.0])  # e-/s, a corner glow on a 4 x 5 grid, far field 0
+
+
+def test_amp_glow_estimate_round_trip_and_far_field():
+    # The glow's electrons at 4 s (up to 96 e-) over the dark stack of a model without it; the
+    # grid is fitted at glow_grid_shape (16 x 16 on 64 x 64) and compared upsampled, within
+    # the grid's projection bias and 5 sd of noise (Poisson + read, mean of 8 frames and 4 channels)
+    glow = {"k": [K], "rate_e_per_s": [GLOW_GRID.tolist()]}
+    t = 4.0
+    meas = synth({"Glow": glow}, model="G+P*", seed=1, exposure_s=t)
+    base = [synth({}, model="G+P*", seed=s, exposure_s=t) for s in (2, 3)]
+    est = amp_glow.estimate(meas, base, K, exposure_s=t)
+    shape = amp_glow.glow_grid_shape(64, 64)
+    assert np.asarray(est["rate_e_per_s"][0]).shape == shape == (16, 16)
+    true = dark_shading.upsample_grid(GLOW_GRID, 64, 64)
+    up = dark_shading.upsample_grid(np.asarray(est["rate_e_per_s"][0]), 64, 64)
+    u = dark_shading._upsampling_matrix(64, 16)
+    proj = u @ np.linalg.pinv(u)
+    bias = np.abs(proj @ true @ proj.T - true)
+    sd = np.sqrt((K * t * true + 1.0) / 32) / (K * t) * np.sqrt(np.outer(np.diag(proj), np.diag(proj)))
+    far = abs(float(np.min(up)))  # the far field the estimate takes for Dark's (its minimum, with noise)
+    assert (np.abs(up - true) <= bias + 5 * sd + far).all(), np.abs(up - true).max()
+    assert far < 5 * sd.max()
+    # a dark signal the model lacks, uniform (Dark: 3 e-/s), is left to Dark: the glow grid
+    # is the part above the far field, the same as without it
+    dark = {"seed": 21, "k": [K], "rate_e_per_s": [3.0], "dsnu": [0.0]}
+    with_dark = amp_glow.estimate(synth({"Glow": glow, "Dark": dark}, model="G+P*", seed=1, exposure_s=t), base, K,
+                                  exposure_s=t)
+    up_dark = dark_shading.upsample_grid(np.asarray(with_dark["rate_e_per_s"][0]), 64, 64)
+    assert np.abs(up_dark - true).max() <= (bias + 5 * sd).max() + far + 5 * math.sqrt(3.0 * t / (32 * 64 * 64)) / t
+    # a model that holds the uniform part in excess (Dark fitted to the mean, glow included):
+    # the grid keeps its zero mean, so the mean is not counted twice
+    mean_rate = float(true.mean())
+    dark_all = dict(dark, rate_e_per_s=[3.0 + mean_rate])
+    over = [synth({"Dark": dark_all}, model="G+P*", seed=s, exposure_s=t) for s in (2, 3)]
+    zero_mean = amp_glow.estimate(synth({"Glow": glow, "Dark": dark}, model="G+P*", seed=1, exposure_s=t), over, K,
+                                  exposure_s=t)
+    mean_sd = math.sqrt(2 * (K * t * (3.0 + mean_rate) + 1.0) / meas.size) / (K * t)  # two stack means' noise
+    assert abs(np.mean(zero_mean["rate_e_per_s"][0])) < 5 * mean_sd < 0.01 * mean_rate
+    # no glow: a grid of noise only (a cell: 4 x 4 pixels, 4 channels, 8 frames of 1 DN read noise)
+    none = amp_glow.estimate(synth({}, model="G+P*", seed=1, exposure_s=t), base, K, exposure_s=t)
+    assert np.abs(np.asarray(none["rate_e_per_s"][0])).max() < 5 / math.sqrt(16 * 4 * 8) / (K * t)
+    with pytest.raises(ValueError, match="exposure_s"):
+        amp_glow.estimate(meas, base, K, exposure_s=None)
+
+
+def test_amp_glow_combine_fits_the_rate_through_the_origin():
+    # grids at 1 s and 4 s, weighted by t^2: (1 * 1 * a + 16 * b) / 17
+    a, b = np.full((2, 2), 2.0), np.full((2, 2), 3.0)
+    rec = amp_glow.combine([{"k": [K], "rate_e_per_s": [a.tolist()], "exposure_s": [1.0], "frame_h": 8, "frame_w": 8},
+                            {"k": [K], "rate_e_per_s": [b.tolist()], "exposure_s": [4.0], "frame_h": 8, "frame_w": 8},
+                            {"k": [3.0], "rate_e_per_s": [a.tolist()], "exposure_s": [2.0], "frame_h": 8, "frame_w": 8}])
+    assert rec["k"] == [K, 3.0]
+    assert np.allclose(rec["rate_e_per_s"][0], (2.0 + 16 * 3.0) / 17) and np.allclose(rec["rate_e_per_s"][1], 2.0)
+    NoiseProfile.load("SonyA7S2").with_effect("Glow", rec)  # a valid profile entry
+
+
+def test_fpn_reads_its_grid_from_a_table_padded_for_a_larger_glow_grid():
+    # FPN's 2 x 2 grid beside Glow's 4 x 5 in one table: at exposure 0 the glow adds nothing,
+    # so the output is FPN's alone, bit for bit
+    fpn = {"seed": 5, "k": [K], "sigma_dn": [1.0], "shading_dn": [[[0.0, 2.0], [4.0, 6.0]]]}
+    glow = {"k": [K], "rate_e_per_s": [GLOW_GRID.tolist()]}
+    alone = synth({"FPN": fpn}, seed=4)
+    beside = synth({"Glow": glow, "FPN": fpn}, seed=4)
+    assert np.array_equal(alone, beside)
+    assert not np.array_equal(beside, synth({"Glow": glow, "FPN": fpn}, seed=4, exposure_s=1.0))
 
 
 def test_hot_pixels_density_and_estimate():

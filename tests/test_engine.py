@@ -21,6 +21,9 @@ LOOP_EFFECTS = {
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
     "PRNU": {"seed": 17, "sigma": 0.02},
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2]},
+    "Glow": {"k": [1.0, 3.0], "rate_e_per_s": [[[0.0, 1.0, 4.0, 9.0], [0.5, 2.0, 6.0, 20.0], [0.0, 0.0, 1.0, 3.0]],
+                                               [[1.0, 1.0, 2.0, 5.0], [0.0, 2.0, 3.0, 10.0], [0.0, 1.0, 1.0, 2.0]]],
+             "frame_h": 30, "frame_w": 50},  # a 3 x 4 grid beside FPN's 2 x 2 (a padded table), a window per sample
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "Lines": {"seed": 23, "row_density": 0.05, "col_density": 0.08, "log_std": 0.5, "negative": 0.3, "k": [1.0, 3.0],
               "median_dn": [20.0, 40.0]},

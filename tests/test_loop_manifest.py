@@ -17,12 +17,12 @@ COLUMN = {"seed": 3, "k": [1.0], "sigma_dn": [1.5], "fixed_dn": [2.0]}
 
 
 DARK = {"seed": 21, "k": [0.75, 3.0], "rate_e_per_s": [3.0, 3.0], "dsnu": [0.2, 0.2]}
-def digital_gain(dn, rng):
+def digital_gain(dn, rng, **_):
     """Firmware gain of 1.5 after the ADC: a comb of unused codes (no stage of rawaug's)."""
     return np.rint(np.rint(dn) * 1.5)
 
 
-def interference(dn, rng):
+def interference(dn, rng, **_):
     """A smooth pattern new in every frame (two random low-frequency waves, 2.5 DN, zero mean:
     a frame-mean shift would be a black-level error, which BLE models physically)."""
     y, x = np.mgrid[0 : dn.shape[1], 0 : dn.shape[2]] / dn.shape[1]
@@ -31,22 +31,37 @@ def interference(dn, rng):
     return dn + (wave - wave.mean())[None]
 
 
+def amp_glow(dn, rng, kind, exposure, k):
+    """Amplifier glow in the dark frames: Poisson electrons at 20 e-/s in one corner, falling
+    off exponentially over a quarter of the frame (a shape no rawaug grid holds exactly)."""
+    if kind != "dark":
+        return dn
+    h, w = dn.shape[1:]
+    y, x = np.mgrid[0:h, 0:w]
+    rate = 20.0 * np.exp(-np.hypot(y, x - w) / (0.25 * w))
+    return dn + k * rng.poisson(rate[None] * exposure, size=dn.shape)
+
+
+MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
+
+
 # case -> (planted rawaug effect, its parameters, what the frames undergo besides, what the loop should add)
 PRNU = {"seed": 23, "sigma": 0.015}
 CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["Dark"]), "PRNU": ("PRNU", PRNU, None, ["PRNU"]),
          "comb": (None, None, digital_gain, ["CodeMap"]), "interference": (None, None, interference, ["LowFreq"]),
+         "glow": (None, None, amp_glow, ["Glow"]),
          "none": (None, None, None, [])}
 
 
-def write_frames(folder, effect=None, params=None, post=None, seed=0):
-    """Bias frames, dark frames of 4 s and flat pairs at two ISOs of the base camera, plus
-    ``effect`` nobody declared, plus ``post`` (a change to the DN no rawaug stage makes): a
-    manifest of 16-bit frames."""
+def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_exposures=(4.0,)):
+    """Bias frames, dark frames (4 each) of ``dark_exposures`` seconds and flat pairs at two
+    ISOs of the base camera, plus ``effect`` nobody declared, plus ``post`` (a change to the
+    DN no rawaug stage makes): a manifest of 16-bit frames."""
     profile = BASE.with_effect(effect, params) if effect else BASE
     rng = np.random.default_rng(5 + seed)
     rows = []
     for i, (iso, k) in enumerate([(800, 0.75), (3200, 3.0)]):
-        frames = ([("bias", 1e-4, 0.0, j) for j in range(6)] + [("dark", 4.0, 0.0, j) for j in range(4)]
+        frames = ([("bias", 1e-4, 0.0, j) for j in range(6)] + [("dark", t, 0.0, j) for t in dark_exposures for j in range(4)]
                   + [("flat", level, level, j) for level in (0.02, 0.1) for j in range(2)])
         for kind, exposure, level, j in frames:
             fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": BASE.row_scale.median(k),
@@ -55,7 +70,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0):
                                   generator=torch.Generator().manual_seed(1000 * i + 10 * j + len(rows) + 100_003 * seed), rank_seeding=False)
             clean = torch.full((1, 4, 64, 64), level)
             dn = aug(clean).numpy()[0] * BASE.span_dn
-            dn = post(dn, rng) if post else dn
+            dn = post(dn, rng, kind=kind, exposure=exposure, k=k) if post else dn
             packed = np.clip(np.rint(dn + BASE.black_level), 0, BASE.white_level)
             name = f"{kind}_{iso}_{exposure:g}_{level:g}_{j}.npy"
             np.save(folder / name, unpack(packed, "RGGB").astype(np.uint16))
@@ -89,8 +104,8 @@ def check_case(tmp_path, case, seed):
     for token in expected:
         step = next(s for s in accepted if s["effect"] == token)
         assert step["error_after"] <= 0.5 * step["error_before"], step
-        assert step["kind"] == ("measured" if post else "physical")
-    assert data["reproduced_by_measurement"] == (expected if post else [])
+        assert step["kind"] == ("measured" if token in MEASURED else "physical")
+    assert data["reproduced_by_measurement"] == [t for t in expected if t in MEASURED]
     if case == "Col":  # its temporal part had gone into the calibrated read noise: the re-fit takes it out
         base = NoiseProfile.load(report / "calibration" / "base_profile.yaml")
         loop = NoiseProfile.load(out)
@@ -109,8 +124,9 @@ def check_case(tmp_path, case, seed):
 
 def check_setting_curves(report, data, dark_added):
     """The report's statistics against exposure (bias 1e-4 s, dark 4 s) and level (bias at 0,
-    two flats) at each ISO; with dark current planted, the model's dark signal, its shot
-    noise and DSNU are off at 4 s before the loop and within its spread after."""
+    two flats) at each ISO; with dark current planted, the model's dark signal and its shot
+    noise are off at 4 s before the loop, and all three (DSNU too: a MAD of whole codes moves
+    in steps of 0.19 DN, so it is not always significant before) within its spread after."""
     from rawaug.loop.report import setting_curves
 
     curves = {(g["iso"], g["axis"], g["statistic"]): g["points"] for g in setting_curves(data)}
@@ -124,7 +140,7 @@ def check_setting_curves(report, data, dark_added):
         for name, points in dark.items():
             before, after = points[1]["before"], points[1]["after"]
             if dark_added:
-                assert before[2] and not after[2], (iso, name, points)
+                assert (before[2] or name == "fixed_std") and not after[2], (iso, name, points)
                 assert abs(after[0] - points[1]["measured"]) < abs(before[0] - points[1]["measured"]) / 4, (iso, name, points)
     text = (report / "report.md").read_text()
     assert "## Statistics across settings" in text and "![curves](curves.png)" in text
@@ -153,6 +169,29 @@ def test_manifest_loop_rates_over_seeds(tmp_path, case):
         except AssertionError:
             pass
     assert passed >= 9, f"{case}: {passed} of 10 sessions"
+
+
+def test_glow_grows_with_exposure_over_two_dark_exposures(tmp_path):
+    # darks of 2 s and 8 s: the glow's low-frequency power grows with exposure and the bias
+    # frames show none; the loop adds Glow alone (one grid per gain, fitted through the
+    # origin over both exposures) and its syntheses follow the measured curve at every point
+    manifest = write_frames(tmp_path, post=amp_glow, dark_exposures=(2.0, 8.0))
+    out, report = tmp_path / "loop.yaml", tmp_path / "report"
+    assert main(["loop", str(manifest), "--out", str(out), "--report", str(report), "--n-synth", "8"]) == 0
+    data = json.loads((report / "report.json").read_text())
+    assert [s["effect"] for s in data["steps"] if s.get("accepted")] == ["Glow"], data["steps"]
+    glow = yaml.safe_load(out.read_text())["effects"]["Glow"]
+    assert len(glow["k"]) == 2  # one record per ISO, not per dark exposure
+    from rawaug.loop.report import setting_curves
+
+    curves = {(g["iso"], g["axis"], g["statistic"]): g["points"] for g in setting_curves(data)}
+    for iso in (800, 3200):
+        points = curves[(iso, "exposure_s", "psd2d_lowfreq")]
+        assert [p["x"] for p in points] == [1e-4, 2.0, 8.0]
+        measured = [p["measured"] for p in points]
+        assert measured[0] < measured[1] < measured[2], points
+        assert not points[0]["before"][2] and points[1]["before"][2] and points[2]["before"][2], points
+        assert not any(p["after"][2] for p in points), points
 
 
 def test_loop_diagnoses_the_central_view_of_large_frames(tmp_path):

@@ -36,6 +36,9 @@ _RQ_REC, _RQ_SCALE = L.COLUMN["readq_record"], L.COLUMN["readq_scale"]
 _LRD, _LCD, _LM, _LLS, _LNEG = (L.COLUMN["lines_row_density"], L.COLUMN["lines_col_density"], L.COLUMN["lines_median"],
                                 L.COLUMN["lines_log_std"], L.COLUMN["lines_negative"])
 _LINES_ROW, _LINES_COL = L.STREAM["lines_row"], L.STREAM["lines_col"]
+_FGH, _FGW = L.COLUMN["fpn_gh"], L.COLUMN["fpn_gw"]
+_GLS, _GLR, _GLOY, _GLOX = L.COLUMN["glow_s"], L.COLUMN["glow_record"], L.COLUMN["glow_oy"], L.COLUMN["glow_ox"]
+_GLH, _GLW, _GLGH, _GLGW = L.COLUMN["glow_h"], L.COLUMN["glow_w"], L.COLUMN["glow_gh"], L.COLUMN["glow_gw"]
 Z_MAX = L.READ_TABLE_Z
 _LOWFREQ = L.STREAM["lowfreq"]
 _ROW = L.STREAM["row"]
@@ -65,9 +68,9 @@ def _bilinear_at(y, x, h, w, gh, gw):
 
 
 @njit(inline="always")
-def shading_at(grids, record, y, x, h, w):
-    """Bilinear upsampling of grid ``record`` of ``grids`` at (y, x)."""
-    y0, x0, y1, x1, fy, fx = _bilinear_at(y, x, h, w, grids.shape[1], grids.shape[2])
+def shading_at(grids, record, y, x, h, w, gh, gw):
+    """Bilinear upsampling of the ``gh x gw`` grid ``record`` of ``grids`` (padded records) at (y, x)."""
+    y0, x0, y1, x1, fy, fx = _bilinear_at(y, x, h, w, gh, gw)
     top = grids[record, y0, x0] * (1.0 - fx) + grids[record, y0, x1] * fx
     bottom = grids[record, y1, x0] * (1.0 - fx) + grids[record, y1, x1] * fx
     return top * (1.0 - fy) + bottom * fy
@@ -140,6 +143,13 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         fh = v[_FH] if v[_FH] > 0.0 else float(h)
         fw = v[_FW] if v[_FW] > 0.0 else float(w)
         fox = v[_FOX]
+        fgh, fgw = int(v[_FGH]), int(v[_FGW])
+        # glow: a window at (glow_oy, glow_ox) of a frame of glow_h x glow_w (0: this input)
+        gly0 = y + v[_GLOY]
+        glh = v[_GLH] if v[_GLH] > 0.0 else float(h)
+        glw = v[_GLW] if v[_GLW] > 0.0 else float(w)
+        glox = v[_GLOX]
+        glrec, glgh, glgw = int(v[_GLR]), int(v[_GLGH]), int(v[_GLGW])
         g0 = r * w
         p0 = (c * h + y) * w
         for x in range(w):
@@ -152,6 +162,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s *= 1.0 + v[_PRNU] * symmetric(normal, draw(keys[_PRNU_PATTERN], p))
             if stages & L.DARK_CURRENT:
                 s += k * v[_DARK_E] * max(1.0 + v[_DSNU] * symmetric(normal, draw(keys[_DSNU_PATTERN], p)), 0.0)
+            if stages & L.GLOW:
+                s += k * v[_GLS] * shading_at(grids, glrec, gly0, x + glox, glh, glw, glgh, glgw)
             if stages & L.SHOT_POISSON:  # exact Poisson: tables and PTRS of rawaug.cpu.poisson, inlined (a call with the table tuples per element costs ~100 ns)
                 lam = s / k
                 if not math.isfinite(lam):
@@ -173,7 +185,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             elif stages & L.SHOT_GAUSS:
                 s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
             if stages & L.FPN:
-                s += v[_FS] * symmetric(normal, draw(keys[_FPN_PATTERN], p)) + shading_at(grids, record, fy0, x + fox, fh, fw)
+                s += v[_FS] * symmetric(normal, draw(keys[_FPN_PATTERN], p)) + shading_at(grids, record, fy0, x + fox, fh, fw, fgh, fgw)
             if stages & L.HOT:
                 if unit(draw(keys[_HOT_WHERE], p)) < v[_HD]:
                     s += v[_HM] * math.exp(v[_HL] * symmetric(normal, draw(keys[_HOT_SIZE], p)))

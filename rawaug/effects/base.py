@@ -54,6 +54,13 @@ class DrawContext:
     seed: int
     fixed: dict  # user-fixed parameter values by key
     shape: tuple | None = None  # (H, W) per packed channel of the input, when known
+    grid_slots: dict | None = None  # token -> (first record, gh, gw) of its grids in the kernels' grids table
+
+    def grid_slot(self, token: str) -> tuple[int, int, int]:
+        """(first record, gh, gw) of ``token``'s grids in the kernels' shared grids table."""
+        if not self.grid_slots or token not in self.grid_slots:
+            raise RuntimeError(f"effect {token!r} has no grids in this call's table")
+        return self.grid_slots[token]
 
     @property
     def device(self):
@@ -106,8 +113,9 @@ class NoiseEffect:
         return {}
 
     def tables(self) -> dict[str, torch.Tensor]:
-        """Small tables the kernels read, by name: ``grids`` (records, gh, gw), ``code_lut``
-        (records, n) or ``read_lut`` (records x 4, n), float64."""
+        """Small tables the kernels read, by name: ``grids`` (records, gh, gw; several
+        effects may have them: ``stack_grids`` joins them), ``code_lut`` (records, n) or
+        ``read_lut`` (records x 4, n), float64."""
         return {}
 
     @classmethod
@@ -176,3 +184,23 @@ def nearest_in_k(table, k: torch.Tensor, u: torch.Tensor | None = None) -> torch
     order = tied.to(torch.int64).cumsum(dim=1) - 1
     idx = ((order == rank[:, None]) & tied).to(torch.int8).argmax(dim=1)
     return values[idx]
+
+
+def stack_grids(by_token: dict) -> tuple[torch.Tensor, dict]:
+    """One grids table for the kernels from each effect's (records, gh, gw) grids: zero-padded
+    to the largest gh and gw and stacked in ``by_token``'s order. Returns (table, {token:
+    (first record, gh, gw)}); an effect reads its grid ``r`` at record ``first + r`` with its
+    own gh x gw. Without grids: one 1x1 zero record."""
+    if not by_token:
+        return torch.zeros(1, 1, 1, dtype=torch.float64), {}
+    gh = max(int(g.shape[1]) for g in by_token.values())
+    gw = max(int(g.shape[2]) for g in by_token.values())
+    parts, slots, first = [], {}, 0
+    for token, g in by_token.items():
+        g = torch.as_tensor(g, dtype=torch.float64)
+        part = torch.zeros(g.shape[0], gh, gw, dtype=torch.float64)
+        part[:, : g.shape[1], : g.shape[2]] = g
+        parts.append(part)
+        slots[token] = (first, int(g.shape[1]), int(g.shape[2]))
+        first += g.shape[0]
+    return torch.cat(parts), slots

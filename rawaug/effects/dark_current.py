@@ -20,7 +20,8 @@ Detected on dark stacks (``FrameStack(kind="dark", exposure_s=t)``, synthesized 
 offsets and read noise of the bias frames of the same ISO) by ``mean_dn`` (the dark signal),
 ``temporal_std`` (its shot noise) and ``fixed_std`` (DSNU). Estimated by ``estimate``: the
 mean excess over the model gives the rate, the excess fixed-pattern variance (less the
-dark shot noise left in an N-frame mean) gives DSNU.
+dark shot noise left in an N-frame mean), with each map's smooth part removed (``Glow``,
+``FPN`` shading), gives DSNU.
 """
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import fixed_std
+from .amp_glow import glow_grid_shape
+from .dark_shading import white_fixed_var
 from .base import PHOTON, NoiseEffect, pattern_key, register
 from .k_records import check_seed, validate_records, value_at_k
 
@@ -68,7 +70,8 @@ def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, **_
     if signal_dn <= 0:
         return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [0.0], "dsnu": [0.0]}
     n = frames.shape[0]
-    excess = fixed_std(frames) ** 2 - float(np.mean([fixed_std(s) ** 2 for s in base])) - k * signal_dn / n
+    shape = glow_grid_shape(*frames.shape[2:])  # the white spread, without the smooth glow or shading
+    excess = white_fixed_var(frames, shape) - float(np.mean([white_fixed_var(s, shape) for s in base])) - k * signal_dn / n
     dsnu = float(np.sqrt(max(excess, 0.0)) / signal_dn)
     return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [signal_dn / (k * float(exposure_s))], "dsnu": [dsnu]}
 

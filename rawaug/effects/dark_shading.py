@@ -63,11 +63,13 @@ class DarkShading(NoiseEffect):
     token = "FPN"
     order = DARK
     flag = L.FPN
-    columns = ("fpn_sigma", "fpn_record", "fpn_oy", "fpn_ox", "fpn_h", "fpn_w")
+    columns = ("fpn_sigma", "fpn_record", "fpn_oy", "fpn_ox", "fpn_h", "fpn_w", "fpn_gh", "fpn_gw")
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        out = {"fpn_sigma": value_at_k(p, "sigma_dn", ctx.k), "fpn_record": record_index(p, ctx.k).to(torch.float64)}
+        first, gh, gw = ctx.grid_slot(self.token)
+        out = {"fpn_sigma": value_at_k(p, "sigma_dn", ctx.k), "fpn_record": (first + record_index(p, ctx.k)).to(torch.float64),
+               "fpn_gh": torch.full_like(ctx.k, float(gh)), "fpn_gw": torch.full_like(ctx.k, float(gw))}
         frame = frame_size(self.token, p)
         zero = torch.zeros_like(ctx.k)
         for axis, (oy, size) in enumerate((("fpn_oy", "fpn_h"), ("fpn_ox", "fpn_w"))):
@@ -111,17 +113,17 @@ def _upsampling_matrix(n_out, n_grid):
     return up.T.numpy().astype(np.float64)
 
 
-def shading_grid(frames) -> np.ndarray:
-    """(gh, gw) grid whose bilinear upsampling best fits (least squares) the
-    channel-averaged, zero-mean stack-mean map, DN."""
+def shading_grid(frames, shape: tuple | None = None) -> np.ndarray:
+    """(gh, gw) grid (``shape``, default ``_grid_shape``) whose bilinear upsampling best fits
+    (least squares) the channel-averaged, zero-mean stack-mean map, DN."""
     m = repaired(frames).mean(axis=0)  # a stuck column is a defect, not shading
     m = (m - m.mean(axis=(1, 2), keepdims=True)).mean(axis=0)  # (h, w)
-    gh, gw = _grid_shape(*m.shape)
+    gh, gw = shape or _grid_shape(*m.shape)
     uy, ux = _upsampling_matrix(m.shape[0], gh), _upsampling_matrix(m.shape[1], gw)
     return np.linalg.pinv(uy) @ m @ np.linalg.pinv(ux).T
 
 
-def fixed_shading_grid(frames) -> np.ndarray:
+def fixed_shading_grid(frames, shape: tuple | None = None) -> np.ndarray:
     """``shading_grid`` of the stack mean less what temporal noise leaves in it, DN.
 
     A mean of N frames keeps 1/N of the power of any per-frame smooth field (interference,
@@ -129,12 +131,12 @@ def fixed_shading_grid(frames) -> np.ndarray:
     from each frame's grid about the mean and the grid is shrunk by it, so a smooth field
     new in every frame is not taken for fixed shading (as ``Col`` subtracts temporal / N).
     """
-    grid = shading_grid(frames)
+    grid = shading_grid(frames, shape)
     n = frames.shape[0]
     if n < 2:
         return grid
     mean = frames.mean(axis=0)
-    temporal = np.mean([np.sum(shading_grid((f - mean)[None]) ** 2) for f in frames]) * n / (n - 1)
+    temporal = np.mean([np.sum(shading_grid((f - mean)[None], shape) ** 2) for f in frames]) * n / (n - 1)
     power = float(np.sum(grid**2))
     shrink = max(0.0, 1.0 - temporal / n / power) if power > 0 else 0.0
     return grid * shrink
@@ -144,6 +146,15 @@ def _white_var(frames, grid):
     """Robust variance (``fixed_std`` squared) of the stack-mean map once the shading grid
     is removed, DN^2: hot pixels do not count here."""
     return fixed_std(frames - upsample_grid(grid, *frames.shape[2:])[None, None]) ** 2
+
+
+def white_fixed_var(frames, shape: tuple | None = None) -> float:
+    """``_white_var`` with the stack's own ``shading_grid`` (of ``shape``) removed: the
+    pixel-to-pixel fixed spread without smooth shading or glow, DN^2. A robust spread of a
+    sum is not the quadrature sum of the parts' spreads, so an estimator that subtracts
+    spreads measures them without the smooth part."""
+    frames = np.asarray(frames, dtype=np.float64)
+    return _white_var(frames, shading_grid(frames, shape))
 
 
 def estimate(frames, synthesized, k: float, seed: int = 11, **_) -> dict:

@@ -26,6 +26,7 @@ LOW_FREQ = 1 << 15  # measured fallback: per-frame low-frequency field (bilinear
 CODE_MAP = 1 << 16  # measured fallback: output codes mapped to the codes the camera uses
 READ_TABLE = 1 << 17  # measured fallback: read noise from a measured quantile table (in place of G* / G)
 LINES = 1 << 18  # defect lines: sparse sensor rows and columns with a large fixed offset
+GLOW = 1 << 19  # amplifier glow: a smooth dark-current map (electrons per second), before shot noise
 
 COLUMNS = (
     "k", "ratio",
@@ -45,6 +46,8 @@ COLUMNS = (
     "fpn_oy", "fpn_ox", "fpn_h", "fpn_w",  # FPN shading window in sensor pixels (fpn_h 0: the input is the sensor)
     "readq_record", "readq_scale",
     "lines_row_density", "lines_col_density", "lines_median", "lines_log_std", "lines_negative",
+    "fpn_gh", "fpn_gw",  # FPN shading grid size (the grids table may be padded to a larger one)
+    "glow_s", "glow_record", "glow_oy", "glow_ox", "glow_h", "glow_w", "glow_gh", "glow_gw",  # exposure, grid, window
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

@@ -24,6 +24,9 @@ Z_MAX = tl.constexpr(L.READ_TABLE_Z)
 C_TL, C_LAM, C_G, C_R = L.COLUMN["sigma_tl"], L.COLUMN["lambda"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
 C_CS, C_CF, C_FS, C_FR = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"], L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
 C_FOY, C_FOX, C_FH, C_FW = L.COLUMN["fpn_oy"], L.COLUMN["fpn_ox"], L.COLUMN["fpn_h"], L.COLUMN["fpn_w"]
+C_FGH, C_FGW = L.COLUMN["fpn_gh"], L.COLUMN["fpn_gw"]
+C_GLS, C_GLR, C_GLOY, C_GLOX = L.COLUMN["glow_s"], L.COLUMN["glow_record"], L.COLUMN["glow_oy"], L.COLUMN["glow_ox"]
+C_GLH, C_GLW, C_GLGH, C_GLGW = L.COLUMN["glow_h"], L.COLUMN["glow_w"], L.COLUMN["glow_gh"], L.COLUMN["glow_gw"]
 C_HD, C_HM, C_HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
 C_Q, C_B0, C_BS, C_BC, C_CL = (L.COLUMN["step_dn"], L.COLUMN["bias_r"], L.COLUMN["ble_sigma"],
                                L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"])
@@ -63,6 +66,16 @@ def _defect_line(normal_ptr, key, line, density, median, log_std, negative):
 
 
 @triton.jit
+def _shading(grids_ptr, GH, GW, record, y, x, h, w, gh, gw, live):
+    """Bilinear upsampling of the gh x gw grid ``record`` of a table of GH x GW (padded) records at (y, x)."""
+    y0, x0, y1, x1, fy, fx = _bilinear(y, x, h, w, gh, gw)
+    base = grids_ptr + record * GH * GW
+    top = tl.load(base + y0 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y0 * GW + x1, mask=live, other=0.0) * fx
+    bottom = tl.load(base + y1 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y1 * GW + x1, mask=live, other=0.0) * fx
+    return top * (1.0 - fy) + bottom * fy
+
+
+@triton.jit
 def _key(keys_ptr, slot: tl.constexpr):
     return tl.load(keys_ptr + slot).to(tl.uint64, bitcast=True)
 
@@ -99,6 +112,14 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s *= 1.0 + _col(v, C_PRNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_PRNU), p))
     if FLAGS & 16384:  # dark current: K * dark electrons * (1 + DSNU map), before shot noise
         s += k * _col(v, C_DARK_E) * tl.maximum(1.0 + _col(v, C_DSNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)), 0.0)
+    if FLAGS & 524288:  # amplifier glow: K * exposure * a smooth dark-current map (e-/s), a window of glow_h x glow_w
+        gh_ = _col(v, C_GLH)
+        gw_ = _col(v, C_GLW)
+        gh_ = tl.where(gh_ > 0.0, gh_, H.to(tl.float64))
+        gw_ = tl.where(gw_ > 0.0, gw_, W.to(tl.float64))
+        s += k * _col(v, C_GLS) * _shading(grids_ptr, GH.to(tl.int64), GW.to(tl.int64), _col(v, C_GLR).to(tl.int64),
+                                          y.to(tl.float64) + _col(v, C_GLOY), x.to(tl.float64) + _col(v, C_GLOX), gh_, gw_,
+                                          _col(v, C_GLGH).to(tl.int64), _col(v, C_GLGW).to(tl.int64), live)
     if FLAGS & 2:  # P*
         lam = s / k
         counted = k * poisson_count(lam, _key(keys_ptr, K_SHOT), _key(keys_ptr, K_SHOT_REST), _key(keys_ptr, K_SHOT_COARSE), g,
@@ -112,12 +133,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         fw = _col(v, C_FW)
         fh = tl.where(fh > 0.0, fh, H.to(tl.float64))
         fw = tl.where(fw > 0.0, fw, W.to(tl.float64))
-        y0, x0, y1, x1, fy, fx = _bilinear(y.to(tl.float64) + _col(v, C_FOY), x.to(tl.float64) + _col(v, C_FOX), fh, fw,
-                                           GH.to(tl.int64), GW.to(tl.int64))
-        base = grids_ptr + _col(v, C_FR).to(tl.int64) * GH * GW
-        top = tl.load(base + y0 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y0 * GW + x1, mask=live, other=0.0) * fx
-        bottom = tl.load(base + y1 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y1 * GW + x1, mask=live, other=0.0) * fx
-        s += _col(v, C_FS) * _normal(draw(_key(keys_ptr, K_FPN), p)) + (top * (1.0 - fy) + bottom * fy)
+        shading = _shading(grids_ptr, GH.to(tl.int64), GW.to(tl.int64), _col(v, C_FR).to(tl.int64), y.to(tl.float64) + _col(v, C_FOY),
+                           x.to(tl.float64) + _col(v, C_FOX), fh, fw, _col(v, C_FGH).to(tl.int64), _col(v, C_FGW).to(tl.int64), live)
+        s += _col(v, C_FS) * _normal(draw(_key(keys_ptr, K_FPN), p)) + shading
     if FLAGS & 16:  # hot pixels
         hot = unit(draw(_key(keys_ptr, K_HOT_WHERE), p)) < _col(v, C_HD)
         size = _col(v, C_HM) * tl.exp(_col(v, C_HL) * _normal(draw(_key(keys_ptr, K_HOT_SIZE), p)))

@@ -35,6 +35,7 @@ from .refit import apply_read_noise_factors, read_noise_factors
 from .registry import CANDIDATES
 
 ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
+BATTERY_GROWTH = 1.25  # ... and may not raise the battery's mean relative error by more than a quarter
 
 
 @dataclass
@@ -209,8 +210,11 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 after = next(r for r in new_diags[label][0] if r.statistic == evidence.statistic)
                 after_b = _battery(new_diags)
                 err_before, err_after = _evidence_error(token, evidence, diags[label][0], new_diags[label][0])
-                # acceptable if its evidence improved by a fifth or more and nothing new became significant
-                ok = err_after <= ACCEPT_FACTOR * err_before and after_b["n_significant"] <= before_b["n_significant"]
+                # acceptable if its evidence improved by a fifth or more, nothing new became
+                # significant and the battery as a whole did not get much worse (a component
+                # that fixes one statistic by spoiling many already significant ones is no fix)
+                ok = (err_after <= ACCEPT_FACTOR * err_before and after_b["n_significant"] <= before_b["n_significant"]
+                      and after_b["mean_rel_error"] <= BATTERY_GROWTH * before_b["mean_rel_error"])
                 step = Step(token, params, ok, evidence.to_dict(), label, err_before, err_after, after.z, before_b,
                             after_b, round=step_no, kind="measured" if _measured(token) else "physical",
                             evidence_after=after.to_dict())

@@ -1,0 +1,120 @@
+"""Amplifier glow (Glow): a smooth dark-current map that grows with exposure, brightest near
+the readout amplifiers, as long dark frames of many CMOS sensors show.
+
+Physics: the output amplifiers and other readout circuits emit infrared light and heat
+while the sensor integrates, so the pixels near them collect extra dark electrons, at a
+rate that falls off smoothly with distance. Those electrons are Poisson like any others
+and their number grows linearly with the exposure; bias frames show none of it. It is the
+low-frequency part of the dark signal non-uniformity (EMVA 1288 sees it in the spectrogram
+of the dark image); ``Dark`` holds the uniform rate and the white pixel-to-pixel part.
+
+Stage (DN, before shot noise): ``s -> s + K * exposure_s * g(y, x)``, ``g`` the bilinear
+upsampling of a low-resolution grid (e- per second, the excess over the far field)
+measured over a frame of ``frame_h x frame_w`` packed pixels and shared by the four packed
+channels. A smaller input is a window of that frame at a random position per sample (as
+``FPN``'s shading). The exposure is the synthesis setting ``fixed={"exposure_s": t}``.
+
+Profile entry (per-K records, nearest record in log K)::
+
+    Glow: {k: [K, ...], rate_e_per_s: [[[..gw..], ..gh..], ...], frame_h: H, frame_w: W}
+
+Detected on dark stacks by the low-frequency statistics (``psd2d_lowfreq``,
+``row_lowfreq``, ``col_lowfreq``) growing with exposure while the bias stacks of the same
+ISO show none. Estimated by ``estimate``: the smooth fixed grid of the measured stack mean
+less that of the model's syntheses (which hold ``FPN``'s shading and the temporal part),
+plus the mean excess, less the far field (the grid's minimum) where that is positive: a
+uniform dark signal the model lacks is ``Dark``'s; where the model's uniform dark signal
+already holds the glow's mean, the grid keeps its zero mean. Over ``K * exposure_s``;
+``combine`` fits one grid per gain through the origin over every exposure.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..engine import layout as L
+from .base import PHOTON, NoiseEffect, register
+from .dark_shading import fixed_shading_grid
+from .k_records import frame_size, record_index, validate_records
+
+STATISTICS = ("psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
+MAX_GRID, MIN_CELL = 16, 4  # a glow falls off within a tenth of the frame: finer than FPN's shading (8 x 8)
+
+
+def glow_grid_shape(h: int, w: int) -> tuple[int, int]:
+    """(gh, gw) of the glow grid over a packed frame of h x w: cells of >= MIN_CELL pixels."""
+    return max(1, min(MAX_GRID, h // MIN_CELL)), max(1, min(MAX_GRID, w // MIN_CELL))
+
+
+@register
+class AmpGlow(NoiseEffect):
+    token = "Glow"
+    order = PHOTON + 6  # dark electrons, after Dark, before the shot noise that counts them
+    flag = L.GLOW
+    columns = ("glow_s", "glow_record", "glow_oy", "glow_ox", "glow_h", "glow_w", "glow_gh", "glow_gw")
+
+    def draw(self, ctx):
+        p = self.profile.effects[self.token]
+        first, gh, gw = ctx.grid_slot(self.token)
+        exposure = torch.as_tensor(ctx.fixed.get("exposure_s", 0.0), dtype=torch.float64, device=ctx.device).expand(ctx.batch)
+        out = {"glow_s": exposure, "glow_record": (first + record_index(p, ctx.k)).to(torch.float64),
+               "glow_gh": torch.full_like(ctx.k, float(gh)), "glow_gw": torch.full_like(ctx.k, float(gw))}
+        frame = frame_size(self.token, p)
+        zero = torch.zeros_like(ctx.k)
+        for axis, (oy, size) in enumerate((("glow_oy", "glow_h"), ("glow_ox", "glow_w"))):
+            if frame is None or ctx.shape is None or ctx.shape[axis] >= frame[axis]:
+                out[oy], out[size] = zero, zero  # the input is the sensor
+            else:  # a window of the measured frame, at a whole-pixel offset drawn per sample
+                room = frame[axis] - ctx.shape[axis] + 1
+                out[oy] = torch.floor(ctx.uniform(oy) * room).clamp(max=room - 1)
+                out[size] = torch.full_like(ctx.k, float(frame[axis]))
+        return out
+
+    def tables(self):
+        return {"grids": torch.tensor(self.profile.effects[self.token]["rate_e_per_s"], dtype=torch.float64)}
+
+    @classmethod
+    def validate_params(cls, params):
+        validate_records(cls.token, params, ("rate_e_per_s",))
+        frame_size(cls.token, params)
+        shape = None
+        for i, grid in enumerate(params["rate_e_per_s"]):
+            arr = np.asarray(grid, dtype=np.float64) if isinstance(grid, (list, tuple)) else None
+            if arr is None or arr.ndim != 2 or min(arr.shape) < 1 or max(arr.shape) > 64 or not np.isfinite(arr).all():
+                raise ValueError(f"effect 'Glow': rate_e_per_s[{i}] must be a finite 2-D grid (e-/s, at most 64x64), "
+                                 f"got {grid!r:.80}")
+            if shape is not None and arr.shape != shape:
+                raise ValueError(f"effect 'Glow': every rate_e_per_s grid must have the same shape, got {shape} and {arr.shape}")
+            shape = arr.shape
+
+
+def estimate(frames, synthesized, k: float, exposure_s=None, **_) -> dict:
+    """Glow record at gain ``k`` from a dark stack (N, 4, h, w) in DN of ``exposure_s``
+    seconds and stacks of the same shape synthesized by the current model."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if not exposure_s:
+        raise ValueError("Glow needs a dark stack and its exposure_s")
+    base = [np.asarray(s, dtype=np.float64) for s in synthesized]
+    shape = glow_grid_shape(*frames.shape[2:])
+    smooth = fixed_shading_grid(frames, shape) - np.mean([fixed_shading_grid(s, shape) for s in base], axis=0)  # zero mean
+    excess_dn = smooth + float(frames.mean() - np.mean([s.mean() for s in base]))
+    # the glow is what rises above the far field: a uniform dark signal the model lacks is
+    # Dark's (left out), one the model has in excess is the glow's mean it already counts
+    excess_dn = excess_dn - max(float(excess_dn.min()), 0.0)
+    return {"k": [float(k)], "rate_e_per_s": [(excess_dn / (k * float(exposure_s))).tolist()],
+            "exposure_s": [float(exposure_s)], "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3])}
+
+
+def combine(records: list[dict]) -> dict:
+    """One grid per gain from the dark stacks of every exposure: the least-squares rate
+    through the origin (each exposure's grid weighted by its exposure squared)."""
+    by_k: dict = {}
+    for r in records:
+        by_k.setdefault(r["k"][0], []).append(r)
+    ks = sorted(by_k)
+    grids = []
+    for k in ks:
+        t = np.array([r["exposure_s"][0] for r in by_k[k]])
+        rates = np.array([r["rate_e_per_s"][0] for r in by_k[k]])  # (n, gh, gw)
+        grids.append((np.tensordot(t**2, rates, axes=1) / np.sum(t**2)).tolist())
+    return {"k": ks, "rate_e_per_s": grids, "frame_h": records[0]["frame_h"], "frame_w": records[0]["frame_w"]}
