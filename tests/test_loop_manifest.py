@@ -172,10 +172,29 @@ def test_manifest_loop_rates_over_seeds(tmp_path, case):
 
 
 def test_glow_grows_with_exposure_over_two_dark_exposures(tmp_path):
-    # darks of 2 s and 8 s: the glow's low-frequency power grows with exposure and the bias
-    # frames show none; the loop adds Glow alone (one grid per gain, fitted through the
-    # origin over both exposures) and its syntheses follow the measured curve at every point
-    manifest = write_frames(tmp_path, post=amp_glow, dark_exposures=(2.0, 8.0))
+    check_glow_two_exposures(tmp_path, seed=0)
+
+
+@pytest.mark.slow
+def test_glow_two_exposures_rate_over_seeds(tmp_path):
+    # sessions 1-10, as test_manifest_loop_rates_over_seeds (measured 2026-11-24: 10 of 10)
+    passed = 0
+    for seed in range(1, 11):
+        folder = tmp_path / str(seed)
+        folder.mkdir()
+        try:
+            check_glow_two_exposures(folder, seed)
+            passed += 1
+        except AssertionError:
+            pass
+    assert passed >= 9, f"glow, darks of 2 s and 8 s: {passed} of 10 sessions"
+
+
+def check_glow_two_exposures(tmp_path, seed):
+    """Darks of 2 s and 8 s: the glow's low-frequency power grows with exposure and the bias
+    frames show none; the loop adds Glow alone (one grid per gain, fitted through the origin
+    over both exposures) and its syntheses follow the measured curve at every point."""
+    manifest = write_frames(tmp_path, post=amp_glow, dark_exposures=(2.0, 8.0), seed=seed)
     out, report = tmp_path / "loop.yaml", tmp_path / "report"
     assert main(["loop", str(manifest), "--out", str(out), "--report", str(report), "--n-synth", "8"]) == 0
     data = json.loads((report / "report.json").read_text())
