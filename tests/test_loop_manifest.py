@@ -104,6 +104,10 @@ def check_case(tmp_path, case, seed):
     for token in expected:
         step = next(s for s in accepted if s["effect"] == token)
         assert step["error_after"] <= 0.5 * step["error_before"], step
+        # the curve behind the evidence (spectrum, histogram, ...) moved toward the measured one
+        sig = step["signature"]
+        assert sig["statistic"] == step["evidence"]["statistic"] and len(sig["x"]) == len(sig["measured"]) >= 8
+        assert sig["distance_after"] < sig["distance_before"], (token, sig["kind"], sig["distance_before"], sig["distance_after"])
         assert step["kind"] == ("measured" if token in MEASURED else "physical")
     assert data["reproduced_by_measurement"] == [t for t in expected if t in MEASURED]
     if case == "Col":  # its temporal part had gone into the calibrated read noise: the re-fit takes it out
@@ -211,6 +215,27 @@ def check_glow_two_exposures(tmp_path, seed):
         assert measured[0] < measured[1] < measured[2], points
         assert not points[0]["before"][2] and points[1]["before"][2] and points[2]["before"][2], points
         assert not any(p["after"][2] for p in points), points
+
+
+def test_a_component_that_spoils_the_battery_is_not_added(tmp_path, monkeypatch):
+    # The two-exposure glow camera with Glow taken out of the candidates: LowFreq (a field new
+    # in every frame) cuts the glow's psd2d_lowfreq error by 70 %, but nearly doubles the
+    # battery's mean error (0.45 -> 0.78 at session 0), so it is rejected; Dark is added
+    # (the glow's mean) and the glow stays unexplained, which the report says.
+    from rawaug.loop import registry
+
+    monkeypatch.delitem(registry.CANDIDATES, "Glow")
+    manifest = write_frames(tmp_path, post=amp_glow, dark_exposures=(2.0, 8.0))
+    out, report = tmp_path / "loop.yaml", tmp_path / "report"
+    assert main(["loop", str(manifest), "--out", str(out), "--report", str(report), "--n-synth", "8"]) == 0
+    data = json.loads((report / "report.json").read_text())
+    lowfreq = [s for s in data["steps"] if s["effect"] == "LowFreq"]
+    assert lowfreq and not any(s["accepted"] for s in lowfreq), data["steps"]
+    assert any(s["error_after"] <= 0.8 * s["error_before"]
+               and s["battery_after"]["mean_rel_error"] > 1.25 * s["battery_before"]["mean_rel_error"] for s in lowfreq)
+    assert [s["effect"] for s in data["steps"] if s["accepted"]] == ["Dark"]
+    assert any(u["statistic"] == "psd2d_lowfreq" and "dark" in u["stack"] for u in data["unexplained"])
+    assert "Unexplained" in (report / "report.md").read_text()
 
 
 def test_loop_diagnoses_the_central_view_of_large_frames(tmp_path):

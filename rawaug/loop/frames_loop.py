@@ -33,6 +33,7 @@ from ..statistics import repaired
 from .diagnose import FrameStack, Residual, battery_error, diagnose, fitted_offsets
 from .refit import apply_read_noise_factors, read_noise_factors
 from .registry import CANDIDATES
+from .signatures import step_signature
 
 ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
 BATTERY_GROWTH = 1.25  # ... and may not raise the battery's mean relative error by more than a quarter
@@ -54,6 +55,7 @@ class Step:
     round: int = 0  # loop round (several candidates may be tried in one round)
     kind: str = "physical"  # or "measured": a fallback that reproduces what no physical effect explains
     evidence_after: dict = field(default_factory=dict)  # the evidence statistic with the effect added
+    signature: dict = field(default_factory=dict)  # the curve behind the evidence (``signatures``), added steps only
 
     def to_dict(self):
         return self.__dict__.copy()
@@ -240,6 +242,9 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 f"{step.battery_after['mean_rel_error']:.3f}: {step.note}")
         if chosen is None:
             continue
+        by_label = {st.label: st for st in stacks}
+        chosen[0].signature = step_signature(chosen[0].evidence["statistic"], by_label[chosen[0].stack].frames_dn,
+                                             diags[chosen[0].stack][1], chosen[2][chosen[0].stack][1])
         current, diags = chosen[1], chosen[2]
         tried = {t for t in tried if t in current.effects}  # estimates depend on the model: retry the rejected
         factors = read_noise_factors(stacks, diags, current, model, z_min=z_min)

@@ -92,8 +92,10 @@ def outcome_summary(result) -> str:
 
 
 def figure_steps(steps: list[dict], path) -> bool:
-    """One panel per added effect: the statistic that drove it, measured (line) against the
-    model's syntheses before and after (mean +- spread). Returns False when nothing was added."""
+    """One row per added effect: the statistic that drove it, measured (line) against the
+    model's syntheses before and after (mean +- spread), and beside it the curve behind that
+    statistic (``rawaug.loop.signatures``: a spectrum, a histogram, a profile), measured
+    against the model before and after. Returns False when nothing was added."""
     added = [s for s in steps if s.get("accepted")]
     if not added:
         return False
@@ -104,7 +106,10 @@ def figure_steps(steps: list[dict], path) -> bool:
 
     from ..atomic import atomic_write
 
-    fig, axes = plt.subplots(len(added), 1, figsize=(6, 1.3 * len(added) + 0.4), squeeze=False)
+    fig, axes = plt.subplots(len(added), 2, figsize=(11, 2.4 * len(added) + 0.4), squeeze=False,
+                             gridspec_kw={"width_ratios": [1, 1.2]})
+    for ax, step in zip(axes[:, 1], added):
+        _signature_panel(ax, step.get("signature") or {})
     for ax, step in zip(axes[:, 0], added):
         ev, af = step["evidence"], step.get("evidence_after") or {}
         ax.axvline(ev["measured"], color="k", lw=2, label="measured")
@@ -120,6 +125,32 @@ def figure_steps(steps: list[dict], path) -> bool:
     atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=90, format="png"))
     plt.close(fig)
     return True
+
+
+def _signature_panel(ax, sig: dict) -> None:
+    if not sig:
+        ax.axis("off")
+        return
+    x = np.asarray(sig["x"], dtype=np.float64)
+    for key, colour, style in (("before", "tab:red", "--"), ("after", "tab:green", "--")):
+        mean, std = np.asarray(sig[key], dtype=np.float64), np.asarray(sig[key + "_std"], dtype=np.float64)
+        ax.plot(x, mean, style, color=colour, lw=1.2, label=f"model {key}")
+        ax.fill_between(x, mean - std, mean + std, color=colour, alpha=0.2, lw=0)
+    ax.plot(x, sig["measured"], "k-", lw=1.5, label="measured")
+    if sig.get("log_y"):
+        ax.set_yscale("log")
+    if sig.get("log_x"):
+        from matplotlib.ticker import NullFormatter
+
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel(sig["xlabel"], fontsize=7)
+    ax.set_ylabel(sig["ylabel"], fontsize=7)
+    unit = "decades" if sig.get("log_y") else "mean abs."
+    ax.set_title(f"behind {sig['statistic']}: model off by {sig['distance_before']:.3g} -> {sig['distance_after']:.3g} "
+                 f"({unit})", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=6, loc="best")
 
 
 # ----------------------------------------------------------------------------- curves across settings

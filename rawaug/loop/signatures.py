@@ -1,0 +1,143 @@
+"""The curve behind a statistic: what a step's figure shows of the residual that drove it.
+
+A statistic of the battery is one number; a person checks it against the curve it sums up:
+the radial 2-D power spectrum (``psd2d_lowfreq``), the spectrum of the row or column means
+(row / column noise and shading), the histogram of the pixel values (read-noise shape,
+clipping), of the codes one by one (missing codes), of the stack-mean map (dark signal,
+DSNU, PRNU, hot pixels), of the per-pixel temporal std, the sorted line means (defect
+lines) or the sorted frame means (black-level error). ``step_signature`` gives the measured curve and the model's before and after a step
+(mean and spread over its syntheses), on the measured curve's grid.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..statistics import repaired
+
+KIND = {
+    "psd2d_lowfreq": "radial_spectrum",
+    "row_lowfreq": "row_spectrum", "row_excess": "row_spectrum",
+    "col_lowfreq": "col_spectrum", "col_excess": "col_spectrum", "fixed_col_excess": "mean_col_spectrum",
+    "mean_dn": "mean_map_histogram", "fixed_std": "mean_map_histogram", "flat_fixed_rel": "mean_map_histogram",
+    "temporal_std": "temporal_histogram",
+    "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means",
+    "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
+}  # every other statistic: the histogram of the pixel values
+LABEL = {
+    "radial_spectrum": ("radial frequency (cycles/pixel)", "power (DN^2)", True),
+    "row_spectrum": ("frequency along columns (cycles/row)", "row-mean power (DN^2)", True),
+    "col_spectrum": ("frequency along rows (cycles/column)", "column-mean power (DN^2)", True),
+    "mean_col_spectrum": ("frequency along rows (cycles/column)", "stack-mean column power (DN^2)", True),
+    "pixel_histogram": ("pixel value about its frame-channel mean (DN)", "fraction of pixels", True),
+    "mean_map_histogram": ("stack-mean map (DN)", "fraction of pixels", True),
+    "temporal_histogram": ("per-pixel std across frames (DN)", "fraction of pixels", True),
+    "frame_means": ("frame (sorted)", "frame mean about the stack's (DN)", False),
+    "code_histogram": ("code (DN), one bin each, about the median", "fraction of pixels", False),
+    "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
+}
+CODES = 24  # code_histogram: codes either side of the median
+BINS = 48
+
+
+def _centered(frames):
+    return frames - frames.mean(axis=(2, 3), keepdims=True)
+
+
+def _power(profiles):
+    """Mean power spectrum (DC left out) of 1-D profiles along the last axis."""
+    p = np.abs(np.fft.rfft(profiles - profiles.mean(axis=-1, keepdims=True), axis=-1)) ** 2 / profiles.shape[-1]
+    return p.reshape(-1, p.shape[-1])[:, 1:].mean(axis=0)
+
+
+def _log_binned(freq, power, lowest):
+    """Mean power in log-spaced frequency bins from ``lowest`` to Nyquist (0.5), so the low
+    frequencies the battery's statistics read are resolved; bins holding no frequency of
+    this frame size are left out."""
+    edges = np.geomspace(lowest, 0.5 * (1 + 1e-9), BINS // 2 + 1)
+    idx = np.digitize(freq, edges) - 1
+    keep = (freq > 0) & (idx >= 0) & (idx < len(edges) - 1)
+    sums = np.bincount(idx[keep], weights=power[keep], minlength=len(edges) - 1)
+    counts = np.bincount(idx[keep], minlength=len(edges) - 1)
+    full = counts > 0
+    return np.sqrt(edges[1:] * edges[:-1])[full], sums[full] / counts[full]
+
+
+def _radial(frames):
+    c = _centered(frames)
+    p = (np.abs(np.fft.rfft2(c, axes=(2, 3))) ** 2).mean(axis=(0, 1)) / (c.shape[2] * c.shape[3])
+    r = np.hypot(np.fft.fftfreq(c.shape[2])[:, None], np.fft.rfftfreq(c.shape[3])[None, :])
+    return _log_binned(r.ravel(), p.ravel(), 1.0 / max(c.shape[2:]))
+
+
+def _values(kind, frames):
+    """The values a histogram kind counts."""
+    if kind == "code_histogram":
+        return frames.ravel()
+    if kind == "mean_map_histogram":
+        return frames.mean(axis=0).ravel()
+    if kind == "temporal_histogram":
+        return frames.std(axis=0, ddof=1).ravel()
+    return _centered(frames).ravel()
+
+
+def curve(kind: str, frames, edges=None):
+    """(x, y) of ``kind`` for a stack (N, 4, h, w) in DN; histograms on ``edges``."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if kind == "radial_spectrum":
+        return _radial(frames)
+    if kind in ("row_spectrum", "col_spectrum", "mean_col_spectrum"):
+        view = frames.mean(axis=0, keepdims=True) if kind == "mean_col_spectrum" else frames
+        y = _power(view.mean(axis=3 if kind == "row_spectrum" else 2))
+        n = frames.shape[2 if kind == "row_spectrum" else 3]
+        return _log_binned(np.fft.rfftfreq(n)[1:], y, 1.0 / n)
+    if kind == "line_means":  # rows and columns of the raw view: a defect line stands out of the sorted curve
+        m = frames.mean(axis=0)
+        lines = np.concatenate([m.mean(axis=2).ravel(), m.mean(axis=1).ravel()])
+        return np.arange(1, lines.size + 1, dtype=np.float64), np.sort(lines - np.median(lines))
+    if kind == "frame_means":
+        m = frames.mean(axis=(1, 2, 3))
+        return np.arange(1, len(m) + 1, dtype=np.float64), np.sort(m - m.mean())
+    values = _values(kind, frames)
+    counts, _ = np.histogram(values, bins=edges)
+    return 0.5 * (edges[1:] + edges[:-1]), counts / max(1, values.size)
+
+
+def step_signature(statistic: str, frames, before, after) -> dict:
+    """Measured curve of ``statistic``'s kind for ``frames`` (N, 4, h, w) DN, and the mean
+    and spread of the same curve over the syntheses ``before`` and ``after`` a step
+    (each (n_synth, N, 4, h, w)); histograms share bins spanning the measured values."""
+    kind = KIND.get(statistic, "pixel_histogram")
+    raw = kind == "line_means"  # defect lines are read as measured, every other curve repaired
+    view = np.asarray(frames, dtype=np.float64) if raw else repaired(np.asarray(frames, dtype=np.float64))
+    edges = None
+    if kind == "code_histogram":
+        mid = float(np.rint(np.median(view)))
+        edges = np.arange(mid - CODES - 0.5, mid + CODES + 1.0)
+    elif kind.endswith("histogram"):
+        values = _values(kind, view)
+        lo, hi = float(values.min()), float(values.max())
+        edges = np.linspace(lo, hi if hi > lo else lo + 1.0, BINS + 1)
+    x, measured = curve(kind, view, edges)
+    out = {"statistic": statistic, "kind": kind, "x": x.tolist(), "measured": measured.tolist()}
+    for name, synth in (("before", before), ("after", after)):
+        ys = np.array([curve(kind, np.asarray(s, dtype=np.float64) if raw else repaired(np.asarray(s, dtype=np.float64)),
+                             edges)[1] for s in synth])
+        out[name] = ys.mean(axis=0).tolist()
+        out[name + "_std"] = ys.std(axis=0, ddof=1).tolist() if len(ys) > 1 else [0.0] * len(x)
+    out["xlabel"], out["ylabel"], out["log_y"] = LABEL[kind]
+    out["log_x"] = kind.endswith("spectrum")
+    out["distance_before"], out["distance_after"] = distance(out, "before"), distance(out, "after")
+    return out
+
+
+FLOOR = 1e-9  # log curves: empty histogram bins count as this
+
+
+def distance(sig: dict, which: str) -> float:
+    """Mean absolute difference between the model's curve ``which`` and the measured one, in
+    decades for log curves (empty bins at ``FLOOR``), in the curve's unit otherwise; spectra
+    are on log-spaced frequency bins, so each octave weighs alike."""
+    f = (lambda v: np.log10(np.maximum(np.asarray(v, dtype=np.float64), FLOOR))) if sig["log_y"] else np.asarray
+    d = np.abs(f(sig[which]) - f(sig["measured"]))
+    d = d[np.isfinite(d)]
+    return float(d.mean()) if d.size else float("nan")
