@@ -35,7 +35,7 @@ import torch
 from ..engine import layout as L
 from .base import PHOTON, NoiseEffect, register
 from .dark_shading import fixed_shading_grid
-from .k_records import frame_size, record_index, validate_records
+from .k_records import frame_size, grid_columns, validate_records
 
 STATISTICS = ("psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
 MAX_GRID, MIN_CELL = 16, 4  # a glow falls off within a tenth of the frame: finer than FPN's shading (8 x 8)
@@ -55,20 +55,8 @@ class AmpGlow(NoiseEffect):
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        first, gh, gw = ctx.grid_slot(self.token)
         exposure = torch.as_tensor(ctx.fixed.get("exposure_s", 0.0), dtype=torch.float64, device=ctx.device).expand(ctx.batch)
-        out = {"glow_s": exposure, "glow_record": (first + record_index(p, ctx.k)).to(torch.float64),
-               "glow_gh": torch.full_like(ctx.k, float(gh)), "glow_gw": torch.full_like(ctx.k, float(gw))}
-        frame = frame_size(self.token, p)
-        zero = torch.zeros_like(ctx.k)
-        for axis, (oy, size) in enumerate((("glow_oy", "glow_h"), ("glow_ox", "glow_w"))):
-            if frame is None or ctx.shape is None or ctx.shape[axis] >= frame[axis]:
-                out[oy], out[size] = zero, zero  # the input is the sensor
-            else:  # a window of the measured frame, at a whole-pixel offset drawn per sample
-                room = frame[axis] - ctx.shape[axis] + 1
-                out[oy] = torch.floor(ctx.uniform(oy) * room).clamp(max=room - 1)
-                out[size] = torch.full_like(ctx.k, float(frame[axis]))
-        return out
+        return {"glow_s": exposure, **grid_columns(ctx, self.token, p, "glow")}
 
     def tables(self):
         return {"grids": torch.tensor(self.profile.effects[self.token]["rate_e_per_s"], dtype=torch.float64)}

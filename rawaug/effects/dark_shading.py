@@ -39,7 +39,7 @@ import torch.nn.functional as F
 from ..engine import layout as L
 from ..statistics import fixed_std, repaired
 from .base import DARK, NoiseEffect, pattern_key, register
-from .k_records import check_seed, frame_size, record_index, validate_records, value_at_k
+from .k_records import check_seed, frame_size, grid_columns, validate_records, value_at_k
 
 STATISTICS = ("fixed_std", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
 MAX_GRID = 8
@@ -67,19 +67,7 @@ class DarkShading(NoiseEffect):
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        first, gh, gw = ctx.grid_slot(self.token)
-        out = {"fpn_sigma": value_at_k(p, "sigma_dn", ctx.k), "fpn_record": (first + record_index(p, ctx.k)).to(torch.float64),
-               "fpn_gh": torch.full_like(ctx.k, float(gh)), "fpn_gw": torch.full_like(ctx.k, float(gw))}
-        frame = frame_size(self.token, p)
-        zero = torch.zeros_like(ctx.k)
-        for axis, (oy, size) in enumerate((("fpn_oy", "fpn_h"), ("fpn_ox", "fpn_w"))):
-            if frame is None or ctx.shape is None or ctx.shape[axis] >= frame[axis]:
-                out[oy], out[size] = zero, zero  # the input is the sensor
-            else:  # a window of the measured frame, at a whole-pixel offset drawn per sample
-                room = frame[axis] - ctx.shape[axis] + 1
-                out[oy] = torch.floor(ctx.uniform(oy) * room).clamp(max=room - 1)
-                out[size] = torch.full_like(ctx.k, float(frame[axis]))
-        return out
+        return {"fpn_sigma": value_at_k(p, "sigma_dn", ctx.k), **grid_columns(ctx, self.token, p, "fpn")}
 
     def pattern_streams(self):
         return {"fpn_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}

@@ -86,3 +86,25 @@ def check_seed(token: str, params: dict) -> None:
     seed = params.get("seed")
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"effect {token!r} needs an integer 'seed' >= 0 for its fixed pattern, got {seed!r}")
+
+
+def grid_columns(ctx, token: str, params: dict, prefix: str) -> dict:
+    """Kernel columns of a grid measured over a frame (``FPN`` shading, ``Glow``):
+    ``{prefix}_record`` (the record nearest each K, in the call's shared grids table),
+    ``{prefix}_gh``/``_gw`` (its size) and the window ``{prefix}_oy``/``_ox``/``_h``/``_w``:
+    an input smaller than the measured frame is a window of it at a whole-pixel offset drawn
+    per sample (``ctx.uniform``), so the pattern keeps its measured scale on training crops;
+    an input as large or larger (or a grid without ``frame_h``/``frame_w``) is the sensor (0)."""
+    first, gh, gw = ctx.grid_slot(token)
+    out = {f"{prefix}_record": (first + record_index(params, ctx.k)).to(torch.float64),
+           f"{prefix}_gh": torch.full_like(ctx.k, float(gh)), f"{prefix}_gw": torch.full_like(ctx.k, float(gw))}
+    frame = frame_size(token, params)
+    zero = torch.zeros_like(ctx.k)
+    for axis, (oy, size) in enumerate(((f"{prefix}_oy", f"{prefix}_h"), (f"{prefix}_ox", f"{prefix}_w"))):
+        if frame is None or ctx.shape is None or ctx.shape[axis] >= frame[axis]:
+            out[oy], out[size] = zero, zero
+        else:
+            room = frame[axis] - ctx.shape[axis] + 1
+            out[oy] = torch.floor(ctx.uniform(oy) * room).clamp(max=room - 1)
+            out[size] = torch.full_like(ctx.k, float(frame[axis]))
+    return out
