@@ -63,7 +63,7 @@ FIXED_KEYS = {
     "sigma_r": "row-noise sigma, DN (>= 0)",
     "step_dn": "quantization step, DN (> 0)",
     "color_bias_dn": "per-channel black-level error, DN (4 values R, G1, B, G2)",
-    "exposure_s": "exposure time, seconds, for the dark current of a profile's Dark effect (>= 0)",
+    "exposure_s": "exposure time, seconds, for the dark signal of a profile's Dark and Glow effects (>= 0)",
 }
 
 

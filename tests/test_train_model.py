@@ -200,3 +200,22 @@ def test_the_step_schedule_reaches_the_optimizer_in_a_fit():
     Trainer(max_steps=4, logger=False, enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
             limit_val_batches=0, callbacks=[Record()], accelerator="cpu").fit(m, datamodule=data)
     assert seen == pytest.approx([1e-3, 1e-3, 1e-4, 1e-4])
+
+
+def test_exposure_gives_the_profiles_dark_signal_in_training_and_evaluation():
+    # SonyA7S2 + Dark (10 e-/s, no DSNU) at K = 1, ratio 1: 2 s add 20 e- (Poisson, with the
+    # read noise), none without an exposure; training and evaluation noise alike
+    dark = {"Dark": {"seed": 3, "k": [1.0], "rate_e_per_s": [10.0], "dsnu": [0.0]}}
+    clean = torch.zeros(4, 4, 32, 32)
+    means = {}
+    for exposure in (None, 2.0):
+        m = DenoiseModule(base_channels=2, crop_size=32, profile_effects=dark, k=1.0, ratio=1.0, eval_k=1.0, eval_ratio=1.0,
+                          exposure_s=exposure, clip_input=False, flip=False, rotate=False)
+        span = m.noise.profile.span_dn
+        train = m.make_training_pair({"target": clean}, seed=1)["input"] * span
+        evaluated, _ = m.eval_input({"target": clean, "name": ["a", "b", "c", "d"]})
+        means[exposure] = (float(train.mean()), float(evaluated.mean() * span))
+        sd = float(train.std()) / math.sqrt(train.numel())  # DN, standard error of the mean
+        expected = 0.0 if exposure is None else 20.0
+        for got in means[exposure]:
+            assert abs(got - expected) < 5 * sd, (exposure, means, sd)

@@ -66,6 +66,8 @@ class DenoiseModule(L.LightningModule):
         ratio: training low-light ratio, a number or ``[low, high]`` (default ``[100, 300]``).
         k, iso: fix the training gain K (DN/e-, number or ``[low, high]``) or ISO; default the
             profile's calibrated range.
+        exposure_s: exposure of the noisy (short) frames in seconds, for the profile's dark
+            current (``Dark``) and amplifier glow (``Glow``); default ``None``: no dark signal.
         crop_size: training crop, packed pixels (512 in the paper).
         flip, rotate: random flips / 90-degree rotations of the crops.
         clip_input: clip the noisy input to [0, 1] as the ELD evaluation does with real data.
@@ -84,7 +86,7 @@ class DenoiseModule(L.LightningModule):
     def __init__(self, base_channels: int = 32, depth: int = 5, residual: bool = False, profile: str = "SonyA7S2", noise_model: str | None = None,
                  profile_effects: dict | None = None, include_profile_effects: bool = True,
                  ratio: float | list[float] | None = None, k: float | list[float] | None = None, iso: float | None = None,
-                 crop_size: int = 512, flip: bool = True, rotate: bool = True, clip_input: bool = True, loss: str = "l1",
+                 exposure_s: float | None = None, crop_size: int = 512, flip: bool = True, rotate: bool = True, clip_input: bool = True, loss: str = "l1",
                  lr: float = 1e-4, lr_milestones: list[float] | None = None, lr_factors: list[float] | None = None,
                  eval_iso: float | None = 1600.0, eval_k: float | None = None, eval_ratio: float = 100.0, eval_seed: int = 0,
                  eval_crop: int | None = None, seed: int = 0, results_dir: str | None = None, image_log_size: int = 256) -> None:
@@ -105,7 +107,8 @@ class DenoiseModule(L.LightningModule):
         noise_profile = NoiseProfile.load(profile)
         for token, params in (profile_effects or {}).items():
             noise_profile = noise_profile.with_effect(token, params or {})
-        common = dict(profile=noise_profile, model=noise_model, include_profile_effects=include_profile_effects)
+        common = dict(profile=noise_profile, model=noise_model, include_profile_effects=include_profile_effects,
+                      fixed=None if exposure_s is None else {"exposure_s": exposure_s})
         self.noise = RawNoiseAugment(**common, ratio=(100.0, 300.0) if ratio is None else ratio, k=k, iso=iso)
         eval_fixed_k = eval_k if eval_k is not None else (noise_profile.k_at_iso(eval_iso) if eval_iso is not None else None)
         self.eval_noise = RawNoiseAugment(**common, ratio=eval_ratio, k=eval_fixed_k, rank_seeding=False)
