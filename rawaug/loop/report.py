@@ -208,8 +208,9 @@ def curves_table(groups: list[dict]) -> str:
 
 
 def figure_curves(groups: list[dict], path, max_panels: int = 24) -> bool:
-    """One panel per statistic and group: measured (black) against the model before (red)
-    and after (green), mean +- spread, along exposure or level. False when there is none."""
+    """One panel per statistic and group (the first ``max_panels``; the table in report.md
+    holds them all): measured (black) against the model before (red) and after (green),
+    mean +- spread, along exposure or level. False when there is none."""
     groups = [g for g in groups if len(g["points"]) >= 2][:max_panels]
     if not groups:
         return False
