@@ -177,14 +177,16 @@ def fitted_offsets(profile: NoiseProfile, stack: FrameStack, seed: int = 0, mode
     return offsets
 
 
-def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int, model: str | None = None) -> np.ndarray:
+def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int, model: str | None = None,
+               offsets: list | None = None) -> np.ndarray:
     """``n_synth`` stacks like ``stack`` from the model (base ``model`` + colour bias +
     every effect in the profile), each from its own realization of the fixed patterns
     (``sensor_realization``): array (n_synth, N, 4, h, w) in DN, float32. Integer measured
-    codes get rounded syntheses (the ADC rounds) instead of the ``U`` dither."""
+    codes get rounded syntheses (the ADC rounds) instead of the ``U`` dither. ``offsets``:
+    the colour bias to use, already fitted (default: ``fitted_offsets`` with ``seed``)."""
     tokens = _tokens(profile, stack, model)
     fixed = synthesis_fixed(profile, stack)
-    fixed["color_bias_dn"] = fitted_offsets(profile, stack, seed, model)
+    fixed["color_bias_dn"] = list(offsets) if offsets is not None else fitted_offsets(profile, stack, seed, model)
     generator = torch.Generator().manual_seed(int(seed))
     n, _, h, w = stack.frames_dn.shape
     out = np.empty((n_synth, n, 4, h, w), dtype=np.float32)
@@ -210,15 +212,16 @@ def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float =
 
 
 def diagnose(stack: FrameStack, profile, *, model: str | None = None, n_synth: int = 12, seed: int = 0,
-             z_min: float = 6.0, rel_min: float = 0.1):
-    """Synthesize ``n_synth`` stacks like ``stack`` and rank the residuals.
+             z_min: float = 6.0, rel_min: float = 0.1, offsets: list | None = None):
+    """Synthesize ``n_synth`` stacks like ``stack`` and rank the residuals (``offsets``: the
+    colour bias, if already fitted; see ``synthesize``).
 
     Returns ``(residuals, synthesized)``; ``synthesized`` (n_synth, N, 4, h, w) DN is the
     baseline the estimators subtract."""
     if n_synth < 3:
         raise ValueError(f"n_synth must be >= 3 to estimate the spread of the syntheses, got {n_synth}")
     profile = NoiseProfile.load(profile)
-    synthesized = synthesize(profile, stack, n_synth, seed, model)
+    synthesized = synthesize(profile, stack, n_synth, seed, model, offsets)
     return compare(stack, synthesized, z_min, rel_min), synthesized
 
 

@@ -176,16 +176,27 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
 
     def diagnose_all(prof, step_seed, which=None):
         # stacks on parallel threads (NumPy's partitions and FFTs release the GIL); each
-        # stack's result depends on its own seed only, so the outcome does not depend on them
+        # stack's result depends on its own seed only (and a dark or flat stack's offsets on
+        # its bias stack's), so the outcome does not depend on them. A bias stack's offsets
+        # are fitted once, with its own seed, for it and every stack that takes them.
         which = list(which or stacks)
         prof = NoiseProfile.load(prof)
-        job = lambda i: diagnose(which[i], prof, model=model, n_synth=n_synth, seed=step_seed + i,  # noqa: E731
-                                 z_min=z_min, rel_min=rel_min)
+        index = {id(s): i for i, s in enumerate(which)}
+        shared = [i for i, s in enumerate(which) if any(t.offsets_of is s for t in which)]
+        pilot = lambda i: fitted_offsets(prof, which[i], step_seed + i, model)  # noqa: E731
+
+        def job(i):
+            of = which[i].offsets_of if which[i].offsets_of is not None else which[i]
+            return diagnose(which[i], prof, model=model, n_synth=n_synth, seed=step_seed + i, z_min=z_min, rel_min=rel_min,
+                            offsets=offsets.get(index.get(id(of))))
+
         workers = min(len(which), torch.get_num_threads())
         if workers < 2:
+            offsets = {i: pilot(i) for i in shared}
             results = [job(i) for i in range(len(which))]
         else:
             with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="rawaug-loop") as pool:
+                offsets = dict(zip(shared, pool.map(pilot, shared)))
                 results = list(pool.map(job, range(len(which))))
         return {s.label: r for s, r in zip(which, results)}
 
