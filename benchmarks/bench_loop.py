@@ -32,7 +32,7 @@ def write_session(folder: Path, megapixels: float) -> Path:
     for i, iso in enumerate(ISOS):
         k = 0.0009563 * iso
         frames = ([("bias", 1e-4, 0.0)] * 8 + [("dark", 2.0, 0.0)] * 4
-                  + [("flat", 0.01 * (j // 2 + 1), 0.02 * (2 ** (j // 2))) for j in range(10)])
+                  + [("flat", 0.01 * 2 ** (j // 2), 0.02 * 2 ** (j // 2)) for j in range(10)])  # one light: a flat series
         # one camera: the ELD model's parameters fixed per ISO (medians of its relations), as a
         # sensor has them; drawn anew for every frame they would vary as no sensor's do
         lam = base.tukey_shape.values[min(range(len(base.tukey_shape.k)), key=lambda j: abs(base.tukey_shape.k[j] - k))]

@@ -276,9 +276,19 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         noisy = synthesize_op(work.contiguous(), values.to(work.device), keys, float(self.profile.span_dn), self._flags, *self._tables_on(work.device),
                              self.check_finite is not False)
         noisy = noisy.to(input.dtype)
-        if input.requires_grad:  # straight-through: d noisy / d clean = d E[noisy] / d clean = 1
-            noisy = noisy + (input - input.detach())
+        if input.requires_grad:  # straight-through: d noisy / d clean = d E[noisy] / d clean
+            noisy = noisy + (input - input.detach()) * self._mean_slope(input.detach(), values)
         return noisy
+
+    def _mean_slope(self, clean, values):
+        """d E[noisy] / d clean: 1, or with a gain non-linearity ``1 - c (2 x + K)`` at the clean
+        level ``x`` DN (clipping and the other stages' bounds are not counted)."""
+        if not self._flags & L.NONLIN:
+            return 1.0
+        v = values.to(clean.device, torch.float64)
+        c, k, ratio = (v[:, L.COLUMN[n]].view(-1, 1, 1, 1) for n in ("nl_c", "k", "ratio"))
+        x = clean.to(torch.float64) * float(self.profile.span_dn) / ratio
+        return (1.0 - c * (2.0 * x.clamp(min=0.0) + k)).to(clean.dtype)
 
     def _tables_on(self, device) -> tuple:
         """(grids, code_lut, read_lut) on ``device``, copied there once (not in every call)."""

@@ -205,16 +205,37 @@ def ppcc_r2(frames, level_dn=None):
     return float(r**2)
 
 
+MIN_COUNT = 10  # pixels on each side of a gap: P(no pixel at a code expecting 10) = 4.5e-5
+MAX_GAP = 7  # longest run of missing codes (digital gain up to 8); a longer empty run separates populations
+
+
+def written_codes(values: np.ndarray) -> np.ndarray:
+    """Boolean mask over ``[min, max]`` of whole-DN ``values``: the codes the camera writes,
+    i.e. all but those in a gap (no pixel, at most ``MAX_GAP`` codes long) whose two bounding
+    codes hold >= ``MIN_COUNT`` pixels each. In a sparse tail an empty code is chance, and a
+    long empty run separates two populations (a stuck column far above the noise): neither
+    is a missing code."""
+    v = np.asarray(values).astype(np.int64).ravel()
+    counts = np.bincount(v - v.min())
+    occupied = np.flatnonzero(counts)
+    written = np.ones(counts.size, dtype=bool)
+    for a, b in zip(occupied[:-1], occupied[1:]):
+        if 1 < b - a <= MAX_GAP + 1 and min(counts[a], counts[b]) >= MIN_COUNT:
+            written[a + 1 : b] = False
+    return written
+
+
 def missing_codes(frames, level_dn=None):
-    """Histogram comb: fraction of integer codes between the 0.5 and 99.5 percentiles
-    that no pixel takes (values rounded to whole DN)."""
+    """Histogram comb: fraction of integer codes between the 0.5 and 99.5 percentiles that
+    are missing (values rounded to whole DN; ``written_codes``: an empty code in a gap
+    between populated codes, not one in a sparse tail)."""
     v = np.rint(frames).ravel()
     lo, hi = np.percentile(v, [0.5, 99.5])
     if hi - lo < 3:
         return 0.0
-    inside = v[(v >= lo) & (v <= hi)] - lo
-    counts = np.bincount(inside.astype(np.int64), minlength=int(hi - lo) + 1)
-    return float((counts == 0).mean())
+    written = written_codes(v)
+    start = int(lo - v.min())
+    return float((~written[start : start + int(hi - lo) + 1]).mean())
 
 
 def clip_low(frames, level_dn=None):
@@ -287,6 +308,19 @@ def flat_fixed_rel(frames, level_dn=None):
     return pixel_fixed_std(frames) / max(level, 1e-12)
 
 
+def flat_linearity(frames, level_dn=None):
+    """Mean of a flat stack relative to the level a linear response gives it (the line through
+    zero a series of flats fits), less 1, mean over channels: EMVA 1288's linearity error at
+    this level. ``level_dn`` is that level including the black offsets."""
+    if level_dn is None:
+        raise ValueError("flat_linearity needs the level of a linear response (level_dn)")
+    level = np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,))
+    return float(np.mean(frames.mean(axis=(0, 2, 3)) / np.maximum(level, 1e-12) - 1.0))
+
+
+LIGHT_STABILITY = 1e-3  # a flat's light is stable to about 0.1 %: smaller deviations of its mean are not resolved
+
+
 @dataclass(frozen=True)
 class Statistic:
     name: str
@@ -297,6 +331,7 @@ class Statistic:
     mad_of_mean: bool = False  # a robust (MAD) scale of the N-frame mean map: a grid of 1/(2N) DN on whole codes
     line_fraction: bool = False  # resolution: one line of the stack
     base: str = ""  # the base-model parameter it checks ("" when only effects explain it)
+    floor: float = 0.0  # resolution of the measurement itself (e.g. the light's stability)
 
     def applies(self, n_frames: int, kind: str) -> bool:
         # dark frames are bias frames of a longer exposure: every bias statistic applies
@@ -309,6 +344,8 @@ class Statistic:
         a fixed pattern, which repeated syntheses from one seed do not show). A MAD of the
         mean map of N frames of whole codes moves in steps of 1.4826 / (2N) DN, so syntheses
         that agree to the step show no spread: the step is its floor. Else 1e-9."""
+        if self.floor:
+            return self.floor
         if self.mad_of_mean:
             integer = bool(np.all(frames == np.rint(frames)))
             step = 1.482602218505602 / (2 * frames.shape[0]) if integer else 1e-9
@@ -344,6 +381,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),
+        Statistic("flat_linearity", flat_linearity, kind="flat", floor=LIGHT_STABILITY),
     )
 }
 

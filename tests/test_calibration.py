@@ -5,12 +5,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from scipy import stats
 
 from rawaug.calibration import (IsoParameters, calibrate_iso, estimate_color_bias, estimate_gain, estimate_read_noise, estimate_row_noise,
                                 fit_joint, fit_log_linear, read_parameter_table)
 from rawaug.calibration.diagnostics import CalibrationWarning, analyse_bias_frame
 from rawaug.calibration.synthetic import synthesize_iso_set
+from rawaug import RawNoiseAugment
 from rawaug.effects.read_noise import tukey_lambda_variance
 from rawaug.io import read_frame
 from rawaug.profile import NoiseProfile
@@ -243,3 +245,39 @@ def test_defect_lines_are_left_out_of_the_noise_estimates(seed):
     # kept in, the hot column would have made the tails: lambda at the grid's end
     with_defects = estimate_read_noise(defects - defects.mean(axis=(1, 2), keepdims=True), max_samples=None)
     assert with_defects.lam < a.lam - 0.3
+
+
+# ----------------------------------------------------------------------------- photon transfer with a bend
+def _flat_pairs(profile, k, levels, seed, shape=(64, 64)):
+    """Flat pairs (DN) of ``profile`` (its effects included) at gain ``k``, model G+P*."""
+    pairs = []
+    for j, level in enumerate(levels):
+        aug = RawNoiseAugment(profile, model="G+P*", ratio=1.0, fixed={"k": k, "sigma_g": 2.0},
+                              generator=torch.Generator().manual_seed(1000 * seed + j), rank_seeding=False)
+        x = torch.full((2, 4) + shape, float(level))
+        frames = np.rint(aug(x).numpy().astype(np.float64) * profile.span_dn)
+        pairs.append((frames[0], frames[1]))
+    return pairs
+
+
+LEVELS = (0.02, 0.1, 0.3, 0.5, 0.75)
+
+
+def test_photon_transfer_with_a_gain_non_linearity_keeps_k():
+    # var = (1 - 2 c x)^2 K x + read ~ K mu (1 - 3 c mu): a line through the bent curve gives a
+    # K 13 % low here (1.74); the parabola's slope at zero is K, its curvature -3 c
+    c, k = 4e-6, 2.0
+    profile = PROFILE.with_effect("NonLin", {"k": [k], "compression_per_dn": [c]})
+    gain = estimate_gain(_flat_pairs(profile, k, LEVELS, seed=1), read_variance_dn2=4.0)
+    assert gain.k == pytest.approx(k, rel=0.03)
+    assert gain.curvature_per_dn == pytest.approx(-3 * c, rel=0.2)
+    line = estimate_gain(_flat_pairs(profile, k, LEVELS[:2], seed=1), read_variance_dn2=4.0)  # two levels: a line
+    assert line.curvature_per_dn == 0.0
+
+
+def test_photon_transfer_of_a_linear_camera_stays_a_line():
+    # the parabola is taken where its curvature is 5 sd from 0: over 12 seeds of a linear
+    # camera with 5 levels it is never taken (a correct test takes it with p ~ 6e-7 each)
+    taken = [estimate_gain(_flat_pairs(PROFILE, 2.0, LEVELS, seed=s), read_variance_dn2=4.0).curvature_per_dn != 0.0
+             for s in range(12)]
+    assert sum(taken) == 0, taken

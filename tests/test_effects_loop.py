@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, black_clip, column_noise, dark_shading, defect_lines, frame_black_level, hot_pixels,
-                            low_frequency, prnu)
+from rawaug.effects import (amp_glow, black_clip, column_noise, dark_shading, defect_lines, frame_black_level,
+                            gain_nonlinearity, hot_pixels, low_frequency, prnu)
 
 BASE = NoiseProfile.load("SonyA7S2")
 K = 1.0
@@ -224,6 +224,47 @@ def test_prnu_scales_with_signal_and_estimate():
     f = synth({"PRNU": p}, batch=8, size=64, level_dn=level, model="P*")
     est = prnu.estimate(f, [synth({}, batch=8, size=64, level_dn=level, model="P*", seed=s) for s in (1, 2)], K, level_dn=level)
     assert abs(est["sigma"] - 0.02) < 0.002
+
+
+@pytest.mark.parametrize("c", [4e-6, -2e-6])
+def test_gain_non_linearity_estimate_round_trip(c):
+    # a flat series (5 exposures, one light) synthesized with the stage: the joint fit gives
+    # c and the rates back; the mean of 8 x 4096 pixels per channel has a relative se of
+    # ~1e-4 at the dimmest level, against deviations of c x ~ 4e-2 at the brightest
+    exposures = np.array([0.02, 0.1, 0.3, 0.5, 0.8])
+    rate = BASE.span_dn * np.array([1.0, 0.9, 0.8, 1.1])  # DN/s per channel
+    means = []
+    for i, t in enumerate(exposures):
+        prof = BASE.with_effect("NonLin", {"k": [K], "compression_per_dn": [c]})
+        aug = RawNoiseAugment(prof, model="G+P*", ratio=1.0, fixed={"k": K, "sigma_g": 2.0},
+                              generator=torch.Generator().manual_seed(i), rank_seeding=False)
+        x = torch.from_numpy(rate * t / prof.span_dn).view(1, 4, 1, 1).expand(8, 4, 64, 64).contiguous()
+        means.append((aug(x) * prof.span_dn).numpy().mean(axis=(0, 2, 3)))
+    means = np.array(means)
+    fitted, rates = gain_nonlinearity.fit_series(exposures, means, K)
+    assert abs(fitted / c - 1) < 0.02, fitted
+    assert np.allclose(rates, rate, rtol=1e-3) and np.allclose(gain_nonlinearity.fit_rates(exposures, means, c, K), rate, rtol=1e-3)
+    linear = gain_nonlinearity.linear_rates(exposures, means)
+    assert np.all(linear < rate) if c > 0 else np.all(linear > rate)  # a line through compressed means runs low
+
+
+def test_flat_series_needs_three_exposures_under_one_light(capsys):
+    from rawaug.loop.command import flat_series
+
+    level = lambda t: np.array([1000.0, 900.0, 800.0, 1100.0]) * t  # noqa: E731
+    offsets = np.zeros(4)
+    assert flat_series(800, [(t, level(t)) for t in (0.1, 0.5, 1.0)], offsets) is not None
+    assert flat_series(800, [(t, level(t)) for t in (0.1, 1.0, 1.0)], offsets) is None  # two exposures
+    assert flat_series(800, [(1.0, level(f)) for f in (0.1, 0.5, 1.0)], offsets) is None  # one exposure, the light changed
+    assert capsys.readouterr().out == ""
+    assert flat_series(800, [(t, level(f)) for t, f in ((0.1, 0.1), (0.5, 1.0), (1.0, 0.5))], offsets) is None
+    assert "not checked" in capsys.readouterr().out  # exposures that do not track the means: said, not used
+
+
+def test_gain_non_linearity_must_keep_the_output_rising():
+    prof = BASE.with_effect("NonLin", {"k": [K], "compression_per_dn": [1e-4]})  # the output would peak at 5000 DN
+    with pytest.raises(ValueError, match=r"compression_per_dn 0.0001 /DN makes the output fall before the white level"):
+        RawNoiseAugment(prof)
 
 
 def test_effects_replay_bit_exactly():

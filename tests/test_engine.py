@@ -24,6 +24,7 @@ LOOP_EFFECTS = {
     "Glow": {"k": [1.0, 3.0], "rate_e_per_s": [[[0.0, 1.0, 4.0, 9.0], [0.5, 2.0, 6.0, 20.0], [0.0, 0.0, 1.0, 3.0]],
                                                [[1.0, 1.0, 2.0, 5.0], [0.0, 2.0, 3.0, 10.0], [0.0, 1.0, 1.0, 2.0]]],
              "frame_h": 30, "frame_w": 50},  # a 3 x 4 grid beside FPN's 2 x 2 (a padded table), a window per sample
+    "NonLin": {"k": [1.0, 3.0], "compression_per_dn": [3e-6, -2e-6]},  # compression at one gain, expansion at the other
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "Lines": {"seed": 23, "row_density": 0.05, "col_density": 0.08, "log_std": 0.5, "negative": 0.3, "k": [1.0, 3.0],
               "median_dn": [20.0, 40.0]},
@@ -135,6 +136,22 @@ def test_gradient_is_straight_through_and_noise_unchanged(samplers):
     assert torch.equal(yg.detach(), y)  # the same noise with or without grad
     (yg * torch.arange(yg.numel()).reshape(yg.shape)).sum().backward()
     assert torch.equal(xg.grad, torch.arange(yg.numel(), dtype=torch.float32).reshape(yg.shape))
+
+
+def test_gradient_with_a_gain_non_linearity_is_the_slope_of_the_mean(samplers):
+    # E[noisy] = x - c (x^2 + K x) at a clean level x DN: d/dx = 1 - c (2 x + K), per sample's K
+    c = 3e-6
+    profile = NoiseProfile.load("SonyA7S2").with_effect("NonLin", {"k": [1.0, 3.0], "compression_per_dn": [c, 2 * c]})
+    aug = RawNoiseAugment(profile, model="G+P*", ratio=1.0, fixed={"k": [1.0, 3.0]})
+    x = torch.rand(2, 4, 8, 8, dtype=torch.float64, generator=torch.Generator().manual_seed(3))
+    y = aug(x)
+    xg = x.clone().requires_grad_(True)
+    yg = aug(xg, params=aug._params)
+    assert torch.equal(yg.detach(), y)
+    yg.sum().backward()
+    dn = x * profile.span_dn
+    expected = torch.stack([1 - c * (2 * dn[0] + 1.0), 1 - 2 * c * (2 * dn[1] + 3.0)])
+    assert torch.allclose(xg.grad, expected, rtol=1e-12)
 
 
 def test_non_finite_input_is_refused_without_a_separate_pass():

@@ -42,6 +42,12 @@ def amp_glow(dn, rng, kind, exposure, k):
     return dn + k * rng.poisson(rate[None] * exposure, size=dn.shape)
 
 
+def soft_knee(dn, rng, **_):
+    """An output that compresses as the signal grows: dn / (1 + 0.08 dn / 15871), 6 % lost at
+    80 % of the white level (a hyperbola; rawaug's stage is a parabola)."""
+    return dn / (1.0 + 0.08 * np.maximum(dn, 0.0) / BASE.span_dn)
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -50,19 +56,23 @@ PRNU = {"seed": 23, "sigma": 0.015}
 CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["Dark"]), "PRNU": ("PRNU", PRNU, None, ["PRNU"]),
          "comb": (None, None, digital_gain, ["CodeMap"]), "interference": (None, None, interference, ["LowFreq"]),
          "glow": (None, None, amp_glow, ["Glow"]),
-         "none": (None, None, None, [])}
+         "nonlin": (None, None, soft_knee, ["NonLin"]),
+         "none": (None, None, None, []), "none_series": (None, None, None, [])}
+SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
+FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
 
 
-def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_exposures=(4.0,)):
-    """Bias frames, dark frames (4 each) of ``dark_exposures`` seconds and flat pairs at two
-    ISOs of the base camera, plus ``effect`` nobody declared, plus ``post`` (a change to the
-    DN no rawaug stage makes): a manifest of 16-bit frames."""
+def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_exposures=(4.0,), flat_levels=(0.02, 0.1)):
+    """Bias frames, dark frames (4 each) of ``dark_exposures`` seconds and flat pairs at
+    ``flat_levels`` (exposure in seconds = level) at two ISOs of the base camera, plus
+    ``effect`` nobody declared, plus ``post`` (a change to the DN no rawaug stage makes): a
+    manifest of 16-bit frames."""
     profile = BASE.with_effect(effect, params) if effect else BASE
     rng = np.random.default_rng(5 + seed)
     rows = []
     for i, (iso, k) in enumerate([(800, 0.75), (3200, 3.0)]):
         frames = ([("bias", 1e-4, 0.0, j) for j in range(6)] + [("dark", t, 0.0, j) for t in dark_exposures for j in range(4)]
-                  + [("flat", level, level, j) for level in (0.02, 0.1) for j in range(2)])
+                  + [("flat", level, level, j) for level in flat_levels for j in range(2)])
         for kind, exposure, level, j in frames:
             fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": BASE.row_scale.median(k),
                      "exposure_s": exposure}
@@ -88,7 +98,7 @@ def test_loop_on_a_manifest_names_the_undeclared_effect(tmp_path, case):
 
 def check_case(tmp_path, case, seed):
     effect, params, post, expected = CASES[case]
-    manifest = write_frames(tmp_path, effect, params, post, seed=seed)
+    manifest = write_frames(tmp_path, effect, params, post, seed=seed, flat_levels=FLAT_LEVELS.get(case, (0.02, 0.1)))
     out, report = tmp_path / "loop.yaml", tmp_path / "report"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)
@@ -117,7 +127,23 @@ def check_case(tmp_path, case, seed):
         for k in (0.75, 3.0):
             true = BASE.tukey_scale.median(k)
             assert abs(loop.tukey_scale.median(k) / true - 1) <= 0.5 * abs(base.tukey_scale.median(k) / true - 1)
-    check_setting_curves(report, data, dark_added="Dark" in expected)
+    levels = FLAT_LEVELS.get(case, (0.02, 0.1))
+    check_setting_curves(report, data, dark_added="Dark" in expected, n_flats=len(levels))
+    if case in FLAT_LEVELS:  # a flat series: the photon transfer's bend does not bias K
+        base = NoiseProfile.load(report / "calibration" / "base_profile.yaml")
+        for k in (0.75, 3.0):
+            assert abs(base.k_at_iso(800 if k == 0.75 else 3200) / k - 1) < 0.05, (k, base.k_at_iso(800), base.k_at_iso(3200))
+    if case == "nonlin":  # the hyperbola's compression near zero is 0.08 / span per DN; a parabola over the series fits a bit less
+        c = effects["NonLin"]["compression_per_dn"]
+        assert all(0.8 < v * BASE.span_dn / 0.08 < 1.05 for v in c), c
+        from rawaug.loop.report import setting_curves
+
+        for g in setting_curves(data):
+            if g["statistic"] == "flat_linearity":
+                points = g["points"]  # flats only: a bias stack has no linearity
+                assert len(points) == len(SERIES), points
+                assert points[0]["before"][2] and points[-1]["before"][2], points  # the ends of the series are off the line
+                assert not any(p["after"][2] for p in points), points
     if not expected:
         assert accepted == [], steps
         assert "Nothing was added" in (report / "report.md").read_text()
@@ -126,9 +152,9 @@ def check_case(tmp_path, case, seed):
         assert (report / "steps.png").stat().st_size > 1000 and "![steps](steps.png)" in (report / "report.md").read_text()
 
 
-def check_setting_curves(report, data, dark_added):
+def check_setting_curves(report, data, dark_added, n_flats=2):
     """The report's statistics against exposure (bias 1e-4 s, dark 4 s) and level (bias at 0,
-    two flats) at each ISO; with dark current planted, the model's dark signal and its shot
+    then ``n_flats`` flats) at each ISO; with dark current planted, the model's dark signal and its shot
     noise are off at 4 s before the loop, and all three (DSNU too: a MAD of whole codes moves
     in steps of 0.19 DN, so it is not always significant before) within its spread after."""
     from rawaug.loop.report import setting_curves
@@ -139,7 +165,7 @@ def check_setting_curves(report, data, dark_added):
         for points in dark.values():
             assert [p["x"] for p in points] == [1e-4, 4.0] and points[1]["stack"] == f"ISO {iso} dark 4 s"
         light = curves[(iso, "level_dn", "temporal_std")]
-        assert [p["x"] for p in light][0] == 0.0 and len(light) == 3 and all(np.diff([p["x"] for p in light]) > 0)
+        assert [p["x"] for p in light][0] == 0.0 and len(light) == 1 + n_flats and all(np.diff([p["x"] for p in light]) > 0)
         assert light[-1]["measured"] > 5 * light[0]["measured"]  # shot noise grows with the level
         for name, points in dark.items():
             before, after = points[1]["before"], points[1]["after"]

@@ -100,8 +100,9 @@ def figure_ptc(params, path):
             continue
         m, v = ptc
         sc = ax.plot(m, v, ".", ms=2, alpha=0.4)
-        xs = np.array([0.0, float(np.max(m))])
-        ax.plot(xs, p.k * xs + p.extra.get("ptc_intercept_dn2", 0.0), "-", color=sc[0].get_color(),
+        xs = np.linspace(0.0, float(np.max(m)), 64)  # a line, or a parabola where the curve bends
+        q = p.extra.get("ptc_curvature_per_dn", 0.0)
+        ax.plot(xs, p.k * xs * (1 + q * xs) + p.extra.get("ptc_intercept_dn2", 0.0), "-", color=sc[0].get_color(),
                 label=f"ISO {p.iso:g}: K = {p.k:.4g} DN/e-")
     ax.set_xlabel("tile mean, DN")
     ax.set_ylabel("tile variance, DN^2")

@@ -304,6 +304,8 @@ class GainEstimate:
     tile_mean_dn, tile_variance_dn2 : the tiles used (for the plot).
     n_tiles, n_excluded : tiles used and tiles excluded (saturated, black-clipped, outliers).
     pair_means_dn : mean signal of each pair.
+    curvature_per_dn : q of ``variance = intercept + k mean (1 + q mean)`` where the curve
+        bends significantly (flats at >= 3 levels; 0: a line).
     """
 
     k: float
@@ -314,6 +316,7 @@ class GainEstimate:
     n_tiles: int = 0
     n_excluded: int = 0
     pair_means_dn: tuple = ()
+    curvature_per_dn: float = 0.0
 
 
 def _tile_stats(a, b, tile):
@@ -335,24 +338,50 @@ def _tile_stats(a, b, tile):
     return chan.ravel(), mean.ravel(), var.ravel(), lo.ravel(), hi.ravel()
 
 
-def _robust_line(x, y, n_per_tile, iterations=8):
-    """Weighted line fit y = k x + c with Huber reweighting; a tile variance has standard error
-    ~ y * sqrt(2 / (n - 1)). Returns (k, c, inlier mask)."""
+def _robust_poly(x, y, n_per_tile, degree=1, iterations=8):
+    """Weighted polynomial fit of y on x (coefficients from the highest power) with Huber
+    reweighting; a tile variance has standard error ~ y * sqrt(2 / (n - 1)). Returns
+    (coefficients, their covariance, inlier mask)."""
     keep = np.ones(x.size, bool)
-    k, c = np.polyfit(x, y, 1)
+    coef = np.polyfit(x, y, degree)
+    cov = np.full((degree + 1, degree + 1), np.nan)
     for _ in range(iterations):
-        pred = np.maximum(k * x + c, 1e-12)
+        pred = np.maximum(np.polyval(coef, x), 1e-12)
         se = pred * math.sqrt(2.0 / (n_per_tile - 1))
         z = (y - pred) / se
         keep = np.abs(z) < 5.0
         huber = np.where(np.abs(z) <= 1.5, 1.0, 1.5 / np.maximum(np.abs(z), 1e-12))
         wts = np.where(keep, huber / se**2, 0.0)
-        if wts.sum() == 0 or np.unique(x[keep]).size < 2:
+        if wts.sum() == 0 or np.unique(x[keep]).size < degree + 1:
             break
         sw = np.sqrt(wts)
-        design = np.stack([x * sw, sw], axis=1)
-        (k, c), *_ = np.linalg.lstsq(design, y * sw, rcond=None)
+        design = np.stack([x**p * sw for p in range(degree, -1, -1)], axis=1)
+        coef, *_ = np.linalg.lstsq(design, y * sw, rcond=None)
+        cov = np.linalg.pinv(design.T @ design)
+    return coef, cov, keep
+
+
+def _robust_line(x, y, n_per_tile, iterations=8):
+    """``_robust_poly`` of degree 1: (k, c, inlier mask)."""
+    (k, c), _, keep = _robust_poly(x, y, n_per_tile, 1, iterations)
     return float(k), float(c), keep
+
+
+CURVATURE_Z = 5.0  # a photon transfer curve is fitted as a parabola where its curvature is this many sd from 0
+
+
+def _photon_transfer(m, v, n_per_tile, levels):
+    """(K, intercept, curvature per DN, inlier mask) of ``variance = c + K mean (1 + q mean)``:
+    a line, or, with flats at >= 3 levels whose curve bends significantly (a gain
+    non-linearity compresses the shot noise of bright flats: q ~ -3 c_nl), a parabola whose
+    slope at zero is K."""
+    k, c, keep = _robust_line(m, v, n_per_tile)
+    if levels < 3:
+        return k, c, 0.0, keep
+    (a, k2, c2), cov, keep2 = _robust_poly(m, v, n_per_tile, 2)
+    if not (np.isfinite(cov[0, 0]) and abs(a) > CURVATURE_Z * math.sqrt(cov[0, 0]) and k2 > 0):
+        return k, c, 0.0, keep
+    return float(k2), float(c2), float(a / k2), keep2
 
 
 def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = None,
@@ -422,19 +451,30 @@ def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = N
                          f"{m.min():.1f}..{m.max():.1f} DN); add pairs at another exposure or give bias frames")
     if m.max() < 1.5 * max(m.min(), 1e-9):  # one level: anchor the intercept at the bias read variance
         k = float(np.sum(m * (v - read_variance_dn2)) / np.sum(m * m))
-        c, keep = float(read_variance_dn2), np.ones(m.size, bool)
+        c, keep, curvature = float(read_variance_dn2), np.ones(m.size, bool), 0.0
     else:
-        k, c, keep = _robust_line(m, v, tile * tile)
+        k, c, curvature, keep = _photon_transfer(m, v, tile * tile, _distinct_levels([float(np.median(x)) for x in means]))
     if not k > 0:
         raise ValueError(f"photon transfer gave a non-positive gain K = {k:.4g} DN/e-: flats carry no shot noise "
                          f"(too dark?) or frames are not pairs at equal settings")
     per_channel = []
     for j in range(4):
         sel = keep & (ch == j)
-        per_channel.append(float(np.polyfit(m[sel], v[sel], 1)[0]) if np.unique(m[sel]).size > 1 else float("nan"))
+        degree = 2 if curvature else 1  # the slope at zero
+        per_channel.append(float(np.polyfit(m[sel], v[sel], degree)[degree - 1]) if np.unique(m[sel]).size > degree
+                           else float("nan"))
     return GainEstimate(k=k, read_variance_dn2=c, k_per_channel=tuple(per_channel), tile_mean_dn=m[keep],
                         tile_variance_dn2=v[keep], n_tiles=int(keep.sum()), n_excluded=int(n_total - keep.sum()),
-                        pair_means_dn=tuple(pair_means))
+                        pair_means_dn=tuple(pair_means), curvature_per_dn=curvature)
+
+
+def _distinct_levels(means, rel=0.1) -> int:
+    """Count of distinct levels among pair means (DN): means within ``rel`` of the previous are one."""
+    out, last = 0, None
+    for m in sorted(means):
+        if last is None or m > last * (1 + rel):
+            out, last = out + 1, m
+    return out
 
 
 def _clip_level(a, b, high: bool):
@@ -526,6 +566,7 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         "sigma_r_per_frame": [r.sigma_r for r in rows],
         "read_variance_dn2": read_var,
         "ptc_intercept_dn2": gain.read_variance_dn2,
+        "ptc_curvature_per_dn": gain.curvature_per_dn,
         "bias_read_plus_row_variance_dn2": total_read_var,
         "k_per_channel": list(gain.k_per_channel),
         "ptc_tiles": gain.n_tiles,

@@ -39,6 +39,7 @@ _LINES_ROW, _LINES_COL = L.STREAM["lines_row"], L.STREAM["lines_col"]
 _FGH, _FGW = L.COLUMN["fpn_gh"], L.COLUMN["fpn_gw"]
 _GLS, _GLR, _GLOY, _GLOX = L.COLUMN["glow_s"], L.COLUMN["glow_record"], L.COLUMN["glow_oy"], L.COLUMN["glow_ox"]
 _GLH, _GLW, _GLGH, _GLGW = L.COLUMN["glow_h"], L.COLUMN["glow_w"], L.COLUMN["glow_gh"], L.COLUMN["glow_gw"]
+_NL = L.COLUMN["nl_c"]
 Z_MAX = L.READ_TABLE_Z
 _LOWFREQ = L.STREAM["lowfreq"]
 _ROW = L.STREAM["row"]
@@ -184,6 +185,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                     s = _ptrs(lam, draw(key_rest, g)) * k
             elif stages & L.SHOT_GAUSS:
                 s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
+            if stages & L.NONLIN:  # the photo signal compressed: s (1 - c s) above 0 DN
+                s -= v[_NL] * s * max(s, 0.0)
             if stages & L.FPN:
                 s += v[_FS] * symmetric(normal, draw(keys[_FPN_PATTERN], p)) + shading_at(grids, record, fy0, x + fox, fh, fw, fgh, fgw)
             if stages & L.HOT:

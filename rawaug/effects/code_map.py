@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
+from ..statistics import MAX_GAP, MIN_COUNT, written_codes  # noqa: F401  (the rule for a missing code)
 from .base import CLIP, NoiseEffect, register
 from .k_records import record_index, validate_records, value_at_k
 
@@ -67,26 +68,6 @@ class CodeMap(NoiseEffect):
                 raise ValueError(f"effect 'CodeMap': map_dn[{i}] must be 1 to 65536 non-decreasing whole DN, got {codes!r:.80}")
             if params["lo_dn"][i] != np.rint(params["lo_dn"][i]):
                 raise ValueError(f"effect 'CodeMap': lo_dn must be whole DN, got {params['lo_dn'][i]}")
-
-
-MIN_COUNT = 10  # pixels on each side of a gap: P(no pixel at a code expecting 10) = 4.5e-5
-MAX_GAP = 7  # longest run of missing codes (digital gain up to 8); a longer empty run separates populations
-
-
-def written_codes(values: np.ndarray) -> np.ndarray:
-    """Boolean mask over ``[min, max]`` of whole-DN ``values``: the codes the camera writes,
-    i.e. all but those in a gap (no pixel, at most ``MAX_GAP`` codes long) whose two bounding
-    codes hold >= ``MIN_COUNT`` pixels each. In a sparse tail an empty code is chance, and a
-    long empty run separates two populations (a stuck column far above the noise): neither
-    is a missing code."""
-    v = values.astype(np.int64)
-    counts = np.bincount(v - v.min())
-    occupied = np.flatnonzero(counts)
-    written = np.ones(counts.size, dtype=bool)
-    for a, b in zip(occupied[:-1], occupied[1:]):
-        if 1 < b - a <= MAX_GAP + 1 and min(counts[a], counts[b]) >= MIN_COUNT:
-            written[a + 1 : b] = False
-    return written
 
 
 def estimate(frames, synthesized, k: float, **_) -> dict:

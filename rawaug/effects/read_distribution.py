@@ -86,7 +86,7 @@ def dequantized(codes, seed: int = 0) -> np.ndarray:
     written; a comb's wider cells where the camera skips codes), so that the table holds
     the noise before the ADC and row offsets, clipping and the code map act on it as on a
     sensor (a table of the codes themselves would round row noise away)."""
-    from .code_map import written_codes
+    from ..statistics import written_codes
 
     v = np.asarray(codes, dtype=np.float64)
     lo = v.min()

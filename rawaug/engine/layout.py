@@ -27,6 +27,7 @@ CODE_MAP = 1 << 16  # measured fallback: output codes mapped to the codes the ca
 READ_TABLE = 1 << 17  # measured fallback: read noise from a measured quantile table (in place of G* / G)
 LINES = 1 << 18  # defect lines: sparse sensor rows and columns with a large fixed offset
 GLOW = 1 << 19  # amplifier glow: a smooth dark-current map (electrons per second), before shot noise
+NONLIN = 1 << 20  # gain non-linearity: the photo signal compressed after shot noise, before read noise
 
 COLUMNS = (
     "k", "ratio",
@@ -48,6 +49,7 @@ COLUMNS = (
     "lines_row_density", "lines_col_density", "lines_median", "lines_log_std", "lines_negative",
     "fpn_gh", "fpn_gw",  # FPN shading grid size (the grids table may be padded to a larger one)
     "glow_s", "glow_record", "glow_oy", "glow_ox", "glow_h", "glow_w", "glow_gh", "glow_gw",  # exposure, grid, window
+    "nl_c",  # gain non-linearity: compression per DN of signal
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

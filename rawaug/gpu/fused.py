@@ -27,6 +27,7 @@ C_FOY, C_FOX, C_FH, C_FW = L.COLUMN["fpn_oy"], L.COLUMN["fpn_ox"], L.COLUMN["fpn
 C_FGH, C_FGW = L.COLUMN["fpn_gh"], L.COLUMN["fpn_gw"]
 C_GLS, C_GLR, C_GLOY, C_GLOX = L.COLUMN["glow_s"], L.COLUMN["glow_record"], L.COLUMN["glow_oy"], L.COLUMN["glow_ox"]
 C_GLH, C_GLW, C_GLGH, C_GLGW = L.COLUMN["glow_h"], L.COLUMN["glow_w"], L.COLUMN["glow_gh"], L.COLUMN["glow_gw"]
+C_NL = L.COLUMN["nl_c"]
 C_HD, C_HM, C_HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
 C_Q, C_B0, C_BS, C_BC, C_CL = (L.COLUMN["step_dn"], L.COLUMN["bias_r"], L.COLUMN["ble_sigma"],
                                L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"])
@@ -128,6 +129,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s = tl.where((lam == lam) & (tl.abs(lam) < float("inf")), counted, s)  # NaN/Inf pass through
     elif FLAGS & 4:  # P
         s += tl.sqrt(k * tl.maximum(s, 0.0)) * _normal(draw(_key(keys_ptr, K_SHOT), g))
+    if FLAGS & 1048576:  # gain non-linearity: the photo signal compressed, s (1 - c s) above 0 DN
+        s -= _col(v, C_NL) * s * tl.maximum(s, 0.0)
     if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading, a window (fpn_oy, fpn_ox) of fpn_h x fpn_w
         fh = _col(v, C_FH)
         fw = _col(v, C_FW)

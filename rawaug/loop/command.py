@@ -14,7 +14,9 @@ INPUT is one of
   report in ``DIR/calibration``); then the frame loop compares the bias stacks of every ISO
   with syntheses and adds the missing effects. Dark frames (kind ``dark``, with their
   exposure) are compared with syntheses of the same exposure that carry the read noise and
-  offsets of the bias frames of their ISO, so that dark current shows.
+  offsets of the bias frames of their ISO, so that dark current shows. Flats (kind
+  ``flat``) are compared with syntheses at their level; flats of one ISO at >= 3 exposure
+  times form a series (``flat_series``) whose linearity is checked too.
 """
 from __future__ import annotations
 
@@ -103,6 +105,29 @@ def _run_frame_table(args, path):
     return profile, {"input": str(path), "kind": "frame_table", **result}, "\n".join(md), None
 
 
+SERIES_SPREAD = 0.25  # flats further than this from one line through zero do not share one light
+
+
+def flat_series(iso, points, offsets):
+    """The ISO's flats as a ``FlatSeries`` (``points``: (exposure_s, (4,) signal DN) per
+    stack), if they can show the response: >= 3 distinct exposure times, each flat within
+    ``SERIES_SPREAD`` of a line through zero (flats at one exposure under several lights
+    are not a series). Else None, with a warning when a series was tried."""
+    from ..effects.gain_nonlinearity import MIN_EXPOSURES
+    from .diagnose import FlatSeries
+
+    exposures = np.array([float(t or 0.0) for t, _ in points])
+    if np.unique(exposures[exposures > 0]).size < MIN_EXPOSURES or not np.all(exposures > 0):
+        return None
+    series = FlatSeries(exposures, np.array([level for _, level in points]), offsets)
+    spread = np.abs(series.signal_dn / (series.rates[None, :] * exposures[:, None]) - 1).max()
+    if spread > SERIES_SPREAD:
+        print(f"warning: ISO {iso:g}: the flats' means are up to {100 * spread:.0f} % off a line through zero against "
+              f"their exposure times (was the light changed?): the response's linearity is not checked")
+        return None
+    return series
+
+
 def _run_manifest(args, path):
     from ..calibration.stage1 import estimate_read_noise, estimate_row_noise, read_residual
     from ..io import read_manifest
@@ -162,6 +187,7 @@ def _run_manifest(args, path):
         settings[f"ISO {iso:g} dark {exposure:g} s"] = {"kind": "dark", "iso": iso, "k": k, "exposure_s": exposure, "level_dn": None}
         stacks.append(FrameStack(np.stack(frames).astype(np.float64), k, kind="dark", exposure_s=exposure,
                                  label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_of=bias_stack))
+    flat_stacks: dict = {}  # ISO -> its usable flat stacks
     for (iso, exposure), frames in sorted(flats.items()):
         if iso not in measured or len(frames) < 2:
             continue  # calibration reports flats it cannot use
@@ -175,8 +201,13 @@ def _run_manifest(args, path):
         while label in settings:  # two flat settings of one rounded level
             label += "'"
         settings[label] = {"kind": "flat", "iso": iso, "k": k, "exposure_s": exposure, "level_dn": float(level.mean())}
-        stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in level], base=base, offsets_of=bias_stack,
-                                 label=label))
+        flat_stacks.setdefault(iso, []).append((stack, k, level, exposure, base, bias_stack, label))
+    for iso, items in flat_stacks.items():
+        series = flat_series(iso, [(exposure, level) for _, _, level, exposure, *_ in items], measured[iso][1])
+        for stack, k, level, exposure, base, bias_stack, label in items:
+            stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in (series.nominal(exposure) if series else level)],
+                                     base=base, offsets_of=bias_stack, label=label, exposure_s=exposure if series else None,
+                                     series=series))
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
     (h, w), (ch, cw) = shapes
     view = (f"The frame loop diagnosed the central {ch} x {cw} of each frame's packed channels ({h} x {w}; "
@@ -192,6 +223,7 @@ def _run_manifest(args, path):
               "explained_physically": result.explained_physically,
               "reproduced_by_measurement": result.reproduced_by_measurement,
               "unexplained": [{"stack": label, **r.to_dict()} for label, r in result.unexplained()],
+              "unconfirmed": result.unconfirmed,
               "read_noise_refits": result.refits,
               "colour_bias_fitted_dn": {str(k): list(v) for k, v in result.colour_bias.items()},
               "initial": {k: [r.to_dict() for r in v] for k, v in result.initial.items()},

@@ -19,9 +19,43 @@ import numpy as np
 import torch
 
 from ..augment import RawNoiseAugment, parse_model
+from ..effects.gain_nonlinearity import fit_rates, linear_rates
+from ..effects.k_records import value_at_k
 from ..profile import NoiseProfile
 from .registry import effects_for
 from ..statistics import STATISTICS, frame_statistics, repaired
+
+
+@dataclass
+class FlatSeries:
+    """Flats of one ISO at several exposure times under one light: ``exposures_s`` (n,) and
+    ``signal_dn`` (n, 4), each stack's channel means less ``offsets_dn`` (the ISO's bias
+    offsets). A linear camera puts the means on a line through zero (``linear_rates``); the
+    model synthesizes each flat at the clean level its effects need to put it there
+    (``clean_level``)."""
+
+    exposures_s: np.ndarray
+    signal_dn: np.ndarray
+    offsets_dn: np.ndarray
+
+    def __post_init__(self):
+        self.exposures_s = np.asarray(self.exposures_s, dtype=np.float64)
+        self.signal_dn = np.asarray(self.signal_dn, dtype=np.float64)
+        self.offsets_dn = np.asarray(self.offsets_dn, dtype=np.float64)
+        self.rates = linear_rates(self.exposures_s, self.signal_dn)  # DN/s per channel (validates the series)
+
+    def nominal(self, exposure_s: float) -> np.ndarray:
+        """(4,) clean level (DN) of a linear response at ``exposure_s``."""
+        return self.rates * float(exposure_s)
+
+    def clean_level(self, profile: NoiseProfile, k: float, exposure_s: float) -> np.ndarray:
+        """(4,) clean level (DN) that puts the model's mean on the series at ``exposure_s``:
+        the nominal one, or, with a gain non-linearity, the rate its compression implies."""
+        params = profile.effects.get("NonLin")
+        if not params:
+            return self.nominal(exposure_s)
+        c = float(value_at_k(params, "compression_per_dn", torch.tensor([float(k)], dtype=torch.float64))[0])
+        return fit_rates(self.exposures_s, self.signal_dn, c, k) * float(exposure_s)
 
 
 @dataclass
@@ -38,7 +72,9 @@ class FrameStack:
     stack should get those of its ISO's bias frames, so that the dark signal shows:
     ``offsets_of`` (that bias stack) gives it the offsets the bias stack's syntheses use,
     fitted with the model's effects (a clip at black raises the mean, so the measured
-    means would be too high); ``offsets_dn`` fixes them instead."""
+    means would be too high); ``offsets_dn`` fixes them instead. A flat stack of a
+    ``series`` (``FlatSeries``, with its ``exposure_s``) has the series' nominal level as
+    ``level_dn`` and is also checked for linearity (``flat_linearity``)."""
 
     frames_dn: np.ndarray
     k: float
@@ -49,6 +85,7 @@ class FrameStack:
     exposure_s: float | None = None
     offsets_dn: list | None = None
     offsets_of: "FrameStack | None" = None
+    series: FlatSeries | None = None
 
     def __post_init__(self):
         self.frames_dn = np.asarray(self.frames_dn, dtype=np.float64)
@@ -66,7 +103,29 @@ class FrameStack:
             raise ValueError(f"offsets_dn must hold 4 values (R, G1, B, G2), got {self.offsets_dn!r}")
         if self.offsets_of is not None and not (isinstance(self.offsets_of, FrameStack) and self.offsets_of.kind == "bias"):
             raise ValueError(f"offsets_of must be a bias FrameStack, got {self.offsets_of!r:.80}")
+        if self.series is not None and not (self.kind == "flat" and isinstance(self.series, FlatSeries)
+                                            and isinstance(self.exposure_s, (int, float)) and self.exposure_s > 0):
+            raise ValueError(f"a series (FlatSeries) belongs to a flat stack with its exposure_s, got kind {self.kind!r}, "
+                             f"exposure_s {self.exposure_s!r}")
         self.label = self.label or f"{self.kind} K={self.k:.4g}"
+
+    @property
+    def statistics_level(self):
+        """The level the battery's flat statistics read: for a flat of a series, the level a
+        linear response gives it plus the black offsets (what its mean should be)."""
+        if self.series is None:
+            return self.level_dn
+        return self.series.nominal(self.exposure_s) + self.series.offsets_dn
+
+    @property
+    def statistic_names(self):
+        """The battery's statistics this stack can show (None: every one that applies): the
+        linearity needs a series."""
+        return None if self.series is not None else [n for n in STATISTICS if n != "flat_linearity"]
+
+    def statistics(self, frames) -> dict:
+        """The battery's statistics of ``frames`` (measured or synthesized like this stack)."""
+        return frame_statistics(frames, self.kind, self.statistics_level, self.statistic_names)
 
     @functools.cached_property
     def integer(self) -> bool:
@@ -76,7 +135,7 @@ class FrameStack:
     @functools.cached_property
     def measured(self) -> dict:
         """The battery's statistics of the measured frames (computed once: frames never change)."""
-        return frame_statistics(self.frames_dn, self.kind, self.level_dn)
+        return self.statistics(self.frames_dn)
 
 
 @dataclass
@@ -143,10 +202,20 @@ def _tokens(profile: NoiseProfile, stack: FrameStack, model: str | None) -> list
     return tokens + (["C"] if "C" not in tokens else [])
 
 
+def clean_level(profile: NoiseProfile, stack: FrameStack):
+    """Clean level (DN) a synthesis of ``stack`` starts from: 0 for bias and dark frames; a
+    flat's ``level_dn``, or, in a series, the level the model's response needs."""
+    if stack.kind != "flat":
+        return 0.0
+    if stack.series is not None:
+        return stack.series.clean_level(profile, stack.k, stack.exposure_s)
+    return stack.level_dn
+
+
 def _one(profile, stack, tokens, fixed, generator) -> np.ndarray:
     """One synthesized stack like ``stack``, DN."""
     n, _, h, w = stack.frames_dn.shape
-    level = np.broadcast_to(np.asarray(stack.level_dn if stack.kind == "flat" else 0.0, dtype=np.float64), (4,))
+    level = np.broadcast_to(np.asarray(clean_level(profile, stack), dtype=np.float64), (4,))
     clean = torch.from_numpy(level / profile.span_dn).float().view(1, 4, 1, 1).expand(n, 4, h, w).contiguous()
     aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed=fixed, generator=generator, rank_seeding=False)
     with torch.no_grad():
@@ -198,7 +267,7 @@ def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int
 def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float = 0.1) -> list[Residual]:
     """Residuals of every applicable statistic, ranked by ``|z|`` (largest first)."""
     measured = stack.measured
-    synth = [frame_statistics(s, stack.kind, stack.level_dn) for s in synthesized]
+    synth = [stack.statistics(s) for s in synthesized]
     out = []
     for name, m in measured.items():
         values = np.array([s[name] for s in synth])

@@ -36,6 +36,7 @@ from .registry import CANDIDATES
 from .signatures import step_signature
 
 ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
+CONFIRM_FACTOR = 3  # a residual that would call for an effect is confirmed on 3x the syntheses, with fresh seeds
 BATTERY_GROWTH = 1.25  # ... and may not raise the battery's mean relative error by more than a quarter
 
 
@@ -69,6 +70,7 @@ class LoopResult:
     final: dict = field(default_factory=dict)
     refits: list = field(default_factory=list)  # read-noise re-fits after added effects
     colour_bias: dict = field(default_factory=dict)  # K -> offsets (DN) fitted with the added effects
+    unconfirmed: list = field(default_factory=list)  # residuals of the final model a larger synthesis sample did not confirm
 
     @property
     def added(self) -> list[str]:
@@ -83,8 +85,10 @@ class LoopResult:
         return [s.effect for s in self.steps if s.accepted and s.kind == "measured"]
 
     def unexplained(self) -> list[tuple[str, Residual]]:
-        """Significant residuals left at the end (none of the candidate effects fixed them)."""
-        return [(label, r) for label, res in self.final.items() for r in res if r.significant]
+        """Significant residuals left at the end (none of the candidate effects fixed them),
+        but those a larger synthesis sample did not confirm (``unconfirmed``)."""
+        chance = {(u["stack"], u["statistic"]) for u in self.unconfirmed}
+        return [(label, r) for label, res in self.final.items() for r in res if r.significant and (label, r.statistic) not in chance]
 
 
 def _battery(diags) -> dict:
@@ -92,12 +96,14 @@ def _battery(diags) -> dict:
     return battery_error(every)
 
 
-def _options(diags, tried, present):
+def _options(diags, tried, present, skip=frozenset()):
     """Untried effects that significant residuals point to: (token, stack label, strongest
-    residual), most significant first."""
+    residual), most significant first; residuals ``(label, statistic)`` in ``skip`` left out."""
     best: dict = {}
     for label, (residuals, _) in diags.items():
         for r in residuals:
+            if (label, r.statistic) in skip:
+                continue
             # a candidate adds something that raises the statistics it is shown by: a statistic
             # the model overshoots (z < 0) calls for a refit, not for one more effect -- unless
             # the candidate replaces a base stage's shape (TWO_SIDED: a measured distribution)
@@ -140,7 +146,7 @@ def _estimate(token, stacks, diags, seed):
             # repaired, but for an effect that makes defect lines
             frames = stack.frames_dn if getattr(cand.module, "RAW_FRAMES", False) else repaired(stack.frames_dn)
             rec = cand.estimate(frames, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
-                                exposure_s=stack.exposure_s, seed=seed)
+                                exposure_s=stack.exposure_s, seed=seed, series=stack.series)
         except ValueError:
             continue  # this stack cannot show the effect (too few frames, not a flat)
         records.append(rec)
@@ -200,11 +206,40 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 results = list(pool.map(job, range(len(which))))
         return {s.label: r for s, r in zip(which, results)}
 
+    by_label = {st.label: st for st in stacks}
+    checks: dict = {}  # stack label -> its residuals on CONFIRM_FACTOR x n_synth syntheses of the current model
+
+    def confirmed_options(step_no):
+        # the spread of n_synth syntheses is itself uncertain (a standard deviation of 8 values
+        # is off by a quarter, and now and then by half): a residual is only acted on if it is
+        # still significant against a larger, independent sample of syntheses
+        skip = set()
+        while True:
+            options = _options(diags, tried, set(current.effects), skip)
+            unconfirmed = []
+            for _, label, evidence in options:
+                if label not in checks:
+                    checks[label] = diagnose(by_label[label], current, model=model, n_synth=CONFIRM_FACTOR * n_synth,
+                                             seed=seed + 7_000_000 + 1000 * step_no, z_min=z_min, rel_min=rel_min)[0]
+                check = next(r for r in checks[label] if r.statistic == evidence.statistic)
+                if not (check.significant and check.z * evidence.z > 0):
+                    unconfirmed.append((label, evidence, check))
+            if not unconfirmed:
+                return options
+            for label, evidence, check in unconfirmed:
+                skip.add((label, evidence.statistic))
+                if any(u["stack"] == label and u["statistic"] == evidence.statistic for u in result.unconfirmed):
+                    continue  # said in an earlier round of this model
+                result.unconfirmed.append({"stack": label, "statistic": evidence.statistic, "z": evidence.z,
+                                           "z_confirm": check.z, "n_synth_confirm": CONFIRM_FACTOR * n_synth})
+                say(f"step {step_no}: {evidence.statistic} ({label}, z={evidence.z:.1f}) not confirmed on "
+                    f"{CONFIRM_FACTOR * n_synth} syntheses (z={check.z:.1f}): not acted on")
+
     diags = diagnose_all(current, seed)
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
     tried: set[str] = set()
     for step_no in range(1, max_steps + 1):
-        options = _options(diags, tried, set(current.effects))
+        options = confirmed_options(step_no)
         if not options:
             break
         before_b = _battery(diags)
@@ -253,11 +288,12 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 f"{step.battery_after['mean_rel_error']:.3f}: {step.note}")
         if chosen is None:
             continue
-        by_label = {st.label: st for st in stacks}
         chosen[0].signature = step_signature(chosen[0].evidence["statistic"], by_label[chosen[0].stack].frames_dn,
                                              diags[chosen[0].stack][1], chosen[2][chosen[0].stack][1])
         current, diags = chosen[1], chosen[2]
         tried = {t for t in tried if t in current.effects}  # estimates depend on the model: retry the rejected
+        checks.clear()
+        result.unconfirmed.clear()  # confirmations belong to a model
         factors = read_noise_factors(stacks, diags, current, model, z_min=z_min)
         if factors:  # the added effect shares the bias frames' temporal noise with the read noise
             new_stacks, refitted = apply_read_noise_factors(stacks, current, factors, model)
@@ -273,6 +309,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 + ("kept" if kept else "dropped"))
             if kept:
                 current, diags, stacks = refitted, new_diags, new_stacks
+                by_label = {st.label: st for st in stacks}
     result.profile, result.colour_bias = _with_fitted_colour_bias(current, stacks, model, seed)
     if result.colour_bias:
         say("colour bias fitted with the added effects: " + "; ".join(

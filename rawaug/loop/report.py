@@ -82,6 +82,11 @@ def outcome_summary(result) -> str:
             lines.append(f"After `{refit['after']}` was added, the base read noise was re-fitted (it had counted "
                          f"the temporal noise `{refit['after']}` now explains): sigma x "
                          + ", ".join(f"{f:.3f} ({label})" for label, f in refit["factors"].items()) + ".")
+    chance = getattr(result, "unconfirmed", [])
+    if chance:
+        lines.append("Not confirmed on a larger sample of syntheses (a chance deviation, not acted on): "
+                     + "; ".join(f"{u['stack']}: `{u['statistic']}` (z {u['z']:.1f} on the diagnosis, {u['z_confirm']:.1f} on "
+                                 f"{u['n_synth_confirm']} syntheses)" for u in chance) + ".")
     left = result.unexplained()
     if left:
         lines.append("Unexplained (still significant at the end): "

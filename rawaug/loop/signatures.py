@@ -19,6 +19,7 @@ KIND = {
     "row_lowfreq": "row_spectrum", "row_excess": "row_spectrum",
     "col_lowfreq": "col_spectrum", "col_excess": "col_spectrum", "fixed_col_excess": "mean_col_spectrum",
     "mean_dn": "mean_map_histogram", "fixed_std": "mean_map_histogram", "flat_fixed_rel": "mean_map_histogram",
+    "flat_linearity": "mean_map_histogram",
     "temporal_std": "temporal_histogram",
     "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means",
     "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
