@@ -343,7 +343,8 @@ class Statistic:
         spread ``sqrt(max(value * n, 1)) / n`` of the model's value (this also covers the realization spread of
         a fixed pattern, which repeated syntheses from one seed do not show). A MAD of the
         mean map of N frames of whole codes moves in steps of 1.4826 / (2N) DN, so syntheses
-        that agree to the step show no spread: the step is its floor. Else 1e-9."""
+        that agree to the step show no spread: the step is its floor. A ``floor`` (what the
+        measurement itself resolves, such as a flat's light stability) comes first. Else 1e-9."""
         if self.floor:
             return self.floor
         if self.mad_of_mean:

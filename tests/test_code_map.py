@@ -6,7 +6,8 @@ import numpy as np
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects.code_map import MAX_GAP, estimate, written_codes
+from rawaug.effects.code_map import estimate
+from rawaug.statistics import MAX_GAP, written_codes
 from rawaug.io import read_frame
 
 DATA = Path(__file__).parent / "data"

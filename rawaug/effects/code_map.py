@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import MAX_GAP, MIN_COUNT, written_codes  # noqa: F401  (the rule for a missing code)
+from ..statistics import written_codes  # the rule for a missing code (MIN_COUNT, MAX_GAP there)
 from .base import CLIP, NoiseEffect, register
 from .k_records import record_index, validate_records, value_at_k
 

@@ -43,6 +43,7 @@ class FlatSeries:
         self.signal_dn = np.asarray(self.signal_dn, dtype=np.float64)
         self.offsets_dn = np.asarray(self.offsets_dn, dtype=np.float64)
         self.rates = linear_rates(self.exposures_s, self.signal_dn)  # DN/s per channel (validates the series)
+        self._rates_at = {}  # (c, K) -> rates the compression implies (fitted once, not per synthesis)
 
     def nominal(self, exposure_s: float) -> np.ndarray:
         """(4,) clean level (DN) of a linear response at ``exposure_s``."""
@@ -55,7 +56,9 @@ class FlatSeries:
         if not params:
             return self.nominal(exposure_s)
         c = float(value_at_k(params, "compression_per_dn", torch.tensor([float(k)], dtype=torch.float64))[0])
-        return fit_rates(self.exposures_s, self.signal_dn, c, k) * float(exposure_s)
+        if (c, k) not in self._rates_at:
+            self._rates_at[(c, k)] = fit_rates(self.exposures_s, self.signal_dn, c, k)
+        return self._rates_at[(c, k)] * float(exposure_s)
 
 
 @dataclass
