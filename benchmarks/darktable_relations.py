@@ -5,9 +5,10 @@ structure (jumps, floor) fits sigma_G against K, over every camera with >= 8 ISO
 
 darktable's file is GPL-3: this reads the user's own installed copy (Debian package
 ``darktable``) and ships nothing of it. Per camera, K and sigma_G per ISO come from
-``rawaug.calibration.darktable.gains_and_read_noise`` (ISOs with a resolved read noise,
-b > 0); the error is the rms residual of log(sigma_G) of the single ELD line and of the
-structure ``relation_loop`` keeps. Prints the medians over cameras and the structures kept.
+``rawaug.calibration.darktable.gains_and_read_noise`` (K from green, sigma_G the geometric
+mean of the channels; ISOs with a resolved read noise, b > 0 in every channel); the error
+is the rms residual of log(sigma_G) of the single ELD line and of the structure
+``relation_loop`` keeps. Prints the medians over cameras and the structures kept.
 """
 from __future__ import annotations
 

@@ -26,9 +26,12 @@ def write_noiseprofiles(path, negative_b_at=(100,)):
     profiles = []
     for iso in ISOS:
         a = true_k(iso) / SPAN
-        b = (true_sigma(iso) / SPAN) ** 2 if iso not in negative_b_at else -1e-8
-        # three channels, the middle one the median; one ISO listed twice
-        profiles.append({"name": f"Test Cam iso {iso}", "iso": iso, "a": [a * 0.9, a, a * 1.1], "b": [b * 0.8, b, b * 1.3]})
+        b = (true_sigma(iso) / SPAN) ** 2
+        # as darktable measures: after white balance (red x2.1, blue x1.6, green x1), so red and
+        # blue ``a`` carry the multipliers; the read noise differs by channel around the true one
+        # (geometric mean 1); an unresolved ISO has b <= 0 in one channel; one ISO listed twice
+        bs = [b * 0.8, b / (0.8 * 1.25), b * 1.25 if iso not in negative_b_at else -1e-8]
+        profiles.append({"name": f"Test Cam iso {iso}", "iso": iso, "a": [a * 2.1, a, a * 1.6], "b": bs})
     profiles.append(dict(profiles[3]))
     data = {"version": 0, "noiseprofiles": [
         {"maker": "Acme", "models": [{"model": "Test Cam", "profiles": profiles},
@@ -46,7 +49,7 @@ def test_import_recovers_gain_and_read_noise(tmp_path):
     profile = NoiseProfile.load(out)
     assert profile.camera == "Acme Test Cam" and profile.tukey_scale is None and profile.row_scale is None
     assert profile.richest_model == "G+P*+U"
-    for iso in ISOS:  # K = a * span at every ISO, the one without a read noise included
+    for iso in ISOS:  # K = a(green) * span at every ISO, the one without a read noise included
         assert math.isclose(profile.k_at_iso(iso), true_k(iso), rel_tol=1e-9)
     rel = profile.gaussian_scale
     assert math.isclose(rel.slope, 0.8, rel_tol=1e-9) and math.isclose(math.exp(rel.intercept), 1.2, rel_tol=1e-9)

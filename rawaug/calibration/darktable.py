@@ -9,6 +9,9 @@ colour channel, ``var(x) = a * x + b`` for the black-subtracted raw value normal
 ``var(D) = (a * span) * D + b * span^2``, so the system gain is ``K = a * span`` (DN per
 electron) and the Gaussian read noise ``sigma_G = sqrt(b) * span`` (DN). The result is a
 ``G+P`` profile: darktable measures no Tukey-lambda shape, row noise or colour bias.
+
+darktable measures on its own processed image, so this K is on darktable's scale: for the
+cameras also in the ELD authors' calibration it is 5-12 times below the raw K (README).
 """
 from __future__ import annotations
 
@@ -49,21 +52,30 @@ def _median(values):
 
 
 def gains_and_read_noise(profiles: list, span: float) -> tuple[dict, dict]:
-    """``({iso: K}, {iso: sigma_G})`` in DN/e- and DN: medians over the colour channels and
-    over repeated entries of one ISO. darktable's intercept ``b`` is often negative (read
-    noise below what its fit resolves): those ISOs have a gain but no read noise."""
-    a_by_iso, b_by_iso = {}, {}
+    """``({iso: K}, {iso: sigma_G})`` in DN/e- and DN (darktable's scale: see README).
+
+    K comes from the green channel: darktable measures after white balance, whose multiplier
+    is 1 on green, so ``a`` of red and blue carries their multipliers (their ratio to green
+    is the same at every ISO). sigma_G is the geometric mean over the three channels (mean of
+    log ``sqrt(b)``): three estimates of one read noise. Its intercept ``b`` is often <= 0 (read
+    noise below what the fit resolves); an ISO has a read noise only where ``b > 0`` in every
+    channel. Repeated entries of one ISO: medians."""
+    a_by_iso, s_by_iso = {}, {}
     for p in profiles:
         iso = float(p["iso"])
-        a_by_iso.setdefault(iso, []).append(_median(p["a"]))
-        b_by_iso.setdefault(iso, []).append(_median(p["b"]))
+        a, b = [float(v) for v in p["a"]], [float(v) for v in p["b"]]
+        if len(a) != 3 or len(b) != 3:
+            raise ValueError(f"darktable profile {p.get('name', iso)!r}: a and b need 3 channels, got {len(a)} and {len(b)}")
+        a_by_iso.setdefault(iso, []).append(a[1])
+        resolved = all(math.isfinite(v) and v > 0 for v in b)
+        s_by_iso.setdefault(iso, []).append(math.exp(sum(0.5 * math.log(v) for v in b) / 3) if resolved else math.nan)
     gains, read = {}, {}
     for iso in sorted(a_by_iso):
-        a, b = _median(a_by_iso[iso]), _median(b_by_iso[iso])
+        a, s = _median(a_by_iso[iso]), s_by_iso[iso]
         if math.isfinite(a) and a > 0:
             gains[iso] = a * span
-            if math.isfinite(b) and b > 0:
-                read[iso] = math.sqrt(b) * span
+            if all(math.isfinite(v) for v in s):
+                read[iso] = _median(s) * span
     return gains, read
 
 
@@ -93,7 +105,7 @@ def import_profile(path, camera: str, *, black_level: float, white_level: float,
                       "sigma_G there comes from the fitted relation", stacklevel=2)
     profile = fit_joint(params, camera=name, black_level=black_level, white_level=white_level,
                         bit_depth=max(1, math.ceil(math.log2(white_level + 1))), cfa=cfa,
-                        source=f"darktable noise profile ({path.name}, GPL-3, read from the user's copy)")
+                        source=f"darktable noise profile ({path.name}, GPL-3, read from the user's copy; darktable's scale, not raw)")
     isos = sorted(gains)
     profile.k_min, profile.k_max = min(gains.values()), max(gains.values())
     profile.iso_table = (tuple(isos), tuple(gains[i] for i in isos))
@@ -117,4 +129,6 @@ def run(args) -> int:
                              white_level=args.white_level, cfa=args.cfa)
     write_set(profile, args.out)
     print(f"{profile.camera}: K {profile.k_min:.4g} .. {profile.k_max:.4g} DN/e-, model {profile.richest_model} -> {args.out}")
+    print("note: K and sigma_G are on darktable's scale (measured on its processed image), which for the cameras "
+          "checked is 5-12x below a raw frame's K; calibrate from one flat pair per ISO for raw K (README)")
     return 0
