@@ -38,7 +38,7 @@ def write_session(folder: Path, megapixels: float) -> Path:
         lam = base.tukey_shape.values[min(range(len(base.tukey_shape.k)), key=lambda j: abs(base.tukey_shape.k[j] - k))]
         per_iso = {"k": k, "sigma_tl": base.tukey_scale.median(k), "lambda": float(lam), "sigma_r": base.row_scale.median(k)}
         for n, (kind, exposure, level) in enumerate(frames):
-            fixed = {**per_iso, "exposure_s": exposure}
+            fixed = {**per_iso, "exposure_s": exposure, "sensor": 0}  # one sensor: its fixed patterns in every frame
             aug = RawNoiseAugment(camera, model="G*+P*+R", ratio=1.0, fixed=fixed,
                                   generator=torch.Generator().manual_seed(1000 * i + n), rank_seeding=False)
             dn = aug(torch.full((1, 4, side, side), min(level, 0.6))).numpy()[0] * base.span_dn

@@ -64,6 +64,7 @@ FIXED_KEYS = {
     "step_dn": "quantization step, DN (> 0)",
     "color_bias_dn": "per-channel black-level error, DN (4 values R, G1, B, G2)",
     "exposure_s": "exposure time, seconds, for the dark signal of a profile's Dark and Glow effects (>= 0)",
+    "sensor": f"sensor instance of the fixed patterns, an integer in [0, {L.SENSORS}); 0 is the profile's own",
 }
 
 
@@ -89,6 +90,8 @@ def check_fixed(fixed) -> dict:
             raise ValueError(f"fixed {key} must be >= 0 ({FIXED_KEYS[key]}), got {value!r}")
         if key == "lambda" and not (-1.0 <= lo and float(values.max()) <= 1.0):
             raise ValueError(f"fixed lambda must be in [-1, 1], got {value!r}")
+        if key == "sensor" and not (lo >= 0 and float(values.max()) < L.SENSORS and bool((values == values.round()).all())):
+            raise ValueError(f"fixed sensor must be an integer in [0, {L.SENSORS}) ({FIXED_KEYS[key]}), got {value!r}")
         out[key] = value
     return out
 
@@ -118,6 +121,8 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
             default: the profile's calibrated range.
         iso: fix K to the profile's K at this ISO (overrides ``k``).
         fixed: fix any drawn parameter, e.g. ``{"sigma_tl": 2.0, "lambda": 0.1, "sigma_r": 0.3}``.
+            ``{"sensor": 0}``: every sample gets the profile's own fixed patterns (one camera);
+            by default each sample draws a sensor instance of its own.
         include_profile_effects: also apply every effect in ``profile.effects`` (those the
             closed loop added).
         clip_white: clip the noisy short-exposure signal at white.
@@ -212,6 +217,8 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         values = torch.zeros(batch, L.N_COLUMNS, dtype=torch.float64, device=device)
         values[:, L.COLUMN["k"]] = k
         values[:, L.COLUMN["ratio"]] = ratio
+        values[:, L.COLUMN["sensor"]] = (torch.floor(ctx.uniform("sensor") * L.SENSORS) if "sensor" not in self.fixed
+                                         else as_sample(self.fixed["sensor"], batch, device))
         for effect in self.effects:
             for name, column in effect.draw(ctx).items():
                 values[:, L.COLUMN[name]] = column

@@ -15,10 +15,11 @@ K = 1.0
 
 
 def synth(effects, batch=8, size=64, level_dn=0.0, model="G", seed=0, sigma_g=1.0, exposure_s=0.0):
+    """A stack of ``batch`` frames of one camera (sensor instance 0: one set of fixed patterns), DN."""
     prof = BASE
     for token, params in effects.items():
         prof = prof.with_effect(token, params)
-    aug = RawNoiseAugment(prof, model=model, ratio=1.0, fixed={"k": K, "sigma_g": sigma_g, "exposure_s": exposure_s},
+    aug = RawNoiseAugment(prof, model=model, ratio=1.0, fixed={"k": K, "sigma_g": sigma_g, "exposure_s": exposure_s, "sensor": 0},
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     x = torch.full((batch, 4, size, size), level_dn / prof.span_dn, dtype=torch.float64)
     return (aug(x) * prof.span_dn).numpy()

@@ -1,6 +1,7 @@
 """The fused engine's contract: one seed -> the same noise on every backend, validated
 fixed parameters, defined gradients, torch.compile, and (on CUDA) no host sync, few
 launches, CUDA-graph capture."""
+import math
 import numpy as np
 import pytest
 import torch
@@ -215,3 +216,46 @@ def test_non_finite_values_pass_through_every_backend(samplers, bad):
     x[0, 1, 2, 3] = bad
     y = RawNoiseAugment("SonyA7S2", check_finite=False)(x)
     assert not torch.isfinite(y[0, 1, 2, 3]) and torch.isfinite(y).sum() == y.numel() - 1
+
+
+# fixed patterns whose every value is fixed by the sensor (no temporal part, no window)
+PATTERNS = {
+    "Col": {"seed": 7, "k": [1.0], "sigma_dn": [0.0], "fixed_dn": [1.0]},
+    "FPN": {"seed": 11, "k": [1.0], "sigma_dn": [0.5], "shading_dn": [[[0.0, 0.0], [0.0, 0.0]]]},
+    "Hot": LOOP_EFFECTS["Hot"],
+    "PRNU": LOOP_EFFECTS["PRNU"],
+    "Dark": LOOP_EFFECTS["Dark"],
+    "Lines": LOOP_EFFECTS["Lines"],
+}
+
+
+def _patterns(token, sensor, seed, batch=32):
+    """(B, 4 * H * W) fixed pattern of each sample, DN (no other noise)."""
+    profile = NoiseProfile.load("SonyA7S2").with_effect(token, PATTERNS[token])
+    fixed = {"k": 1.0, "sigma_g": 0.0, "exposure_s": 2.0, **({} if sensor is None else {"sensor": sensor})}
+    aug = RawNoiseAugment(profile, model="G", ratio=1.0, fixed=fixed, generator=torch.Generator().manual_seed(seed))
+    x = torch.full((batch, 4, 32, 48), 0.2, dtype=torch.float64)
+    return ((aug(x) - x) * profile.span_dn).reshape(batch, -1)
+
+
+@pytest.mark.parametrize("token", sorted(PATTERNS))
+def test_each_sample_has_a_sensor_of_its_own_unless_the_sensor_is_fixed(token):
+    # a synthesized camera: one sensor (instance 0, the profile's) in every frame of every call
+    one = _patterns(token, 0, seed=1)
+    assert one.abs().sum() > 0 and torch.equal(one, one[:1].expand_as(one)) and torch.equal(one, _patterns(token, 0, seed=2))
+    # training crops: a sensor drawn per sample (2^20 instances: two samples of a batch share
+    # one with probability < 5e-4), so a network cannot learn one stand-in realization
+    many = _patterns(token, None, seed=1)
+    assert not torch.equal(many[0], many[1]) and not torch.equal(many[0], one[0])
+    a, b = many[0::2] - many[0::2].mean(1, keepdim=True), many[1::2] - many[1::2].mean(1, keepdim=True)
+    r = (a * b).sum(1) / (a.norm(dim=1) * b.norm(dim=1))
+    # independent patterns: each pair's correlation has sd 1/sqrt(n_eff); n_eff = the
+    # independent units (pixels, or the sensor lines of Col and Lines: 2 x 48 columns + 2 x 32 rows)
+    n_eff = 2 * 48 if token == "Col" else 2 * (48 + 32) if token == "Lines" else 4 * 32 * 48
+    assert abs(float(r.mean())) < 5 / math.sqrt(n_eff * len(r)), float(r.mean())
+
+
+@pytest.mark.parametrize("value", [1.5, -1, 2**20, float("nan")])
+def test_a_fixed_sensor_must_be_an_instance(value):
+    with pytest.raises(ValueError, match="sensor"):
+        RawNoiseAugment("SonyA7S2", fixed={"sensor": value})

@@ -75,7 +75,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
                   + [("flat", level, level, j) for level in flat_levels for j in range(2)])
         for kind, exposure, level, j in frames:
             fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": BASE.row_scale.median(k),
-                     "exposure_s": exposure}
+                     "exposure_s": exposure, "sensor": 0}  # one camera: one sensor in every frame
             aug = RawNoiseAugment(profile, model="G*+P*+R", ratio=1.0, fixed=fixed,
                                   generator=torch.Generator().manual_seed(1000 * i + 10 * j + len(rows) + 100_003 * seed), rank_seeding=False)
             clean = torch.full((1, 4, 64, 64), level)

@@ -25,7 +25,7 @@ CAMERA = BASE.with_effect("Col", COLUMN)
 def _noisy_codes(clean, k, iso_index, seed, exposure_s=1e-4, ratio=1.0):
     """Raw codes (H, W) of the camera at gain ``k`` for a packed clean frame (normalized)."""
     fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": BASE.row_scale.median(k),
-             "exposure_s": exposure_s}
+             "exposure_s": exposure_s, "sensor": 0}  # one camera: its fixed column pattern in every frame
     aug = RawNoiseAugment(CAMERA, model="G*+P*+R", ratio=ratio, fixed=fixed, rank_seeding=False,
                           generator=torch.Generator().manual_seed(10_000 * iso_index + seed))
     dn = aug(torch.as_tensor(clean, dtype=torch.float32)[None]).numpy()[0] * BASE.span_dn

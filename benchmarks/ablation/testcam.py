@@ -54,7 +54,7 @@ def iso_parameters(profile: NoiseProfile, iso: float) -> dict:
 
 def capture(profile: NoiseProfile, clean: np.ndarray, iso: float, ratio: float, seed: int) -> np.ndarray:
     """Short-exposure raw codes (N, 4, h, w) of clean normalized packed frames (N, 4, h, w)."""
-    aug = RawNoiseAugment(profile, model=TRUE_MODEL, ratio=ratio, fixed=iso_parameters(profile, iso),
+    aug = RawNoiseAugment(profile, model=TRUE_MODEL, ratio=ratio, fixed={**iso_parameters(profile, iso), "sensor": 0},
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     noisy = aug(torch.from_numpy(np.ascontiguousarray(clean, dtype=np.float32))).numpy()
     short_dn = noisy * profile.span_dn / ratio

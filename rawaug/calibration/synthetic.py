@@ -20,7 +20,7 @@ def synthesize_packed(profile: NoiseProfile, clean_normalized: float, *, k: floa
     rounding to integer codes is the quantization.
     """
     aug = RawNoiseAugment(profile, model=model, ratio=1.0, k=k, include_profile_effects=False,
-                          fixed={"k": k, "sigma_tl": sigma_tl, "lambda": lam, "sigma_r": sigma_r},
+                          fixed={"k": k, "sigma_tl": sigma_tl, "lambda": lam, "sigma_r": sigma_r, "sensor": 0},
                           generator=torch.Generator().manual_seed(int(seed)), rank_seeding=False)
     x = torch.full((1, 4) + tuple(shape), float(clean_normalized), dtype=torch.float32)
     with torch.no_grad():

@@ -23,6 +23,7 @@ _K, _PRNU = L.COLUMN["k"], L.COLUMN["prnu_sigma"]
 _TL, _G, _R = L.COLUMN["sigma_tl"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
 _CS, _CF = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"]
 _FS, _FR = L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
+_SENSOR = L.COLUMN["sensor"]
 _FOY, _FOX, _FH, _FW = L.COLUMN["fpn_oy"], L.COLUMN["fpn_ox"], L.COLUMN["fpn_h"], L.COLUMN["fpn_w"]
 _HD, _HM, _HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
 _Q, _B0 = L.COLUMN["step_dn"], L.COLUMN["bias_r"]
@@ -126,6 +127,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         scale_in = span / v[_RATIO]
         scale_out = v[_RATIO] / span
         row_set, col_set = _ROW_SET[c], _COL_SET[c]
+        sensor = int(v[_SENSOR])  # fixed patterns of this sample's sensor instance: planes of their own
         line = 0.0  # offsets shared by the whole row
         if stages & L.ROW:
             line += v[_R] * symmetric(normal, draw(keys[_ROW], (b * 2 + row_set) * h + y))
@@ -135,7 +137,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             line += v[_BS] * symmetric(normal, draw(keys[_BLE], b * 5))
             line += v[_BC] * symmetric(normal, draw(keys[_BLE], b * 5 + 1 + c))
         if stages & L.LINES:
-            line += defect_line_at(normal, keys[_LINES_ROW], row_set * h + y, v[_LRD], v[_LM], v[_LLS], v[_LNEG])
+            line += defect_line_at(normal, keys[_LINES_ROW], (sensor * 2 + row_set) * h + y, v[_LRD], v[_LM], v[_LLS], v[_LNEG])
         table = read_tables[read_index[b]]
         key_fine, key_rest, key_coarse = keys[_SHOT], keys[_SHOT_REST], keys[_SHOT_COARSE]
         record = int(v[_FR])
@@ -152,7 +154,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         glox = v[_GLOX]
         glrec, glgh, glgw = int(v[_GLR]), int(v[_GLGH]), int(v[_GLGW])
         g0 = r * w
-        p0 = (c * h + y) * w
+        p0 = ((sensor * 4 + c) * h + y) * w
         for x in range(w):
             g = g0 + x
             p = p0 + x
@@ -200,9 +202,9 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += v[_G] * symmetric(normal, draw(keys[_READ], g))
             if stages & L.COL:
                 s += v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
-                s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], col_set * w + x))
+                s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))
             if stages & L.LINES:
-                s += defect_line_at(normal, keys[_LINES_COL], col_set * w + x, v[_LCD], v[_LM], v[_LLS], v[_LNEG])
+                s += defect_line_at(normal, keys[_LINES_COL], (sensor * 2 + col_set) * w + x, v[_LCD], v[_LM], v[_LLS], v[_LNEG])
             if stages & L.QUANT:
                 s += (unit(draw(keys[_QUANT], g)) - 0.5) * v[_Q]
             if stages & L.LOW_FREQ:

@@ -10,8 +10,9 @@ An effect is a small class with
   ``rawaug/gpu/fused.py`` under the same flag;
 * ``draw(ctx)``: its per-sample parameters, ``{column: (B,) tensor}`` on the device,
   given the drawn gain K (no host round trip);
-* ``pattern_streams()``: keys of its fixed patterns (the same in every call, keyed by the
-  profile's seed and the pixel position), and ``tables()`` where it needs a small table.
+* ``pattern_streams()``: keys of its fixed patterns (keyed by the profile's seed, the
+  sample's sensor instance and the pixel position: one sensor's are the same in every call),
+  and ``tables()`` where it needs a small table.
 
 Effects found by the closed loop also carry ``validate_params`` (for their
 ``profile.effects`` entry) and, in their own module, ``estimate`` (from measured frames)

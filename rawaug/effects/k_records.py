@@ -7,9 +7,9 @@ Effects whose size depends on ISO store one record per calibrated gain::
 
 and a synthesized sample uses the record nearest its drawn K (in log K), as the ELD
 profiles do for ``tukey_shape`` and ``color_bias``. A fixed pattern (a sensor's
-per-pixel or per-column offsets) is the same realization in every frame and every call:
-it is keyed by the profile's seed and the pixel position (``rawaug.rng``), so it is
-identical on every device and nothing is stored.
+per-pixel or per-column offsets) is keyed by the profile's seed, the sample's sensor
+instance (``fixed={"sensor": 0}``: the profile's own, in every frame and every call) and the
+pixel position (``rawaug.rng``), so it is identical on every device and nothing is stored.
 """
 from __future__ import annotations
 

@@ -50,9 +50,11 @@ COLUMNS = (
     "fpn_gh", "fpn_gw",  # FPN shading grid size (the grids table may be padded to a larger one)
     "glow_s", "glow_record", "glow_oy", "glow_ox", "glow_h", "glow_w", "glow_gh", "glow_gw",  # exposure, grid, window
     "nl_c",  # gain non-linearity: compression per DN of signal
+    "sensor",  # sensor instance of the fixed patterns (an integer; 0: the profile's own)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
+SENSORS = 1 << 20  # sensor instances a sample may draw: its fixed patterns start at instance x (plane size)
 READ_TABLE_Z = 6.0  # a read_lut row holds values on a uniform grid of normal scores in [-READ_TABLE_Z, READ_TABLE_Z]
 N_COLUMNS = len(COLUMNS)
 

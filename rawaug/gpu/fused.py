@@ -28,6 +28,7 @@ C_FGH, C_FGW = L.COLUMN["fpn_gh"], L.COLUMN["fpn_gw"]
 C_GLS, C_GLR, C_GLOY, C_GLOX = L.COLUMN["glow_s"], L.COLUMN["glow_record"], L.COLUMN["glow_oy"], L.COLUMN["glow_ox"]
 C_GLH, C_GLW, C_GLGH, C_GLGW = L.COLUMN["glow_h"], L.COLUMN["glow_w"], L.COLUMN["glow_gh"], L.COLUMN["glow_gw"]
 C_NL = L.COLUMN["nl_c"]
+C_SENSOR = L.COLUMN["sensor"]
 C_HD, C_HM, C_HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
 C_Q, C_B0, C_BS, C_BC, C_CL = (L.COLUMN["step_dn"], L.COLUMN["bias_r"], L.COLUMN["ble_sigma"],
                                L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"])
@@ -101,10 +102,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     y = idx // W
     x = idx % W
     g = (plane.to(tl.int64) * hw + idx).to(tl.uint64)
-    p = (c.to(tl.int64) * hw + idx).to(tl.uint64)
     row_set = c // 2
     col_set = tl.where((c == 0) | (c == 3), 0, 1)
     v = values_ptr + b.to(tl.int64) * P
+    sensor = _col(v, C_SENSOR).to(tl.int64)  # fixed patterns of this sample's sensor instance: planes of their own
+    p = ((sensor * 4 + c) * hw + idx).to(tl.uint64)
     k = _col(v, C_K)
     ratio = _col(v, C_RATIO)
     scale_in = span / ratio
@@ -157,9 +159,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += _col(v, C_G) * _normal(draw(_key(keys_ptr, K_READ), g))
     if FLAGS & 256:  # column noise: per frame and fixed
         s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
-        s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), (col_set.to(tl.int64) * W + x).to(tl.uint64)))
+        s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
     if FLAGS & 262144:  # defect lines: the sensor column's offset here, the row's below
-        s += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_COL), (col_set.to(tl.int64) * W + x).to(tl.uint64),
+        s += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64),
                           _col(v, C_LCD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
     if FLAGS & 512:  # U
         s += (unit(draw(_key(keys_ptr, K_QUANT), g)) - 0.5) * _col(v, C_Q)
@@ -178,7 +180,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 128:  # R: one offset per sensor row
         line += _col(v, C_R) * _normal(draw(_key(keys_ptr, K_ROW), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
     if FLAGS & 262144:  # defect lines: the sensor row's offset
-        line += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_ROW), (row_set.to(tl.int64) * H + y).to(tl.uint64),
+        line += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_ROW), ((sensor * 2 + row_set) * H + y).to(tl.uint64),
                              _col(v, C_LRD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
     if FLAGS & 1024:  # C
         line += tl.load(v + C_B0 + c)

@@ -220,7 +220,8 @@ def _one(profile, stack, tokens, fixed, generator) -> np.ndarray:
     n, _, h, w = stack.frames_dn.shape
     level = np.broadcast_to(np.asarray(clean_level(profile, stack), dtype=np.float64), (4,))
     clean = torch.from_numpy(level / profile.span_dn).float().view(1, 4, 1, 1).expand(n, 4, h, w).contiguous()
-    aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed=fixed, generator=generator, rank_seeding=False)
+    aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed={**fixed, "sensor": 0}, generator=generator,
+                          rank_seeding=False)  # one sensor: the frames of a stack share its fixed patterns
     with torch.no_grad():
         frames = aug(clean) * profile.span_dn
     return (torch.round(frames) if stack.integer else frames).numpy()
