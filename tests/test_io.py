@@ -121,6 +121,23 @@ def test_manifest_parsing_grouping_and_pairs(tmp_path):
     assert [(a.path[-6:], b.path[-6:]) for a, b in pairs] == [("f1.npy", "f2.npy"), ("g1.npy", "g2.npy")]
 
 
+def test_flats_under_listed_lights_pair_by_light(tmp_path):
+    m = _mosaic()
+    for name in ("b1", "f1", "f2", "f3", "f4"):
+        np.save(tmp_path / f"{name}.npy", m)
+    (tmp_path / "m.csv").write_text(
+        "path,kind,iso,exposure_s,light\n"  # one exposure time, two lights, listed interleaved
+        "b1.npy,bias,100,0.001,\n"
+        "f1.npy,flat,100,0.01,0.5\n"
+        "f2.npy,flat,100,0.01,1\n"
+        "f3.npy,flat,100,0.01,0.5\n"
+        "f4.npy,flat,100,0.01,1\n")
+    entries = read_manifest(tmp_path / "m.csv")
+    assert [e.light for e in entries] == [None, 0.5, 1.0, 0.5, 1.0]
+    pairs = find_flat_pairs([e for e in entries if e.kind == "flat"])
+    assert sorted((a.path[-6:], b.path[-6:]) for a, b in pairs) == [("f1.npy", "f3.npy"), ("f2.npy", "f4.npy")]
+
+
 @pytest.mark.parametrize("body, match", [
     ("path,kind,iso\nb.npy,bias,\n", "missing ISO"),
     ("path,kind,iso\nb.npy,light,100\n", "kind must be one of"),
@@ -128,6 +145,8 @@ def test_manifest_parsing_grouping_and_pairs(tmp_path):
     ("path,kind,iso,colour\nb.npy,bias,100,red\n", "unknown"),
     ("path,kind,iso,black_level\nb.npy,bias,100,1 2\n", "black_level"),
     ("path,kind,iso\nb.npy,bias,-5\n", "positive"),
+    ("path,kind,iso,exposure_s,light\nf.npy,flat,100,0.01,0\n", "'light' must be a positive"),
+    ("path,kind,iso,light\nb.npy,bias,100,1\n", "a bias frame has none"),
 ])
 def test_manifest_errors(tmp_path, body, match):
     (tmp_path / "m.csv").write_text(body)

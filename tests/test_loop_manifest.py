@@ -62,17 +62,19 @@ SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
 
 
-def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_exposures=(4.0,), flat_levels=(0.02, 0.1)):
+def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_exposures=(4.0,), flat_levels=(0.02, 0.1),
+                 lights=False):
     """Bias frames, dark frames (4 each) of ``dark_exposures`` seconds and flat pairs at
-    ``flat_levels`` (exposure in seconds = level) at two ISOs of the base camera, plus
-    ``effect`` nobody declared, plus ``post`` (a change to the DN no rawaug stage makes): a
-    manifest of 16-bit frames."""
+    ``flat_levels`` (exposure in seconds = level; with ``lights``, all at 0.5 s under a
+    relative light = level, listed in the manifest's ``light`` column) at two ISOs of the
+    base camera, plus ``effect`` nobody declared, plus ``post`` (a change to the DN no
+    rawaug stage makes): a manifest of 16-bit frames."""
     profile = BASE.with_effect(effect, params) if effect else BASE
     rng = np.random.default_rng(5 + seed)
     rows = []
     for i, (iso, k) in enumerate([(800, 0.75), (3200, 3.0)]):
         frames = ([("bias", 1e-4, 0.0, j) for j in range(6)] + [("dark", t, 0.0, j) for t in dark_exposures for j in range(4)]
-                  + [("flat", level, level, j) for level in flat_levels for j in range(2)])
+                  + [("flat", 0.5 if lights else level, level, j) for level in flat_levels for j in range(2)])
         for kind, exposure, level, j in frames:
             fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": BASE.row_scale.median(k),
                      "exposure_s": exposure, "sensor": 0}  # one camera: one sensor in every frame
@@ -84,10 +86,11 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
             packed = np.clip(np.rint(dn + BASE.black_level), 0, BASE.white_level)
             name = f"{kind}_{iso}_{exposure:g}_{level:g}_{j}.npy"
             np.save(folder / name, unpack(packed, "RGGB").astype(np.uint16))
-            rows.append([name, kind, iso, exposure, "RGGB", 512, 16383])
+            rows.append([name, kind, iso, exposure, "RGGB", 512, 16383] + ([level if kind == "flat" else ""] if lights else []))
     manifest = folder / "manifest.csv"
     with open(manifest, "w", newline="") as f:
-        csv.writer(f).writerows([["path", "kind", "iso", "exposure_s", "cfa", "black_level", "white_level"]] + rows)
+        header = ["path", "kind", "iso", "exposure_s", "cfa", "black_level", "white_level"] + (["light"] if lights else [])
+        csv.writer(f).writerows([header] + rows)
     return manifest
 
 
@@ -292,3 +295,24 @@ def test_a_chance_residual_is_confirmed_before_it_is_acted_on(tmp_path):
     assert chance and all(abs(u["z"]) > 6 > abs(u["z_confirm"]) and u["n_synth_confirm"] == 24 for u in chance), data["unconfirmed"]
     assert not any(u["statistic"] == "psd2d_lowfreq" for u in data["unexplained"])
     assert "Not confirmed on a larger sample of syntheses" in (report / "report.md").read_text()
+
+
+def test_flats_under_known_lights_form_a_series(tmp_path, capsys):
+    # the soft-knee camera's flat series taken at one exposure time under five lights: with
+    # the manifest's light column the loop checks the response and names the non-linearity;
+    # without it those flats are no series (a warning says so) and nothing is found
+    manifest = write_frames(tmp_path, post=soft_knee, flat_levels=SERIES, lights=True)
+    out = tmp_path / "loop.yaml"
+    assert main(["loop", str(manifest), "--out", str(out), "--report", str(tmp_path / "report"), "--n-synth", "8"]) == 0
+    effects = yaml.safe_load(out.read_text())["effects"]
+    assert list(effects) == ["NonLin"] and all(0.8 < v * BASE.span_dn / 0.08 < 1.05 for v in effects["NonLin"]["compression_per_dn"])
+    rows = list(csv.reader(manifest.open()))
+    no_light = tmp_path / "no_light.csv"
+    with open(no_light, "w", newline="") as f:
+        csv.writer(f).writerows([r[:-1] for r in rows])
+    out2 = tmp_path / "loop2.yaml"
+    capsys.readouterr()
+    assert main(["loop", str(no_light), "--out", str(out2), "--report", str(tmp_path / "report2"), "--n-synth", "8"]) == 0
+    printed = capsys.readouterr().out  # each light's flats made a stack of their own, not one stack of mixed levels
+    assert "ISO 800: the flats at 0.5 s fall at 5 levels" in printed and "'light' column" in printed
+    assert "NonLin" not in (yaml.safe_load(out2.read_text()).get("effects") or {})

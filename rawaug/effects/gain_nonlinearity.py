@@ -15,9 +15,10 @@ Profile entry (per-K records, nearest record in log K)::
     NonLin: {k: [K, ...], compression_per_dn: [...]}
 
 Detected by ``flat_linearity`` on flats taken at three or more exposure times under one
-light (a flat series): the stack's mean against the line through zero that the series
-fits (``linear_rates``). Estimated by ``estimate``: ``c`` and one rate per channel
-(DN per second) fitted jointly to the series' means, in relative terms (``fit_series``);
+light, or at three or more known relative lights (the manifest's ``light`` column): a flat
+series, whose dose is exposure time x light. The statistic is the stack's mean against the
+line through zero that the series fits (``linear_rates``). Estimated by ``estimate``: ``c``
+and one rate per channel (DN per unit dose) fitted jointly to the series' means, in relative terms (``fit_series``);
 the model then synthesizes each flat at the rate its compression implies (``fit_rates``).
 """
 from __future__ import annotations
@@ -69,7 +70,7 @@ def _check_series(exposures_s, signal_dn):
     if t.ndim != 1 or mu.shape != (t.size, 4):
         raise ValueError(f"a flat series needs exposures (n,) and channel means (n, 4), got {t.shape} and {mu.shape}")
     if np.unique(t).size < MIN_EXPOSURES or not np.all(t > 0) or not np.all(mu > 0):
-        raise ValueError(f"a flat series needs >= {MIN_EXPOSURES} distinct exposures > 0 s and means > 0 DN, "
+        raise ValueError(f"a flat series needs >= {MIN_EXPOSURES} distinct exposures > 0 (s, or s x relative light) and means > 0 DN, "
                          f"got exposures {t.tolist()}")
     return t, mu
 
@@ -113,11 +114,11 @@ def fit_series(exposures_s, signal_dn, k):
 
 def estimate(frames, synthesized, k: float, series=None, **_) -> dict:
     """Gain non-linearity at gain ``k`` from the flat series a flat stack belongs to
-    (``series.exposures_s`` (n,), ``series.signal_dn`` (n, 4): measured channel means less
+    (``series.doses`` (n,), ``series.signal_dn`` (n, 4): measured channel means less
     the bias offsets). Every stack of one series gives the same record."""
     if series is None:
-        raise ValueError(f"NonLin needs flats at >= {MIN_EXPOSURES} exposure times under one light (a flat series)")
-    c, _ = fit_series(series.exposures_s, series.signal_dn, k)
+        raise ValueError(f"NonLin needs flats at >= {MIN_EXPOSURES} exposures (time x relative light): a flat series")
+    c, _ = fit_series(series.doses, series.signal_dn, k)
     return {"k": [float(k)], "compression_per_dn": [c]}
 
 

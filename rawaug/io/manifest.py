@@ -3,15 +3,18 @@
 Manifest format (CSV with a header row; ``#`` lines are comments; paths relative to the
 manifest's folder)::
 
-    path,kind,iso,exposure_s,width,height,dtype,cfa,black_level,white_level
-    bias_0001.dng,bias,1600,0.000125,,,,,,
-    flat_a.raw,flat,1600,0.01,4000,3000,uint16,RGGB,512,16383
+    path,kind,iso,exposure_s,width,height,dtype,cfa,black_level,white_level,light
+    bias_0001.dng,bias,1600,0.000125,,,,,,,
+    flat_a.raw,flat,1600,0.01,4000,3000,uint16,RGGB,512,16383,0.25
 
 Required columns: ``path``, ``kind`` (``bias`` | ``flat`` | ``dark``), ``iso``; ``exposure_s``
 is required for flats (pairs are matched on it). The optional columns give what the file
 cannot tell: ``width, height, dtype`` of a headerless file, ``cfa``, ``black_level`` (one
 number or 4 separated by spaces or ``;`` in packed R, G1, B, G2 order), ``white_level``
-(raw codes). An empty cell means "take it from the file".
+(raw codes). An empty cell means "take it from the file". ``light`` (optional, flats only)
+is the relative light level of a flat (any unit: a source current, an ND filter's
+transmission): flat pairs are matched on it too, and flats of one exposure time under known
+lights form a series that shows the response's linearity (dose = exposure x light).
 """
 from __future__ import annotations
 
@@ -26,7 +29,7 @@ from .frame import Frame
 from .readers import read_frame
 
 KINDS = ("bias", "flat", "dark")
-COLUMNS = ("path", "kind", "iso", "exposure_s", "width", "height", "dtype", "cfa", "black_level", "white_level")
+COLUMNS = ("path", "kind", "iso", "exposure_s", "width", "height", "dtype", "cfa", "black_level", "white_level", "light")
 REQUIRED = ("path", "kind", "iso")
 
 
@@ -44,6 +47,7 @@ class ManifestEntry:
     cfa: str | None = None
     black_level: float | tuple | None = None
     white_level: float | None = None
+    light: float | None = None  # a flat's relative light level (any unit)
 
     @property
     def hints(self) -> dict:
@@ -127,6 +131,10 @@ def read_manifest(path) -> list[ManifestEntry]:
             entry.black_level = _black(row["black_level"], where)
         if row.get("white_level"):
             entry.white_level = _number(row["white_level"], "white_level", where)
+        if row.get("light"):
+            if kind != "flat":
+                raise ValueError(f"{where}: 'light' is a flat's relative light level; a {kind} frame has none, got {row['light']!r}")
+            entry.light = _number(row["light"], "light", where)
         entries.append(entry)
     if not entries:
         raise ValueError(f"manifest {str(path)!r} lists no frames")
@@ -146,18 +154,20 @@ def group_by_iso(items) -> dict[float, list]:
 
 
 def find_flat_pairs(flats) -> list[tuple]:
-    """Pair flats taken at equal settings (same ISO and exposure time), in listed order.
+    """Pair flats taken at equal settings (same ISO, exposure time and ``light`` where
+    given), in listed order.
 
     A setting with an odd number of flats leaves its last one unpaired (with a warning);
-    items need ``.iso`` and ``.exposure_s``.
+    items need ``.iso`` and ``.exposure_s`` (``.light`` optional).
     """
     groups = defaultdict(list)
     for item in flats:
-        groups[(item.iso, item.exposure_s)].append(item)
+        groups[(item.iso, item.exposure_s, getattr(item, "light", None))].append(item)
     pairs = []
-    for (iso, exposure), members in groups.items():
+    for (iso, exposure, light), members in groups.items():
         if len(members) % 2:
-            warnings.warn(f"flat at ISO {iso}, exposure {exposure} s: {len(members)} frames, the last "
+            at = f", light {light:g}" if light is not None else ""
+            warnings.warn(f"flat at ISO {iso}, exposure {exposure} s{at}: {len(members)} frames, the last "
                           f"({getattr(members[-1], 'path', '?')}) has no partner and is not used", stacklevel=2)
         pairs += [(members[i], members[i + 1]) for i in range(0, len(members) - 1, 2)]
     return pairs

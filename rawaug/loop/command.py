@@ -105,25 +105,51 @@ def _run_frame_table(args, path):
     return profile, {"input": str(path), "kind": "frame_table", **result}, "\n".join(md), None
 
 
+LEVEL_SPLIT = 0.02  # flats of one setting whose means differ by more were taken under different lights
 SERIES_SPREAD = 0.25  # flats further than this from one line through zero do not share one light
 
 
+def _split_levels(flats: dict) -> dict:
+    """Flats of one setting (ISO, exposure, light) split where their means differ by more
+    than ``LEVEL_SPLIT``: under lights the manifest does not list, one exposure holds
+    several levels, and each is a stack of its own (keys gain the level's index)."""
+    out = {}
+    for (iso, exposure, light), frames in flats.items():
+        means = np.array([float(np.mean(packed)) for packed, _ in frames])
+        order = np.argsort(means)
+        level, groups = 0, {}
+        for before, i in zip([None] + list(order[:-1]), order):
+            if before is not None and means[i] > (1 + LEVEL_SPLIT) * max(means[before], 1e-9):
+                level += 1
+            groups.setdefault(level, []).append(i)
+        if len(groups) > 1:
+            print(f"warning: ISO {iso:g}: the flats at {exposure:g} s" + (f", light {light:g}" if light else "")
+                  + f" fall at {len(groups)} levels (was the light changed?): each level is a stack of its own; "
+                  "give each flat's relative light in the manifest's 'light' column for the response's linearity "
+                  "to be checked")
+        for level, members in groups.items():
+            out[(iso, exposure, light, level)] = [frames[i] for i in sorted(members)]
+    return out
+
+
 def flat_series(iso, points, offsets):
-    """The ISO's flats as a ``FlatSeries`` (``points``: (exposure_s, (4,) signal DN) per
-    stack), if they can show the response: >= 3 distinct exposure times, each flat within
-    ``SERIES_SPREAD`` of a line through zero (flats at one exposure under several lights
-    are not a series). Else None, with a warning when a series was tried."""
+    """The ISO's flats as a ``FlatSeries`` (``points``: (dose, (4,) signal DN) per stack;
+    the dose is the exposure time, times the manifest's relative ``light`` where given),
+    if they can show the response: >= 3 distinct doses, each flat within ``SERIES_SPREAD``
+    of a line through zero (flats at one exposure under unlisted lights are not a
+    series). Else None, with a warning when a series was tried."""
     from ..effects.gain_nonlinearity import MIN_EXPOSURES
     from .diagnose import FlatSeries
 
-    exposures = np.array([float(t or 0.0) for t, _ in points])
-    if np.unique(exposures[exposures > 0]).size < MIN_EXPOSURES or not np.all(exposures > 0):
+    doses = np.array([float(t or 0.0) for t, _ in points])
+    if np.unique(doses[doses > 0]).size < MIN_EXPOSURES or not np.all(doses > 0):
         return None
-    series = FlatSeries(exposures, np.array([level for _, level in points]), offsets)
-    spread = np.abs(series.signal_dn / (series.rates[None, :] * exposures[:, None]) - 1).max()
+    series = FlatSeries(doses, np.array([level for _, level in points]), offsets)
+    spread = np.abs(series.signal_dn / (series.rates[None, :] * doses[:, None]) - 1).max()
     if spread > SERIES_SPREAD:
         print(f"warning: ISO {iso:g}: the flats' means are up to {100 * spread:.0f} % off a line through zero against "
-              f"their exposure times (was the light changed?): the response's linearity is not checked")
+              f"their exposures (was the light changed? give each flat's relative light in the manifest's 'light' "
+              f"column): the response's linearity is not checked")
         return None
     return series
 
@@ -157,7 +183,8 @@ def _run_manifest(args, path):
         packed = central(whole, args.loop_size)
         shapes = (whole.shape[1:], packed.shape[1:])
         if kind == "flat":
-            flats.setdefault((frame.iso, float(frame.exposure_s or 0.0)), []).append((packed, frame.white_level - frame.black_packed()))
+            flats.setdefault((frame.iso, float(frame.exposure_s or 0.0), entry.light), []).append(
+                (packed, frame.white_level - frame.black_packed()))
         elif kind == "dark":
             if not frame.exposure_s:
                 raise ValueError(f"{entry.path}: a dark frame needs its exposure_s (manifest column or EXIF)")
@@ -187,8 +214,9 @@ def _run_manifest(args, path):
         settings[f"ISO {iso:g} dark {exposure:g} s"] = {"kind": "dark", "iso": iso, "k": k, "exposure_s": exposure, "level_dn": None}
         stacks.append(FrameStack(np.stack(frames).astype(np.float64), k, kind="dark", exposure_s=exposure,
                                  label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_of=bias_stack))
+    flats = _split_levels(flats)
     flat_stacks: dict = {}  # ISO -> its usable flat stacks
-    for (iso, exposure), frames in sorted(flats.items()):
+    for (iso, exposure, light, _), frames in sorted(flats.items(), key=lambda item: (item[0][0], item[0][1], item[0][2] or 0.0, item[0][3])):
         if iso not in measured or len(frames) < 2:
             continue  # calibration reports flats it cannot use
         base, offsets, k, bias_stack = measured[iso]
@@ -201,13 +229,20 @@ def _run_manifest(args, path):
         while label in settings:  # two flat settings of one rounded level
             label += "'"
         settings[label] = {"kind": "flat", "iso": iso, "k": k, "exposure_s": exposure, "level_dn": float(level.mean())}
-        flat_stacks.setdefault(iso, []).append((stack, k, level, exposure, base, bias_stack, label))
+        flat_stacks.setdefault(iso, []).append((stack, k, level, exposure, light, base, bias_stack, label))
     for iso, items in flat_stacks.items():
-        series = flat_series(iso, [(exposure, level) for _, _, level, exposure, *_ in items], measured[iso][1])
-        for stack, k, level, exposure, base, bias_stack, label in items:
-            stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in (series.nominal(exposure) if series else level)],
+        lights = [light for *_, light, _, _, _ in items]
+        if any(light is not None for light in lights) and not all(light is not None for light in lights):
+            print(f"warning: ISO {iso:g}: some flats have a 'light' and some not: the response's linearity is not checked")
+            series = None
+        else:  # the dose: exposure time x relative light (1 when no light is given)
+            series = flat_series(iso, [(exposure * (light or 1.0), level) for _, _, level, exposure, light, *_ in items],
+                                 measured[iso][1])
+        for stack, k, level, exposure, light, base, bias_stack, label in items:
+            dose = exposure * (light or 1.0)
+            stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in (series.nominal(dose) if series else level)],
                                      base=base, offsets_of=bias_stack, label=label, exposure_s=exposure if series else None,
-                                     series=series))
+                                     series=series, dose=dose if series else None))
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
     (h, w), (ch, cw) = shapes
     view = (f"The frame loop diagnosed the central {ch} x {cw} of each frame's packed channels ({h} x {w}; "

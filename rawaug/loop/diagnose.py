@@ -28,37 +28,38 @@ from ..statistics import STATISTICS, frame_statistics, repaired
 
 @dataclass
 class FlatSeries:
-    """Flats of one ISO at several exposure times under one light: ``exposures_s`` (n,) and
-    ``signal_dn`` (n, 4), each stack's channel means less ``offsets_dn`` (the ISO's bias
+    """Flats of one ISO at several exposures: ``doses`` (n,) are exposure times (s), or
+    exposure time x relative light where the manifest gives the light (``light`` column);
+    ``signal_dn`` (n, 4) each stack's channel means less ``offsets_dn`` (the ISO's bias
     offsets). A linear camera puts the means on a line through zero (``linear_rates``); the
     model synthesizes each flat at the clean level its effects need to put it there
     (``clean_level``)."""
 
-    exposures_s: np.ndarray
+    doses: np.ndarray
     signal_dn: np.ndarray
     offsets_dn: np.ndarray
 
     def __post_init__(self):
-        self.exposures_s = np.asarray(self.exposures_s, dtype=np.float64)
+        self.doses = np.asarray(self.doses, dtype=np.float64)
         self.signal_dn = np.asarray(self.signal_dn, dtype=np.float64)
         self.offsets_dn = np.asarray(self.offsets_dn, dtype=np.float64)
-        self.rates = linear_rates(self.exposures_s, self.signal_dn)  # DN/s per channel (validates the series)
+        self.rates = linear_rates(self.doses, self.signal_dn)  # DN per unit dose, per channel (validates the series)
         self._rates_at = {}  # (c, K) -> rates the compression implies (fitted once, not per synthesis)
 
-    def nominal(self, exposure_s: float) -> np.ndarray:
-        """(4,) clean level (DN) of a linear response at ``exposure_s``."""
-        return self.rates * float(exposure_s)
+    def nominal(self, dose: float) -> np.ndarray:
+        """(4,) clean level (DN) of a linear response at ``dose``."""
+        return self.rates * float(dose)
 
-    def clean_level(self, profile: NoiseProfile, k: float, exposure_s: float) -> np.ndarray:
-        """(4,) clean level (DN) that puts the model's mean on the series at ``exposure_s``:
+    def clean_level(self, profile: NoiseProfile, k: float, dose: float) -> np.ndarray:
+        """(4,) clean level (DN) that puts the model's mean on the series at ``dose``:
         the nominal one, or, with a gain non-linearity, the rate its compression implies."""
         params = profile.effects.get("NonLin")
         if not params:
-            return self.nominal(exposure_s)
+            return self.nominal(dose)
         c = float(value_at_k(params, "compression_per_dn", torch.tensor([float(k)], dtype=torch.float64))[0])
         if (c, k) not in self._rates_at:
-            self._rates_at[(c, k)] = fit_rates(self.exposures_s, self.signal_dn, c, k)
-        return self._rates_at[(c, k)] * float(exposure_s)
+            self._rates_at[(c, k)] = fit_rates(self.doses, self.signal_dn, c, k)
+        return self._rates_at[(c, k)] * float(dose)
 
 
 @dataclass
@@ -76,8 +77,9 @@ class FrameStack:
     ``offsets_of`` (that bias stack) gives it the offsets the bias stack's syntheses use,
     fitted with the model's effects (a clip at black raises the mean, so the measured
     means would be too high); ``offsets_dn`` fixes them instead. A flat stack of a
-    ``series`` (``FlatSeries``, with its ``exposure_s``) has the series' nominal level as
-    ``level_dn`` and is also checked for linearity (``flat_linearity``)."""
+    ``series`` (``FlatSeries``, with its ``dose``: ``exposure_s`` unless the light was
+    varied) has the series' nominal level as ``level_dn`` and is also checked for linearity
+    (``flat_linearity``)."""
 
     frames_dn: np.ndarray
     k: float
@@ -89,6 +91,7 @@ class FrameStack:
     offsets_dn: list | None = None
     offsets_of: "FrameStack | None" = None
     series: FlatSeries | None = None
+    dose: float | None = None  # a series flat's exposure x relative light (default exposure_s)
 
     def __post_init__(self):
         self.frames_dn = np.asarray(self.frames_dn, dtype=np.float64)
@@ -106,10 +109,12 @@ class FrameStack:
             raise ValueError(f"offsets_dn must hold 4 values (R, G1, B, G2), got {self.offsets_dn!r}")
         if self.offsets_of is not None and not (isinstance(self.offsets_of, FrameStack) and self.offsets_of.kind == "bias"):
             raise ValueError(f"offsets_of must be a bias FrameStack, got {self.offsets_of!r:.80}")
+        if self.dose is None and self.series is not None:
+            self.dose = self.exposure_s
         if self.series is not None and not (self.kind == "flat" and isinstance(self.series, FlatSeries)
-                                            and isinstance(self.exposure_s, (int, float)) and self.exposure_s > 0):
-            raise ValueError(f"a series (FlatSeries) belongs to a flat stack with its exposure_s, got kind {self.kind!r}, "
-                             f"exposure_s {self.exposure_s!r}")
+                                            and isinstance(self.dose, (int, float)) and self.dose > 0):
+            raise ValueError(f"a series (FlatSeries) belongs to a flat stack with its dose (exposure_s), got kind "
+                             f"{self.kind!r}, dose {self.dose!r}")
         self.label = self.label or f"{self.kind} K={self.k:.4g}"
 
     @property
@@ -118,7 +123,7 @@ class FrameStack:
         linear response gives it plus the black offsets (what its mean should be)."""
         if self.series is None:
             return self.level_dn
-        return self.series.nominal(self.exposure_s) + self.series.offsets_dn
+        return self.series.nominal(self.dose) + self.series.offsets_dn
 
     @property
     def statistic_names(self):
@@ -211,7 +216,7 @@ def clean_level(profile: NoiseProfile, stack: FrameStack):
     if stack.kind != "flat":
         return 0.0
     if stack.series is not None:
-        return stack.series.clean_level(profile, stack.k, stack.exposure_s)
+        return stack.series.clean_level(profile, stack.k, stack.dose)
     return stack.level_dn
 
 
