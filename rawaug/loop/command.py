@@ -24,6 +24,7 @@ import csv
 import math
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -107,6 +108,24 @@ def _run_frame_table(args, path):
 
 LEVEL_SPLIT = 0.02  # flats of one setting whose means differ by more were taken under different lights
 SERIES_SPREAD = 0.25  # flats further than this from one line through zero do not share one light
+
+
+class _Flat(NamedTuple):
+    """One usable flat stack of the manifest, before it becomes a FrameStack."""
+
+    stack: np.ndarray
+    k: float
+    level: np.ndarray  # (4,) DN above the bias offsets
+    exposure: float
+    light: float | None
+    base: dict
+    bias_stack: object
+    label: str
+
+    @property
+    def dose(self) -> float:
+        """Exposure time x relative light (1 when the manifest gives none)."""
+        return self.exposure * (self.light or 1.0)
 
 
 def _split_levels(flats: dict) -> dict:
@@ -229,20 +248,18 @@ def _run_manifest(args, path):
         while label in settings:  # two flat settings of one rounded level
             label += "'"
         settings[label] = {"kind": "flat", "iso": iso, "k": k, "exposure_s": exposure, "level_dn": float(level.mean())}
-        flat_stacks.setdefault(iso, []).append((stack, k, level, exposure, light, base, bias_stack, label))
+        flat_stacks.setdefault(iso, []).append(_Flat(stack, k, level, exposure, light, base, bias_stack, label))
     for iso, items in flat_stacks.items():
-        lights = [light for *_, light, _, _, _ in items]
-        if any(light is not None for light in lights) and not all(light is not None for light in lights):
+        listed = [f.light is not None for f in items]
+        if any(listed) and not all(listed):
             print(f"warning: ISO {iso:g}: some flats have a 'light' and some not: the response's linearity is not checked")
             series = None
-        else:  # the dose: exposure time x relative light (1 when no light is given)
-            series = flat_series(iso, [(exposure * (light or 1.0), level) for _, _, level, exposure, light, *_ in items],
-                                 measured[iso][1])
-        for stack, k, level, exposure, light, base, bias_stack, label in items:
-            dose = exposure * (light or 1.0)
-            stacks.append(FrameStack(stack, k, kind="flat", level_dn=[float(v) for v in (series.nominal(dose) if series else level)],
-                                     base=base, offsets_of=bias_stack, label=label, exposure_s=exposure if series else None,
-                                     series=series, dose=dose if series else None))
+        else:
+            series = flat_series(iso, [(f.dose, f.level) for f in items], measured[iso][1])
+        for f in items:
+            stacks.append(FrameStack(f.stack, f.k, kind="flat", level_dn=[float(v) for v in (series.nominal(f.dose) if series else f.level)],
+                                     base=f.base, offsets_of=f.bias_stack, label=f.label, exposure_s=f.exposure if series else None,
+                                     series=series, dose=f.dose if series else None))
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
     (h, w), (ch, cw) = shapes
     view = (f"The frame loop diagnosed the central {ch} x {cw} of each frame's packed channels ({h} x {w}; "
