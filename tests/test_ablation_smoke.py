@@ -30,5 +30,6 @@ def test_ablation_smoke(tmp_path):
     psnr = [float(cell.split("/")[0]) for cell in noisy.strip("|").split("|")[2:]]
     assert psnr[0] > psnr[1] > psnr[2], psnr
     assert (out / "results.md").read_text().count("| paired real |") == 1
+    assert "Test tiles (2, by held-out scene): Outdoor4 1, Indoor1 1." in (out / "results.md").read_text()
     assert (out / "results.png").stat().st_size > 1000
     assert (out / "testcam_loop.yaml").is_file() and (out / "loop_report" / "report.md").is_file()

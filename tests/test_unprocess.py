@@ -77,3 +77,20 @@ def test_a_folder_of_photos_trains_through_the_cli(tmp_path):
             "--trainer.fast_dev_run", "1"]
     cli = main(args)
     assert cli.trainer.state.finished and cli.trainer.global_step == 1
+
+
+def test_the_bundled_photos_unprocess_and_each_has_a_licence():
+    import csv
+
+    from rawaug.train.sources import BUNDLED_PHOTOS
+
+    source = PhotoFolder()  # default: the bundled public-domain / CC0 photos
+    with open(BUNDLED_PHOTOS / "manifest.csv") as f:
+        rows = {r["file"]: r for r in csv.DictReader(line for line in f if not line.startswith("#"))}
+    assert sorted(p.name for p in source.entries) == sorted(rows)
+    for i, path in enumerate(source.entries):
+        row = rows[path.name]
+        assert row["license"].strip() and row["source"].strip()
+        target = source[i]["target"]
+        assert tuple(target.shape) == (4, int(row["height"]) // 2, int(row["width"]) // 2)
+        assert 0 <= float(target.min()) and float(target.max()) <= 1 and float(target.mean()) > 0.01

@@ -29,6 +29,8 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import scenes  # noqa: E402
 import testcam  # noqa: E402
 
 from rawaug import NoiseProfile  # noqa: E402
@@ -36,14 +38,12 @@ from rawaug.io import read_frame  # noqa: E402
 from rawaug.atomic import write_text_atomic  # noqa: E402
 from rawaug.train.metrics import evaluate  # noqa: E402
 
-SCENES = Path(__file__).resolve().parents[2] / "rawaug" / "data" / "scenes"
-TRAIN_SCENES = ["Indoor1_1024x1024.npz", "Outdoor1_1024x1024.npz", "Outdoor2_1024x1024.npz", "Outdoor3_1024x1024.npz"]
-TEST_SCENES = ["Outdoor4_1024x1024.npz", "HalideN900_256x344.npz"]
 # the paper's rows, then the ELD model with its calibrated colour bias (TestCam's channel means
 # sit 0.2-5.9 DN above black, jumping between ISOs: ELD's published SonyA7S2 biases plus the
 # dark shading)
 MODELS = ["G", "G+P", "G+P*", "G*+P*", "G*+P*+R", "G*+P*+R+U", "G*+P*+R+U+C"]
 RATIOS = (100, 200, 250, 300)
+TRAIN_PIECE = 256  # packed pixels: training scenes are cut into pieces of about this size
 TEST_ISOS = (800, 1600, 3200)  # as in the ELD dataset
 
 SCALES = {
@@ -52,23 +52,10 @@ SCALES = {
     # minutes; its gradient norm clipped at 1: without, a spike at lr 1e-3 can leave a run at the
     # identity, the noisy input); the gpu scale is the paper's (direct U-Net, lr 1e-4).
     "smoke": dict(seeds=[0], steps=2, base=4, crop=32, batch=2, tile=32, test_tiles=2, frame=64, n_bias=2, bm3d=False, residual=True, lr=1e-3, n_synth=6),
-    "cpu": dict(seeds=[0, 1], steps=1500, base=16, crop=64, batch=8, tile=128, test_tiles=6, frame=256, n_bias=8, bm3d=True, residual=True, lr=1e-3,
+    "cpu": dict(seeds=[0, 1], steps=1500, base=16, crop=64, batch=8, tile=128, test_tiles=9, frame=256, n_bias=8, bm3d=True, residual=True, lr=1e-3,
                 clip=1.0),
     "gpu": dict(seeds=[0, 1], steps=20000, base=32, crop=256, batch=4, tile=256, test_tiles=8, frame=512, n_bias=8, bm3d=True, residual=False, lr=1e-4),
 }
-
-
-def load_scene(name: str) -> np.ndarray:
-    with open(SCENES / "manifest.csv") as f:
-        rows = {r["file"]: r for r in csv.DictReader(line for line in f if not line.startswith("#"))}
-    r = rows[name]
-    frame = read_frame(SCENES / name, cfa=r["cfa"], black_level=float(r["black_level"]), white_level=float(r["white_level"]))
-    return np.clip(frame.packed_normalized(), 0, 1)
-
-
-def tiles(packed: np.ndarray, size: int) -> list[np.ndarray]:
-    _, h, w = packed.shape
-    return [packed[:, i : i + size, j : j + size] for i in range(0, h - size + 1, size) for j in range(0, w - size + 1, size)]
 
 
 def make_data(out: Path, scale: dict) -> dict:
@@ -77,9 +64,13 @@ def make_data(out: Path, scale: dict) -> dict:
         testcam.write_calibration_frames(frames, size=scale["frame"] // 2, n_bias=scale["n_bias"])
     sid = out / "TestCam_SID"
     if not (sid / "Sony_test_list.txt").exists():
-        train = [load_scene(n) for n in TRAIN_SCENES]
-        test = [t for n in TEST_SCENES for t in tiles(load_scene(n), scale["tile"])][: scale["test_tiles"]]
-        testcam.write_sid_layout(sid, train, test, test_isos=TEST_ISOS, ratios=RATIOS)
+        # training: the bundled real scenes not held out and the bundled photos, unprocessed (those
+        # a training crop fits in), in pieces of about 256 so each entry weighs alike; test: tiles
+        # of three held-out real scenes (benchmarks/scenes.py)
+        train = scenes.train_scenes(min_size=scale["crop"], piece=max(scale["crop"], TRAIN_PIECE))
+        test = scenes.test_tiles(scale["tile"], scale["test_tiles"])
+        testcam.write_sid_layout(sid, [s for _, s in train], [t for _, t in test], test_isos=TEST_ISOS, ratios=RATIOS)
+        write_text_atomic(sid / "scenes.json", json.dumps({"train": [n for n, _ in train], "test_tiles": [n for n, _ in test]}))
     return {"manifest": frames / "manifest.csv", "sid": sid}
 
 
@@ -127,7 +118,8 @@ def train_and_test(row: str, seed: int, out: Path, data: dict, profiles: dict, s
         "data": {"class_path": "rawaug.train.RawDenoiseData", "init_args": {
             "batch_size": scale["batch"],
             "train": {"class_path": "rawaug.train.SIDSony", "init_args": {"root": sid, "list_file": "Sony_train_list.txt",
-                                                                           "mode": "paired" if paired else "clean", "camera": "TestCam", "repeat": 64}},
+                                                                           "mode": "paired" if paired else "clean", "camera": "TestCam", "repeat": 64,
+                                                                           "window": scale["crop"]}},
             "test": {"class_path": "rawaug.train.SIDSony", "init_args": {"root": sid, "list_file": "Sony_test_list.txt", "mode": "paired", "camera": "TestCam"}},
         }},
     }
@@ -296,8 +288,11 @@ def main(argv=None) -> int:
         rows += bm3d_rows(out, data, profiles)
         print(f"[{time.time() - start:6.0f} s] BM3D and A-BM3D done")
     md, table = summarize(rows, [r for r in full_order if any(x["row"] == r for x in rows)])
+    split = json.loads((data["sid"] / "scenes.json").read_text())
+    by_scene = ", ".join(f"{n} {split['test_tiles'].count(n)}" for n in dict.fromkeys(split["test_tiles"]))
     header = (f"# TestCam ablation ({args.scale} scale)\n\nTrue noise: SonyA7S2 ELD model (with its colour bias) + undeclared column noise and dark shading "
-              f"(benchmarks/ablation/testcam.py). Scale: {json.dumps(scale)}. Wall time {time.time() - start:.0f} s.\n\n")
+              f"(benchmarks/ablation/testcam.py). Scale: {json.dumps(scale)}. Wall time {time.time() - start:.0f} s.\n\n"
+              f"Training scenes: {', '.join(split['train'])}. Test tiles ({len(split['test_tiles'])}, by held-out scene): {by_scene}.\n\n")
     write_text_atomic(out / "results.md", header + md)
     write_text_atomic(out / "results.csv", table)
     write_text_atomic(out / "results.json", json.dumps(rows, indent=1))

@@ -13,8 +13,8 @@ as the hot last column, in both parts, as they are on one sensor):
     noisy DN = Poisson(clean * span / ratio / K) * K + a crop of the held-out part (DN)
 
 at K = 1 DN/e- (the frame has no flats, so K is chosen), ratios x50 / x100 / x200, on tiles
-of the two held-out bundled scenes. The same U-Net is trained on the four bundled training
-scenes with (a) the ELD model calibrated on the training part (stage 1: Tukey-lambda read
+of three held-out real scenes (benchmarks/scenes.py). The same U-Net is trained on the other
+three bundled real scenes and the four bundled photos, unprocessed, with (a) the ELD model calibrated on the training part (stage 1: Tukey-lambda read
 noise, row noise, colour bias) as the paper trains it (G*+P*+R+U: without the colour bias),
 (a') the same with its colour bias (G*+P*+R+U+C), (b) the closed loop's profile of the
 training part with everything it calibrated (its effects and its fitted colour bias), (c)
@@ -48,11 +48,12 @@ from rawaug.io import read_frame
 from rawaug.loop import FrameStack, run_frame_loop
 from rawaug.train.metrics import evaluate
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import scenes  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[2]
 DARK = ROOT.parent / "shared/data/frames/InfiniteISP/BlackImage_1920x1080_12bits_BGGR.raw"
 DARK_CROP = ROOT / "tests/data/InfiniteISP_BlackImage_crop512_y0_x1408_12bits_BGGR.raw"
-SCENES = ROOT / "rawaug" / "data" / "scenes"
-TEST_SCENES = {"Outdoor4_1024x1024.npz": (12.5, 255), "HalideN900_256x344.npz": (25, 1023)}
 K = 1.0  # DN/e-
 RATIOS = (50, 100, 200)
 WHITE = 4095
@@ -91,16 +92,24 @@ def eld_profile(train: np.ndarray) -> NoiseProfile:
                                           "sigma_r": row.sigma_r}
 
 
+def write_train_scenes(folder: Path, crop: int) -> None:
+    """The training scenes (benchmarks/scenes.py) as normalized mosaics ``folder/<name>.npz``
+    (RGGB, black 0, white 1) for ``CleanFolder``."""
+    from rawaug.bayer import unpack
+
+    for name, packed in scenes.train_scenes(min_size=crop, piece=max(crop, 256)):
+        path = folder / f"{name}.npz"
+        if not path.exists():
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp = folder / f".{name}.tmp.npz"
+            np.savez(tmp, mosaic=unpack(packed, "RGGB").astype(np.float32), black_level=0.0, white_level=1.0, cfa="RGGB")
+            tmp.replace(path)
+
+
 def test_pairs(held_out: np.ndarray, scale: dict):
     """[(ratio, noisy normalized x ratio, clean, (row, col) of the dark crop)] of scene tiles
     with real held-out noise."""
-    tiles = []
-    for name, (black, white) in TEST_SCENES.items():
-        packed = np.clip(read_frame(SCENES / name, cfa="GRBG", black_level=black, white_level=white).packed_normalized(), 0, 1)
-        t = scale["tile"]
-        tiles += [packed[:, i : i + t, j : j + t] for i in range(0, packed.shape[1] - t + 1, t)
-                  for j in range(0, packed.shape[2] - t + 1, t)]
-    tiles = tiles[:: max(1, len(tiles) // scale["test_tiles"])][: scale["test_tiles"]]
+    tiles = [t for _, t in scenes.test_tiles(scale["tile"], scale["test_tiles"])]
     rng = np.random.default_rng(12345)
     pairs = []
     for ratio in RATIOS:
@@ -165,7 +174,7 @@ def train_and_test(row: str, seed: int, out: Path, profiles: dict, train_dark: n
     if row.startswith("sampled real"):
         source = SampledRealDistribution if row == "sampled real, shuffled" else SampledRealNoise
         module.noise = source(train_dark, K, (RATIOS[0], RATIOS[-1]), WHITE)
-    data = RawDenoiseData(train=CleanFolder(split="train", camera="bundled-scenes", repeat=64), batch_size=scale["batch"], seed=seed)
+    data = RawDenoiseData(train=CleanFolder(str(out / "train_scenes"), camera="bundled-scenes", repeat=64, window=scale["crop"]), batch_size=scale["batch"], seed=seed)
     # gradient clipping: without it a loss spike early at lr 1e-3 (the loop row, seed 0: L1 0.03 -> 0.57
     # near step 100) left a run 7 dB below its other seed
     trainer = L.Trainer(max_steps=scale["steps"], accelerator="cpu", devices=1, logger=False, enable_checkpointing=False,
@@ -248,8 +257,10 @@ def main(argv=None) -> int:
         NoiseProfile.from_dict(data).save(profiles["loop without CodeMap"])
     rows = [r for r in args.rows if r != "loop without CodeMap" or "CodeMap" in NoiseProfile.load(profiles["loop"]).effects]
     pairs = test_pairs(held_out, scale)
+    write_train_scenes(out / "train_scenes", scale["crop"])
     header = (f"# Real-noise test pairs ({path.name}, held-out bottom third; K = {K:g} DN/e-)\n\n"
-              f"{len(pairs) // len(RATIOS)} test tiles per ratio; scale {json.dumps({k: v for k, v in scale.items() if k != 'seeds'})}; "
+              f"{len(pairs) // len(RATIOS)} test tiles per ratio of {', '.join(scenes.TEST_RAW)}; training scenes "
+              f"{', '.join(p.stem for p in sorted((out / 'train_scenes').glob('*.npz')))}; scale {json.dumps({k: v for k, v in scale.items() if k != 'seeds'})}; "
               "every finished seed in the folder counts.\n\n")
     for row in rows:
         for seed in scale["seeds"]:

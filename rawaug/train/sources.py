@@ -27,6 +27,7 @@ from ..io import SUPPORTED_EXTENSIONS
 from .cache import FrameCache
 
 BUNDLED_SCENES = Path(__file__).resolve().parent.parent / "data" / "scenes"
+BUNDLED_PHOTOS = Path(__file__).resolve().parent.parent / "data" / "photos"
 
 
 def find_any_extension(path: str | os.PathLike) -> Path:
@@ -175,17 +176,18 @@ class PhotoFolder(Source):
     inverted, white balance divided out, mosaicked). For users without clean raw frames.
 
     Args:
-        root: the folder; pattern: glob inside it.
+        root: the folder; ``None`` means the four public-domain / CC0 photos bundled with
+            rawaug (``rawaug/data/photos``, licences in its README). pattern: glob inside it.
         xyz_to_cam: the camera's 3x3 XYZ -> camera matrix (``rawpy.imread(f).rgb_xyz_matrix[:3]``
             of one of its raw files); default: the Sony A7S II's, the built-in profile's camera.
         seed: the white-balance gains of item ``i`` are drawn from ``seed + i`` (the same
             every epoch).
     """
 
-    def __init__(self, root: str, pattern: str = "*", xyz_to_cam: list | None = None, seed: int = 0,
+    def __init__(self, root: str | None = None, pattern: str = "*", xyz_to_cam: list | None = None, seed: int = 0,
                  camera: str = "unprocessed-photos", repeat: int = 1, window: int | None = None) -> None:
         super().__init__(camera=camera, repeat=repeat, window=window)
-        self.root, self.pattern, self.seed = Path(root), pattern, int(seed)
+        self.root, self.pattern, self.seed = Path(root) if root is not None else BUNDLED_PHOTOS, pattern, int(seed)
         from .unprocess import XYZ_TO_SONY_A7S2
 
         self.xyz_to_cam = np.asarray(xyz_to_cam if xyz_to_cam is not None else XYZ_TO_SONY_A7S2, dtype=np.float64)
