@@ -5,6 +5,9 @@ One command runs it all:
     python benchmarks/ablation/run.py --out runs/ablation --scale cpu     # CPU, <= 60 min
     python benchmarks/ablation/run.py --out runs/ablation --scale gpu     # full U-Net and crops
     python benchmarks/ablation/run.py --out runs/ablation --scale smoke   # seconds, for tests
+    python benchmarks/ablation/run.py --out runs/ablation --scale gpu-short --jobs 8 --time-limit 560
+                                      # rows as 8 processes sharing one GPU, BM3D on the CPU beside
+                                      # them; exit status 3 when cut: run it again to resume
 
 Steps: (1) TestCam's bias and flat frames -> ``rawaug calibrate`` (the ELD model) and
 ``rawaug loop`` (the closed loop's profile); (2) TestCam's noisy/clean pairs of the bundled
@@ -12,6 +15,10 @@ real scenes in the SID Sony layout; (3) the U-Net trained with each noise model 
 same clean scenes, and on TestCam's own pairs (paired real), each with several seeds;
 (4) BM3D and Anscombe-BM3D; (5) PSNR/SSIM per ratio (the paper's protocol: one least-squares
 scale per image, packed raw) as ``results.md``, ``results.csv`` and ``results.png``.
+
+Every result is written the moment it exists (a training's test table, each BM3D pair) and a
+later invocation on the same ``--out`` skips it; a training stopped by ``--time-limit`` resumes
+from its last checkpoint (``ckpt_every`` steps).
 """
 from __future__ import annotations
 
@@ -19,6 +26,7 @@ import argparse
 import csv
 import json
 import math
+import os
 import subprocess
 import sys
 import time
@@ -51,11 +59,18 @@ SCALES = {
     # residual/lr: the CPU recipe of configs/quickstart.yaml (a residual U-Net at lr 1e-3 converges in
     # minutes; its gradient norm clipped at 1: without, a spike at lr 1e-3 can leave a run at the
     # identity, the noisy input); the gpu scale is the paper's (direct U-Net, lr 1e-4).
-    "smoke": dict(seeds=[0], steps=2, base=4, crop=32, batch=2, tile=32, test_tiles=2, frame=64, n_bias=2, bm3d=False, residual=True, lr=1e-3, n_synth=6),
+    "smoke": dict(seeds=[0], steps=2, base=4, crop=32, batch=2, tile=32, test_tiles=2, frame=64, n_bias=2, bm3d=False, residual=True, lr=1e-3, n_synth=6,
+                  ckpt_every=10),
     "cpu": dict(seeds=[0, 1], steps=1500, base=16, crop=64, batch=8, tile=128, test_tiles=9, frame=256, n_bias=8, bm3d=True, residual=True, lr=1e-3,
-                clip=1.0),
-    "gpu": dict(seeds=[0, 1], steps=20000, base=32, crop=256, batch=4, tile=256, test_tiles=8, frame=512, n_bias=8, bm3d=True, residual=False, lr=1e-4),
+                clip=1.0, ckpt_every=250),
+    # tile 128 at the GPU scales too: HalideN900, the third held-out scene, has one tile of 128 and none of 256
+    "gpu": dict(seeds=[0, 1], steps=20000, base=32, crop=256, batch=4, tile=128, test_tiles=24, frame=512, n_bias=8, bm3d=True, residual=False, lr=1e-4,
+                ckpt_every=1000),
+    # the scale of the GPU table in issue 12 (H100: 3000 steps, lr 3e-4, 16 test tiles then of one scene)
+    "gpu-short": dict(seeds=[0, 1], steps=3000, base=32, crop=256, batch=4, tile=128, test_tiles=24, frame=512, n_bias=8, bm3d=True, residual=False,
+                      lr=3e-4, ckpt_every=500),
 }
+UNFINISHED = 3  # exit status of an invocation cut by --time-limit
 
 
 def make_data(out: Path, scale: dict) -> dict:
@@ -91,13 +106,32 @@ def calibrate(out: Path, data: dict, with_loop: bool = True, n_synth: int = 12) 
     return profiles
 
 
+def run_dir_of(out: Path, row: str, seed: int) -> Path:
+    return out / "runs" / f"{row.replace('*', 's').replace('+', '_').replace(' ', '_')}_seed{seed}"
+
+
+def step_checkpoint(path: Path, every: int):
+    """A Lightning callback saving the whole training state to ``path`` every ``every`` steps,
+    atomically (write, then rename), so a stopped training resumes from it."""
+    import lightning as L
+
+    class StepCheckpoint(L.Callback):
+        def on_train_batch_end(self, trainer, *args) -> None:
+            if trainer.global_step % every == 0 and trainer.global_step < trainer.max_steps:
+                tmp = path.with_name(path.name + ".tmp")
+                trainer.save_checkpoint(tmp)
+                os.replace(tmp, path)
+
+    return StepCheckpoint()
+
+
 def train_and_test(row: str, seed: int, out: Path, data: dict, profiles: dict, scale: dict) -> Path:
     """Fit one U-Net with the real LightningCLI and test it on TestCam's pairs; returns the results CSV."""
     from lightning.pytorch.cli import LightningCLI
 
     from rawaug.train import DenoiseModule, RawDenoiseData
 
-    run_dir = out / "runs" / f"{row.replace('*', 's').replace('+', '_').replace(' ', '_')}_seed{seed}"
+    run_dir = run_dir_of(out, row, seed)
     result = run_dir / "test_results.csv"
     if result.exists():
         return result
@@ -125,10 +159,18 @@ def train_and_test(row: str, seed: int, out: Path, data: dict, profiles: dict, s
     }
     run_dir.mkdir(parents=True, exist_ok=True)
     cli = LightningCLI(DenoiseModule, RawDenoiseData, subclass_mode_data=True, args=config, run=False, save_config_callback=None)
-    cli.trainer.fit(cli.model, datamodule=cli.datamodule)
+    last = run_dir / "last.ckpt"
+    if scale.get("ckpt_every"):
+        cli.trainer.callbacks.append(step_checkpoint(last, scale["ckpt_every"]))
+    resume = last if last.exists() else None
+    if resume is not None:
+        step = torch.load(resume, map_location="cpu", weights_only=False)["global_step"]
+        print(f"{row} seed {seed}: resuming from {resume} (step {step})", flush=True)
+    cli.trainer.fit(cli.model, datamodule=cli.datamodule, ckpt_path=str(resume) if resume else None)
     cli.trainer.test(cli.model, datamodule=cli.datamodule)
     if not result.exists():
         raise RuntimeError(f"the test step wrote no {result}")
+    last.unlink(missing_ok=True)
     return result
 
 
@@ -168,11 +210,18 @@ def bm3d_rows(out: Path, data: dict, profiles: dict) -> list[dict]:
     cache = out / "bm3d_results.json"
     if cache.exists():
         return json.loads(cache.read_text())
+    partial_path = out / "bm3d_pairs.json"  # {short frame: {method: [psnr, ssim]}}, written pair by pair
+    partial = json.loads(partial_path.read_text()) if partial_path.exists() else {}
     profile = NoiseProfile.load(profiles["eld"])
     span = profile.span_dn
     results = defaultdict(list)
     for entry, noisy, clean in _test_pairs(data["sid"]):
         ratio, iso = entry["ratio"], entry["iso"]
+        key = Path(entry["short"]).name
+        if key in partial:
+            for name, score in partial[key].items():
+                results[(name, round(ratio))].append(tuple(score))
+            continue
         k = profile.k_at_iso(iso)
         sigma_read = profile.gaussian_scale.median(k)  # DN, calibrated Gaussian read noise
         short_dn = noisy * span / ratio
@@ -182,12 +231,16 @@ def bm3d_rows(out: Path, data: dict, profiles: dict) -> list[dict]:
         electrons = short_dn / k
         sig_e = sigma_read / k
         ans = np.stack([gat_inverse(bm3d.bm3d(gat(c, sig_e), sigma_psd=1.0), sig_e) for c in electrons]) * k * ratio / span
+        partial[key] = {}
         for name, out_img in (("BM3D", plain), ("A-BM3D", ans)):
             m = evaluate(torch.from_numpy(out_img.astype(np.float32))[None], torch.from_numpy(clean)[None])
             results[(name, round(ratio))].append((float(m["psnr"]), float(m["ssim"])))
+            partial[key][name] = [float(m["psnr"]), float(m["ssim"])]
+        write_text_atomic(partial_path, json.dumps(partial))
     rows = [{"row": name, "seed": 0, "ratio": ratio, "psnr_db": float(np.mean([v[0] for v in vals])), "ssim": float(np.mean([v[1] for v in vals]))}
             for (name, ratio), vals in sorted(results.items())]
     write_text_atomic(cache, json.dumps(rows))
+    partial_path.unlink(missing_ok=True)
     return rows
 
 
@@ -256,35 +309,113 @@ def plot(rows: list[dict], order: list[str], path: Path) -> None:
     tmp.replace(path)
 
 
+def run_children(out: Path, scale_args: list[str], jobs: list[tuple[str, int]], n_jobs: int, bm3d: bool, deadline: float | None, start: float) -> bool:
+    """Run the trainings ``jobs`` as up to ``n_jobs`` child processes at once (sharing the
+    device; CPU threads split between them) and BM3D in one more on the CPU; at ``deadline``
+    stop them all. Returns True when everything finished."""
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--out", str(out), *scale_args]
+    env = dict(os.environ, OMP_NUM_THREADS=str(max(1, (os.cpu_count() or 1) // max(n_jobs, 1))))
+    pending, running = list(jobs), {}
+
+    def launch(name: str, extra: list[str], log: Path) -> None:
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with open(log, "a") as f:
+            running[name] = (subprocess.Popen(cmd + extra, stdout=f, stderr=subprocess.STDOUT, env=env), log)
+
+    if bm3d and not (out / "bm3d_results.json").exists():
+        launch("BM3D", ["--bm3d-only"], out / "bm3d.log")
+    while pending or running:
+        if deadline is not None and time.time() >= deadline:
+            for proc, _ in running.values():
+                proc.terminate()
+            for proc, _ in running.values():
+                try:
+                    proc.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+            print(f"[{time.time() - start:6.0f} s] time limit: stopped {sorted(running)}; {len(pending)} not started. Run again to resume.")
+            return False
+        while pending and sum(name != "BM3D" for name in running) < n_jobs:
+            row, seed = pending.pop(0)
+            launch(f"{row} seed {seed}", ["--train-one", row, str(seed)], run_dir_of(out, row, seed) / "train.log")
+        for name, (proc, log) in list(running.items()):
+            if proc.poll() is None:
+                continue
+            del running[name]
+            if proc.returncode:
+                for other, _ in running.values():
+                    other.terminate()
+                raise RuntimeError(f"{name} failed (exit {proc.returncode}); see {log}")
+            print(f"[{time.time() - start:6.0f} s] {name} done")
+        time.sleep(0.5)
+    return True
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default="runs/ablation", help="output folder (reused: finished steps are skipped)")
     parser.add_argument("--scale", choices=sorted(SCALES), default="cpu")
     parser.add_argument("--rows", nargs="*", default=None, help="subset of rows to run")
     parser.add_argument("--collect", action="store_true", help="only tabulate the runs already finished in --out (no training)")
+    parser.add_argument("--jobs", type=int, default=1, help="trainings at once, as child processes sharing the device "
+                        "(with BM3D in one more on the CPU); 1 without --time-limit: all in this process, one after another")
+    parser.add_argument("--time-limit", type=float, default=None, metavar="SECONDS",
+                        help=f"stop this invocation after SECONDS: trainings keep their last checkpoint, the tables show what finished, "
+                             f"the exit status is {UNFINISHED}; run again to resume")
+    parser.add_argument("--steps", type=int, default=None, help="training steps instead of the scale's")
+    parser.add_argument("--seeds", type=int, nargs="+", default=None, help="training seeds instead of the scale's")
+    parser.add_argument("--train-one", nargs=2, metavar=("ROW", "SEED"), help=argparse.SUPPRESS)  # a child process
+    parser.add_argument("--bm3d-only", action="store_true", help=argparse.SUPPRESS)  # a child process
     args = parser.parse_args(argv)
-    scale = SCALES[args.scale]
+    if args.jobs < 1:
+        parser.error(f"--jobs must be >= 1, got {args.jobs}")
+    if args.time_limit is not None and not args.time_limit > 0:
+        parser.error(f"--time-limit must be > 0 seconds, got {args.time_limit}")
+    scale = dict(SCALES[args.scale])
+    scale_args = ["--scale", args.scale]
+    if args.steps is not None:
+        if args.steps < 1:
+            parser.error(f"--steps must be >= 1, got {args.steps}")
+        scale["steps"] = args.steps
+        scale_args += ["--steps", str(args.steps)]
+    if args.seeds is not None:
+        scale["seeds"] = list(args.seeds)
+        scale_args += ["--seeds", *map(str, args.seeds)]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.time()
+    deadline = start + args.time_limit if args.time_limit else None
     torch.set_num_threads(max(1, torch.get_num_threads()))
     data = make_data(out, scale)
     print(f"[{time.time() - start:6.0f} s] TestCam frames and pairs in {out}")
     order = MODELS + ["loop", "paired real"]
-    profiles = calibrate(out, data, with_loop="loop" in (args.rows or order), n_synth=scale.get("n_synth", 12))
-    print(f"[{time.time() - start:6.0f} s] profiles: {profiles['eld']} (calibrate), {profiles['loop']} (loop)")
-    rows = []
-    for row in args.rows or order:
+    for row in args.rows or []:
         if row not in order:
             raise ValueError(f"unknown row {row!r}; rows: {order}")
+    needed = [args.train_one[0]] if args.train_one else [] if args.bm3d_only else args.rows or order
+    profiles = calibrate(out, data, with_loop="loop" in needed, n_synth=scale.get("n_synth", 12))
+    if args.train_one:
+        train_and_test(args.train_one[0], int(args.train_one[1]), out, data, profiles, scale)
+        return 0
+    if args.bm3d_only:
+        bm3d_rows(out, data, profiles)
+        return 0
+    print(f"[{time.time() - start:6.0f} s] profiles: {profiles['eld']} (calibrate), {profiles['loop']} (loop)")
+    finished = True
+    if not args.collect and (args.jobs > 1 or deadline is not None):
+        jobs = [(row, seed) for row in args.rows or order for seed in scale["seeds"]
+                if not (run_dir_of(out, row, seed) / "test_results.csv").exists()]
+        finished = run_children(out, scale_args, jobs, args.jobs, scale["bm3d"], deadline, start)
+    rows = []
+    for row in args.rows or order:
         for seed in scale["seeds"]:
-            done = out / "runs" / f"{row.replace('*', 's').replace('+', '_').replace(' ', '_')}_seed{seed}" / "test_results.csv"
-            if args.collect and not done.exists():
+            done = run_dir_of(out, row, seed) / "test_results.csv"
+            if (args.collect or not finished) and not done.exists():
                 continue
             rows += read_results(train_and_test(row, seed, out, data, profiles, scale), row, seed)
             print(f"[{time.time() - start:6.0f} s] {row} seed {seed}: " + ", ".join(f"x{r['ratio']} {r['psnr_db']:.2f} dB" for r in rows[-4:] if r["row"] == row and r["seed"] == seed))
     full_order = (["BM3D", "A-BM3D"] if scale["bm3d"] else []) + order
-    if scale["bm3d"] and (not args.collect or (out / "bm3d_results.json").exists()):
+    if scale["bm3d"] and ((not args.collect and finished) or (out / "bm3d_results.json").exists()):
         rows += bm3d_rows(out, data, profiles)
         print(f"[{time.time() - start:6.0f} s] BM3D and A-BM3D done")
     md, table = summarize(rows, [r for r in full_order if any(x["row"] == r for x in rows)])
@@ -298,7 +429,7 @@ def main(argv=None) -> int:
     write_text_atomic(out / "results.json", json.dumps(rows, indent=1))
     plot(rows, [r for r in full_order if any(x["row"] == r for x in rows)], out / "results.png")
     print(header + md)
-    return 0
+    return 0 if finished else UNFINISHED
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """The loop's denoising gain on real noise: test pairs whose read-side noise is a real dark frame.
 
-    python benchmarks/real_noise/run.py --out runs/real_noise            # CPU, about 25 minutes
+    python benchmarks/real_noise/run.py --out runs/real_noise            # CPU, about 17 minutes
     python benchmarks/real_noise/run.py --out runs/real_noise --smoke    # seconds, for tests
 
 The real dark frame (InfiniteISP BlackImage, 1920x1080, 12 bit, BGGR, Apache-2.0; whole in
