@@ -9,6 +9,10 @@ darktable's file is GPL-3: this reads the user's own installed copy (Debian pack
 mean of the channels; ISOs with a resolved read noise, b > 0 in every channel); the error
 is the rms residual of log(sigma_G) of the single ELD line and of the structure
 ``relation_loop`` keeps. Prints the medians over cameras and the structures kept.
+
+Then the absolute scale: for the cameras both in darktable's file and among rawaug's
+built-in ELD profiles, darktable's K and sigma_G against ELD's K and Gaussian read noise at
+ISO 400-6400 (span 16383), raw and after either rescaling rule anchored at ISO 1600.
 """
 from __future__ import annotations
 
@@ -20,7 +24,8 @@ from collections import Counter
 
 import numpy as np
 
-from rawaug.calibration.darktable import DEBIAN_PATH, gains_and_read_noise
+from rawaug import NoiseProfile
+from rawaug.calibration.darktable import DEBIAN_PATH, find_camera, gains_and_read_noise
 from rawaug.loop.parameters import BIC_DROP, F_TEST_P, fit_structure, relation_loop
 
 
@@ -46,7 +51,35 @@ def main(argv=None) -> int:
     print(f"median rms(log sigma_G): single line {np.median(line):.4f} -> kept structure {np.median(kept):.4f} "
           f"(BIC drop > {BIC_DROP:g}, F-test p < {F_TEST_P:g}); {time.perf_counter() - start:.0f} s")
     print("structures kept: " + ", ".join(f"{name} {count}" for name, count in Counter(r[4] for r in rows).most_common()))
+    print_scale(data)
     return 0
+
+
+ELD_IN_DARKTABLE = {"NikonD850": "Nikon D850", "CanonEOS70D": "Canon EOS 70D", "CanonEOS700D": "Canon EOS 700D",
+                    "CanonEOS5D4": "Canon EOS 5D Mark IV"}
+
+
+def print_scale(data: dict, isos=(400, 800, 1600, 3200, 6400), anchor=1600) -> None:
+    """darktable / ELD ratios of K and sigma_G per ISO: as imported, after scaling both by the K
+    ratio at ``anchor`` (darktable = raw x constant), and sigma_G by its square root (darktable
+    = raw averaged over about that many pixels)."""
+    print(f"darktable / ELD at ISO {', '.join(map(str, isos))} (span 16383; rescaled at ISO {anchor}):")
+    for eld_name, dt_name in ELD_IN_DARKTABLE.items():
+        try:
+            profiles = find_camera(data, dt_name)[2]
+        except ValueError:
+            continue
+        gains, read = gains_and_read_noise(profiles, 16383.0)
+        eld = NoiseProfile.load(eld_name)
+        here = [i for i in isos if i in gains and i in read]
+        if anchor not in here:
+            continue
+        k_ratio = np.array([gains[i] / eld.k_at_iso(i) for i in here])
+        s_ratio = np.array([read[i] / eld.gaussian_scale.median(eld.k_at_iso(i)) for i in here])
+        n = 1.0 / k_ratio[here.index(anchor)]
+        fmt = lambda v: "/".join(f"{x:.2f}" for x in v)  # noqa: E731
+        print(f"  {eld_name:13s} K {fmt(k_ratio)} -> x{n:.1f}: {fmt(k_ratio * n)};  sigma_G {fmt(s_ratio)} -> x{n:.1f}: "
+              f"{fmt(s_ratio * n)}, x sqrt: {fmt(s_ratio * np.sqrt(n))}")
 
 
 if __name__ == "__main__":

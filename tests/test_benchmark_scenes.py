@@ -32,3 +32,20 @@ def test_no_test_scene_is_trained_on_and_pieces_keep_the_pixels():
     rebuilt = np.block([[dict(pieces)[f"Outdoor1-{i}{j}"] for j in range(2)] for i in range(2)])
     assert np.array_equal(rebuilt, outdoor1)
     assert [n for n, _ in scenes.train_scenes(min_size=256)] == ["Outdoor1", "Outdoor2", "Outdoor3", "astronaut"]
+
+
+def test_every_benchmark_scale_tests_on_the_three_held_out_scenes():
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "ablation" / "run.py"
+    sys.path.insert(0, str(path.parent))  # its own imports (testcam)
+    spec = importlib.util.spec_from_file_location("ablation_run", path)  # not "run": the real-noise driver has that name
+    ablation = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ablation)
+    assert set(ablation.SCALES) >= {"cpu", "gpu", "gpu-short"}
+    for name, scale in ablation.SCALES.items():
+        if name == "smoke":
+            continue
+        names = {n for n, _ in scenes.test_tiles(scale["tile"], scale["test_tiles"])}
+        assert names == {"Outdoor4", "Indoor1", "HalideN900"}, (name, names)
+        assert len(scenes.train_scenes(min_size=scale["crop"])) >= 4, name  # the real training scenes and at least one photo
