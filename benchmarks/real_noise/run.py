@@ -14,8 +14,9 @@ as the hot last column, in both parts, as they are on one sensor):
 
 at K = 1 DN/e- (the frame has no flats, so K is chosen), ratios x50 / x100 / x200, on tiles
 of three held-out real scenes (benchmarks/scenes.py). The same U-Net is trained on the other
-three bundled real scenes and the four bundled photos, unprocessed, with (a) the ELD model calibrated on the training part (stage 1: Tukey-lambda read
-noise, row noise, colour bias) as the paper trains it (G*+P*+R+U: without the colour bias),
+three bundled real scenes and the four bundled photos, unprocessed, with (a) the ELD model
+calibrated on the training part (stage 1: Tukey-lambda read noise, row noise, colour bias)
+as the paper trains it (G*+P*+R+U: without the colour bias),
 (a') the same with its colour bias (G*+P*+R+U+C), (b) the closed loop's profile of the
 training part with everything it calibrated (its effects and its fitted colour bias), (c)
 noise sampled directly from the training part (random crops added to shot noise, the way
@@ -101,7 +102,7 @@ def write_train_scenes(folder: Path, crop: int) -> None:
         path = folder / f"{name}.npz"
         if not path.exists():
             folder.mkdir(parents=True, exist_ok=True)
-            tmp = folder / f".{name}.tmp.npz"
+            tmp = folder.parent / f".{folder.name}-{name}.tmp.npz"  # outside the folder CleanFolder reads
             np.savez(tmp, mosaic=unpack(packed, "RGGB").astype(np.float32), black_level=0.0, white_level=1.0, cfa="RGGB")
             tmp.replace(path)
 
