@@ -15,12 +15,15 @@ clean batches (8, 4, 512, 512):
   (K over its whole range, ratio 100-300).
 
     python benchmarks/bench_augment.py [--repeats 5]
+    python benchmarks/bench_augment.py --gpu-only [--profile LOOP_PROFILE.yaml]   # CUDA figures only
 
-On a CUDA device it also prints, for the fused kernel and the torch-ops path: the fraction
-of the memory-bandwidth bound (a device copy of the same bytes over the augmentation's
-time) at (8, 4, 512, 512) and (32, 4, 512, 512); the share of one SID U-Net training step
-(32 wide, Adam) at (1, 4, 512, 512) in fp32 and bf16 autocast and at (8, 4, 256, 256);
-kernel launches per call (torch profiler) and host synchronizations per call.
+On a CUDA device it also prints, for the fused kernel (fixed and drawn parameters, and a
+loop profile with its effects if given) and the torch-ops path: the fraction of the
+memory-bandwidth bound (a device copy of the same bytes over the augmentation's time) at
+(8, 4, 512, 512) and (32, 4, 512, 512), with the kernel alone beside each call; the share
+of one SID U-Net training step (32 wide, Adam) at (1, 4, 512, 512) in fp32 and bf16
+autocast and at (8, 4, 256, 256) and (8, 4, 512, 512); kernel launches per call (torch
+profiler) and host synchronizations per call.
 """
 from __future__ import annotations
 
@@ -36,6 +39,8 @@ from scipy import stats
 from rawaug import RawNoiseAugment
 from rawaug.bayer import pack
 from rawaug.distributions import tukey_lambda_icdf
+from rawaug.engine.backend import synthesize_op
+from rawaug.engine.transfer import to_device
 from rawaug.io import read_frame
 
 FIXED = {"k": 1.0, "sigma_tl": 2.0, "lambda": 0.05, "sigma_r": 0.5, "ratio": 200.0}
@@ -155,25 +160,35 @@ def _syncs(fn) -> int:
     return sum("synchroniz" in str(w.message) for w in caught)
 
 
-def gpu_report(repeats):
+def gpu_report(repeats, profile_path=None):
     device = torch.device("cuda")
-    aug = RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", fixed=FIXED)
-    print(f"GPU {torch.cuda.get_device_name()}")
+    augs = {"G*+P*+R+U, fixed": RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", fixed=FIXED),
+            "G*+P*+R+U, drawn": RawNoiseAugment("SonyA7S2", model="G*+P*+R+U")}
+    if profile_path is not None:  # a loop profile: its effects in the same pass
+        augs[f"{Path(profile_path).stem} (+ its effects), drawn"] = RawNoiseAugment(profile_path, model="G*+P*+R+U")
+    print(f"GPU {torch.cuda.get_device_name()}, torch {torch.__version__}")
     for batch in (8, 32):
         clean = torch.rand(batch, 4, 512, 512, device=device) * 0.2
-        aug(clean)
-        params = dict(aug._params)
-        named = aug.sample_parameters(params)
         dst = torch.empty_like(clean)
         t_copy = _cuda_timed(lambda: dst.copy_(clean), repeats * 10)
-        t_fused = _cuda_timed(lambda: aug(clean), repeats * 10)
+        print(f"  batch {tuple(clean.shape)}: device copy of the same bytes {t_copy * 1e3:.3f} ms")
+        for name, aug in augs.items():
+            aug(clean)
+            t = _cuda_timed(lambda: aug(clean), repeats * 10)
+            print(f"    {name}: {t * 1e3:.3f} ms = {t_copy / t:.1%} of the bandwidth bound (target >= 30% at batch 32)")
+            values, keys = to_device((aug._params["values"], aug._stream_keys(int(aug._params["seed"]))), device)
+            tables = aug._tables_on(device)
+            t_kernel = _cuda_timed(lambda: synthesize_op(clean, values, keys, float(aug.profile.span_dn), aug._flags, *tables), repeats * 10)
+            print(f"      the kernel alone (parameters on the device): {t_kernel * 1e3:.3f} ms = {t_copy / t_kernel:.1%}; "
+                  f"the call's host work (draws, keys, copy) {max(t - t_kernel, 0) * 1e3:.3f} ms")
+        aug = augs["G*+P*+R+U, fixed"]
+        named = aug.sample_parameters(dict(aug._params))
         t_ops = _cuda_timed(lambda: torch_ops(clean, aug.profile.span_dn, named), repeats * 10)
-        print(f"  batch {tuple(clean.shape)}: copy {t_copy * 1e3:.3f} ms; fused {t_fused * 1e3:.3f} ms "
-              f"({t_copy / t_fused:.1%} of the bandwidth bound, target >= 30% at batch 32); "
-              f"torch ops {t_ops * 1e3:.3f} ms ({t_copy / t_ops:.1%})")
+        print(f"    torch-ops path, fixed: {t_ops * 1e3:.3f} ms = {t_copy / t_ops:.1%}")
     clean = torch.rand(8, 4, 512, 512, device=device) * 0.2
-    print(f"  kernel launches per call: fused {_launches(lambda: aug(clean))} (target <= 3)")
-    print(f"  host synchronizations per call: fused {_syncs(lambda: aug(clean))} (target 0)")
+    for name, aug in augs.items():
+        print(f"  {name}: kernel launches per call {_launches(lambda: aug(clean))} (target <= 3), "
+              f"host synchronizations per call {_syncs(lambda: aug(clean))} (target 0)")
     try:
         from rawaug.train.unet import UNet
     except ImportError:
@@ -181,7 +196,9 @@ def gpu_report(repeats):
         return
     net = UNet().to(device)
     opt = torch.optim.Adam(net.parameters(), lr=1e-4)
-    for shape, dtype in (((1, 4, 512, 512), None), ((1, 4, 512, 512), torch.bfloat16), ((8, 4, 256, 256), None)):
+    aug = augs["G*+P*+R+U, drawn"]
+    for shape, dtype in (((1, 4, 512, 512), None), ((1, 4, 512, 512), torch.bfloat16), ((8, 4, 256, 256), None),
+                         ((8, 4, 512, 512), None)):
         clean = torch.rand(shape, device=device) * 0.2
         noisy = aug(clean)
 
@@ -194,7 +211,7 @@ def gpu_report(repeats):
 
         t_step = _cuda_timed(step, repeats * 3)
         t_aug = _cuda_timed(lambda: aug(clean), repeats * 10)
-        print(f"  U-Net step {shape} {'bf16' if dtype else 'fp32'}: {t_step * 1e3:.2f} ms; augmentation "
+        print(f"  U-Net step {shape} {'bf16' if dtype else 'fp32'}: {t_step * 1e3:.2f} ms; augmentation (drawn) "
               f"{t_aug * 1e3:.3f} ms = {t_aug / t_step:.1%} of it (target < 5%)")
 
 
@@ -204,7 +221,14 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=512)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=None, help="one thread count (default: 1, 2 and all)")
+    parser.add_argument("--gpu-only", action="store_true", help="skip the CPU comparisons")
+    parser.add_argument("--profile", default=None, help="also time this profile with its effects (a loop profile) on the GPU")
     args = parser.parse_args(argv)
+    if args.gpu_only:
+        if not torch.cuda.is_available():
+            parser.error("--gpu-only needs a CUDA device; none is available here")
+        gpu_report(args.repeats, args.profile)
+        return
     flat = torch.rand(args.batch, 4, args.size, args.size, generator=torch.Generator().manual_seed(0)) * 0.2
     workloads = {
         "flat": (flat, RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", fixed=FIXED)),
@@ -215,7 +239,7 @@ def main(argv=None):
         for name, (clean, aug) in workloads.items():
             cpu_comparison(name, clean, aug, threads, args.repeats)
     if torch.cuda.is_available():
-        gpu_report(args.repeats)
+        gpu_report(args.repeats, args.profile)
     else:
         print("GPU: no CUDA device here, GPU figures not measured")
 

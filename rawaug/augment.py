@@ -12,6 +12,7 @@ from .effects import EFFECTS
 from .effects.base import DrawContext, as_sample, stack_grids
 from .engine import layout as L
 from .engine.backend import synthesize_op
+from .engine.transfer import to_device
 from .profile import NoiseProfile
 from .rng import stream_key, torch_unit
 
@@ -174,6 +175,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         self._code_lut = tables.get("code_lut", torch.zeros(1, 1, dtype=torch.float64))
         self._read_lut = tables.get("read_lut", torch.zeros(1, 2, dtype=torch.float64))
         self._tables_by_device: dict = {}  # the three tables, float64, moved once per device
+        self._device_keys: dict = {}  # device -> (seed, its stream keys there): the last call's, for replays
         self.ratio = _range(ratio, "ratio")
         if iso is not None:
             k = self.profile.k_at_iso(iso)
@@ -205,7 +207,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         sensor (``FPN`` shading, ``LowFreq``) at their measured scale; without it the input
         is taken for the whole sensor."""
         seed = self._new_seed() if seed is None else int(seed)
-        device = torch.device(device)
+        target, device = torch.device(device), torch.device("cpu")  # (B, P) scalars: drawn on the host, moved once
         n = 1 if self.same_on_batch else batch
         ctx = DrawContext(self.profile, torch.ones(batch, dtype=torch.float64, device=device), batch, n, seed, self.fixed,
                           None if shape is None else (int(shape[0]), int(shape[1])), self._grid_slots)
@@ -222,6 +224,8 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         for effect in self.effects:
             for name, column in effect.draw(ctx).items():
                 values[:, L.COLUMN[name]] = column
+        if target.type != "cpu":
+            values = to_device(values, target)
         return {"seed": torch.tensor([seed], dtype=torch.int64), "batch_prob": self._gate(batch, seed), "values": values}
 
     def sample_parameters(self, params: dict) -> dict[str, torch.Tensor]:
@@ -265,12 +269,12 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         self._check_input(input)
         if params is None:
             batch = input.shape[0] if input.ndim == 4 else 1
-            params = self.draw_parameters(batch, input.device, shape=input.shape[-2:])
+            params = self.draw_parameters(batch, "cpu", shape=input.shape[-2:])  # moved with the keys in apply_transform
         return super().forward(input, params=params, **kwargs)
 
     def apply_transform(self, input, params, flags, transform=None) -> torch.Tensor:
         if "values" not in params:  # container path: finish the (deterministic) draws on the device
-            drawn = self.draw_parameters(input.shape[0], input.device, seed=int(params["seed"].reshape(-1)[0]),
+            drawn = self.draw_parameters(input.shape[0], "cpu", seed=int(params["seed"].reshape(-1)[0]),
                                          shape=input.shape[-2:])
             params = {**drawn, **params}
         values = params["values"]
@@ -279,8 +283,16 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         work = input.detach()
         if work.dtype not in (torch.float32, torch.float64):
             work = work.to(torch.float32)  # half inputs: computed in float32, rounded once at the end
-        keys = self._stream_keys(int(params["seed"].reshape(-1)[0]))
-        noisy = synthesize_op(work.contiguous(), values.to(work.device), keys, float(self.profile.span_dn), self._flags, *self._tables_on(work.device),
+        seed = int(params["seed"].reshape(-1)[0])
+        keys = self._stream_keys(seed)
+        if work.device.type != "cpu":  # one pinned, non-blocking copy of both: no host synchronization
+            last = self._device_keys.get(str(work.device))
+            if last is not None and last[0] == seed:  # a replay (CUDA-graph capture too): no copy of the keys
+                values, keys = to_device(values, work.device), last[1]
+            else:
+                values, keys = to_device((values, keys), work.device)
+                self._device_keys[str(work.device)] = (seed, keys)
+        noisy = synthesize_op(work.contiguous(), values, keys, float(self.profile.span_dn), self._flags, *self._tables_on(work.device),
                              self.check_finite is not False)
         noisy = noisy.to(input.dtype)
         if input.requires_grad:  # straight-through: d noisy / d clean = d E[noisy] / d clean
@@ -309,6 +321,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         state = self.__dict__.copy()
         state["generator"] = None  # torch.Generator does not pickle; a copy draws from the global RNG
         state["_tables_by_device"] = {}  # device copies are made again where the copy runs
+        state["_device_keys"] = {}
         return state
 
     def extra_repr(self) -> str:

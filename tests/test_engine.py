@@ -210,6 +210,48 @@ def test_cuda_equals_cpu_no_sync_few_launches_graph_capture():
     torch.testing.assert_close(static, aug(xc, params=params))
 
 
+def test_the_triton_block_size_does_not_change_the_noise():
+    from rawaug.gpu import fused
+
+    aug = RawNoiseAugment(every_effect_profile(), model="G*+P*+R+U+C")
+    x = torch.rand(2, 4, 16, 24)
+    previous = backend.set_backend("triton")
+    try:
+        outs = []
+        for block in (128, 1024):
+            original = fused.launch
+            fused.launch = lambda *a, _block=block, **k: original(*a, **{**k, "block": _block})
+            try:
+                outs.append(aug(x, params=aug._params if outs else None))
+            finally:
+                fused.launch = original
+    finally:
+        backend.set_backend(previous)
+    assert torch.equal(outs[0], outs[1])
+
+
+@pytest.mark.skipif(not CUDA, reason="needs CUDA")
+def test_compiled_cuda_training_step_draws_the_noise_of_eager():
+    from rawaug.train.unet import UNet
+
+    aug = RawNoiseAugment(every_effect_profile(), model="G*+P*+R+U+C")
+    x = torch.rand(2, 4, 64, 64, device="cuda")
+    aug(x)
+    values, keys = aug._params["values"].cuda(), aug._stream_keys(int(aug._params["seed"])).cuda()
+    net = UNet(base_channels=8).cuda()
+
+    def step(clean):
+        noisy = synthesize_op(clean, values, keys, float(aug.profile.span_dn), aug._flags, aug._grids, aug._code_lut, aug._read_lut)
+        loss = (net(noisy) - clean).abs().mean()
+        return noisy, loss
+
+    compiled = torch.compile(step, fullgraph=True)  # inductor: no graph break at the operator
+    noisy_c, loss_c = compiled(x)
+    noisy_e, loss_e = step(x)
+    assert torch.equal(noisy_c, noisy_e)
+    torch.testing.assert_close(loss_c, loss_e, rtol=1e-3, atol=1e-5)  # the U-Net's kernels differ, the noise does not
+
+
 @pytest.mark.parametrize("bad", [float("nan"), float("inf")])
 def test_non_finite_values_pass_through_every_backend(samplers, bad):
     x = torch.rand(1, 4, 8, 8)

@@ -90,14 +90,22 @@ def normal_upper(t):
 
 
 @triton.jit
+def _halve(n, x, s: tl.constexpr):
+    """One halving step of ``leading_zeros``: are the top ``s`` bits of x all zero?"""
+    small = x < (1 << (64 - s))
+    return n + tl.where(small, s, 0), tl.where(small, x << s, x)
+
+
+@triton.jit
 def leading_zeros(x):
     """Count of leading zero bits of a uint64 (x > 0), by halving."""
     n = tl.zeros_like(x).to(tl.int64)
-    for shift in tl.static_range(6):
-        s: tl.constexpr = 32 >> shift
-        small = x < (1 << (64 - s))
-        n += tl.where(small, s, 0)
-        x = tl.where(small, x << s, x)
+    n, x = _halve(n, x, 32)
+    n, x = _halve(n, x, 16)
+    n, x = _halve(n, x, 8)
+    n, x = _halve(n, x, 4)
+    n, x = _halve(n, x, 2)
+    n, x = _halve(n, x, 1)
     return n
 
 

@@ -13,26 +13,33 @@ from ..engine import layout as L
 from .counter import draw, normal_upper, symmetric_table, tail_of, tukey_upper, unit
 from .poisson import poisson_count
 
-C_K, C_RATIO, C_PRNU = L.COLUMN["k"], L.COLUMN["ratio"], L.COLUMN["prnu_sigma"]
-C_DARK_E, C_DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
-C_LF, C_LF_GH, C_LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
-C_CM_REC, C_CM_LO, C_CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
-C_RQ_REC, C_RQ_SCALE = L.COLUMN["readq_record"], L.COLUMN["readq_scale"]
-C_LRD, C_LCD, C_LM, C_LLS, C_LNEG = (L.COLUMN["lines_row_density"], L.COLUMN["lines_col_density"], L.COLUMN["lines_median"],
-                                     L.COLUMN["lines_log_std"], L.COLUMN["lines_negative"])
+
+def _column(name: str) -> tl.constexpr:
+    """A column of the (B, P) parameter tensor, as a constant the Triton compiler accepts
+    (compiled kernels read module globals only as constexpr; the interpreter reads any)."""
+    return tl.constexpr(L.COLUMN[name])
+
+
+C_K, C_RATIO, C_PRNU = _column("k"), _column("ratio"), _column("prnu_sigma")
+C_DARK_E, C_DSNU = _column("dark_e"), _column("dsnu")
+C_LF, C_LF_GH, C_LF_GW = _column("lowfreq_sigma"), _column("lowfreq_gh"), _column("lowfreq_gw")
+C_CM_REC, C_CM_LO, C_CM_N = _column("codemap_record"), _column("codemap_lo"), _column("codemap_n")
+C_RQ_REC, C_RQ_SCALE = _column("readq_record"), _column("readq_scale")
+C_LRD, C_LCD, C_LM, C_LLS, C_LNEG = (_column("lines_row_density"), _column("lines_col_density"), _column("lines_median"),
+                                     _column("lines_log_std"), _column("lines_negative"))
 Z_MAX = tl.constexpr(L.READ_TABLE_Z)
-C_TL, C_LAM, C_G, C_R = L.COLUMN["sigma_tl"], L.COLUMN["lambda"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
-C_CS, C_CF, C_FS, C_FR = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"], L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
-C_FOY, C_FOX, C_FH, C_FW = L.COLUMN["fpn_oy"], L.COLUMN["fpn_ox"], L.COLUMN["fpn_h"], L.COLUMN["fpn_w"]
-C_FGH, C_FGW = L.COLUMN["fpn_gh"], L.COLUMN["fpn_gw"]
-C_GLS, C_GLR, C_GLOY, C_GLOX = L.COLUMN["glow_s"], L.COLUMN["glow_record"], L.COLUMN["glow_oy"], L.COLUMN["glow_ox"]
-C_GLH, C_GLW, C_GLGH, C_GLGW = L.COLUMN["glow_h"], L.COLUMN["glow_w"], L.COLUMN["glow_gh"], L.COLUMN["glow_gw"]
-C_NL = L.COLUMN["nl_c"]
-C_SENSOR = L.COLUMN["sensor"]
-C_HD, C_HM, C_HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_log_std"]
-C_Q, C_B0, C_BS, C_BC, C_CL = (L.COLUMN["step_dn"], L.COLUMN["bias_r"], L.COLUMN["ble_sigma"],
-                               L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"])
-S = L.STREAM
+C_TL, C_LAM, C_G, C_R = _column("sigma_tl"), _column("lambda"), _column("sigma_g"), _column("sigma_r")
+C_CS, C_CF, C_FS, C_FR = _column("col_sigma"), _column("col_fixed"), _column("fpn_sigma"), _column("fpn_record")
+C_FOY, C_FOX, C_FH, C_FW = _column("fpn_oy"), _column("fpn_ox"), _column("fpn_h"), _column("fpn_w")
+C_FGH, C_FGW = _column("fpn_gh"), _column("fpn_gw")
+C_GLS, C_GLR, C_GLOY, C_GLOX = _column("glow_s"), _column("glow_record"), _column("glow_oy"), _column("glow_ox")
+C_GLH, C_GLW, C_GLGH, C_GLGW = _column("glow_h"), _column("glow_w"), _column("glow_gh"), _column("glow_gw")
+C_NL = _column("nl_c")
+C_SENSOR = _column("sensor")
+C_HD, C_HM, C_HL = _column("hot_density"), _column("hot_median"), _column("hot_log_std")
+C_Q, C_B0, C_BS, C_BC, C_CL = (_column("step_dn"), _column("bias_r"), _column("ble_sigma"),
+                               _column("ble_channel_sigma"), _column("clip_floor"))
+S = {name: tl.constexpr(slot) for name, slot in L.STREAM.items()}  # stream slots, constexpr as above
 K_SHOT, K_SHOT_REST, K_SHOT_COARSE, K_READ = S["shot"], S["shot_rest"], S["shot_coarse"], S["read"]
 K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
 K_DSNU, K_LOWFREQ = S["dsnu_pattern"], S["lowfreq"]
@@ -201,13 +208,20 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     tl.store(out_ptr + plane.to(tl.int64) * hw + idx, (s * (ratio / span)).to(out_ptr.dtype.element_ty), mask=live)
 
 
-def launch(clean, out, values, keys, span, flags, fine, coarse, grids, normal, code_lut, read_lut, block: int = 1024):
-    """One launch over a contiguous (B, 4, H, W) batch; tables and grids on clean's device."""
+def launch(clean, out, values, keys, span, flags, fine, coarse, grids, normal, code_lut, read_lut, block: int | None = None,
+           num_warps: int = 4):
+    """One launch over a contiguous (B, 4, H, W) batch; tables and grids on clean's device.
+    ``block`` elements per program; by default 128 on a GPU (with 4 warps 2.9x (G*+P*+R+U) to
+    4.6x (a loop profile) faster than 1024 on an H100, benchmarks/results_h100/blocks.txt)
+    and 1024 on CPU tensors (the interpreter: fewer, wider programs). The noise does not
+    depend on it."""
+    if block is None:
+        block = 1024 if clean.device.type == "cpu" else 128
     b, _, h, w = clean.shape
     if b == 0 or h * w == 0:
         return out
     grid = (triton.cdiv(h * w, block), b * 4)
     fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2], normal, code_lut, code_lut.shape[1],
                        read_lut, read_lut.shape[1],
-                       FLAGS=int(flags), P=values.shape[1], BLOCK=block)
+                       FLAGS=int(flags), P=values.shape[1], BLOCK=block, num_warps=num_warps)
     return out
