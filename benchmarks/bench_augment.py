@@ -17,7 +17,9 @@ clean batches (8, 4, 512, 512):
     python benchmarks/bench_augment.py [--repeats 5]
     python benchmarks/bench_augment.py --gpu-only [--profile LOOP_PROFILE.yaml]   # CUDA figures only
 
-On a CUDA device it also prints, for the fused kernel (fixed and drawn parameters, and a
+It first prints the host time of one call's parameter draws (what a GPU call does on the CPU
+before its kernel), with the counters in numpy against the same counters as torch
+operations. On a CUDA device it also prints, for the fused kernel (fixed and drawn parameters, and a
 loop profile with its effects if given) and the torch-ops path: the fraction of the
 memory-bandwidth bound (a device copy of the same bytes over the augmentation's time) at
 (8, 4, 512, 512) and (32, 4, 512, 512), with the kernel alone beside each call; the share
@@ -124,6 +126,44 @@ def cpu_comparison(name, clean, aug, threads, repeats):
     print(f"  rawaug fused kernel G*+P*+R+U:                                 {megapixels / t['fused']:8.2f} MP/s"
           f"  ratio {t['reference'] / t['fused']:.1f}x (target >= 10x per thread)")
     return t["reference"] / t["fused"]
+
+
+def draw_comparison(repeats):
+    """Host time of one call's parameter draws (the part of a GPU call before its kernel):
+    counters in numpy (rawaug) against the same counters as torch operations (its previous
+    draws), the same values, timed alternately."""
+    import contextlib
+
+    import rawaug.augment as A
+    import rawaug.effects.base as E
+    from rawaug.rng import torch_normal, torch_unit
+
+    @contextlib.contextmanager
+    def torch_counters():
+        saved = E.host_unit, E.host_normal, A.host_unit
+        E.host_unit = A.host_unit = lambda key, n: torch_unit(key, torch.arange(n))
+        E.host_normal = lambda key, n: torch_normal(key, torch.arange(n))
+        try:
+            yield
+        finally:
+            E.host_unit, E.host_normal, A.host_unit = saved
+
+    def per_call(aug, batch, n=200):
+        start = time.perf_counter()
+        for _ in range(n):
+            aug.draw_parameters(batch, "cpu", shape=(512, 512))
+        return (time.perf_counter() - start) / n
+
+    for name, aug in (("G*+P*+R+U", RawNoiseAugment("SonyA7S2", model="G*+P*+R+U")),):
+        for batch in (1, 8, 32):
+            fast, slow = [], []
+            for _ in range(repeats):
+                fast.append(per_call(aug, batch))
+                with torch_counters():
+                    slow.append(per_call(aug, batch))
+            f, s = statistics.median(fast), statistics.median(slow)
+            print(f"parameter draws, {name}, batch {batch}: numpy counters {f * 1e6:.0f} us, torch counters {s * 1e6:.0f} us "
+                  f"per call (ratio {s / f:.1f}x)")
 
 
 def _cuda_timed(fn, n):
@@ -235,6 +275,7 @@ def main(argv=None):
         "scenes": (scene_batch(args.batch, args.size),
                    RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", generator=torch.Generator().manual_seed(0))),
     }
+    draw_comparison(args.repeats)
     for threads in sorted({1, 2, torch.get_num_threads()} if args.threads is None else {args.threads}):
         for name, (clean, aug) in workloads.items():
             cpu_comparison(name, clean, aug, threads, args.repeats)

@@ -2,8 +2,8 @@
 
 Every random number rawaug draws is a pure function of a 63-bit stream key and a counter:
 ``bits = mix64(key + counter * GOLDEN)``, output ``counter`` of SplitMix64 seeded with
-``key`` (Steele et al. 2014). The numba CPU kernel, the Triton kernel and the torch code
-that draws per-sample parameters all compute it, so the same seed gives the same noise on
+``key`` (Steele et al. 2014). The numba CPU kernel, the Triton kernel and the host code
+that draws per-sample parameters (numpy; torch as its reference) all compute it, so the same seed gives the same noise on
 any device. Keys are derived on the host from the call seed and a purpose (an effect's
 token, a parameter name); counters are element indices, so nothing is stored.
 
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import zlib
 
+import numpy as np
 import torch
 
 GOLDEN = 0x9E3779B97F4A7C15
@@ -76,3 +77,27 @@ def torch_unit(key: int, counter: torch.Tensor) -> torch.Tensor:
 def torch_normal(key: int, counter: torch.Tensor) -> torch.Tensor:
     """Standard normal, float64, of the given counters (inverse CDF of ``torch_unit``)."""
     return torch.special.ndtri(torch_unit(key, counter))
+
+
+# ------------------------------------------------------------------ numpy (host draws)
+_NG, _NM1, _NM2, _NK = np.uint64(GOLDEN), np.uint64(M1), np.uint64(M2), np.uint64
+
+
+def numpy_bits(key: int, counter: np.ndarray) -> np.ndarray:
+    """``torch_bits`` in numpy uint64 (the same bits): a few microseconds per array, where the
+    torch version's dozen small operations cost tens (the per-call parameter draws)."""
+    with np.errstate(over="ignore"):
+        z = np.asarray(counter, dtype=np.uint64) * _NG + _NK(key & MASK64)
+        z = (z ^ (z >> _NK(30))) * _NM1
+        z = (z ^ (z >> _NK(27))) * _NM2
+    return z ^ (z >> _NK(31))
+
+
+def host_unit(key: int, n: int) -> torch.Tensor:
+    """``torch_unit(key, arange(n))`` on the CPU, the same values, computed in numpy."""
+    return torch.from_numpy(((numpy_bits(key, np.arange(n)) >> _NK(11)).astype(np.float64) + 0.5) * 2.0**-53)
+
+
+def host_normal(key: int, n: int) -> torch.Tensor:
+    """``torch_normal(key, arange(n))`` on the CPU, the same values."""
+    return torch.special.ndtri(host_unit(key, n))

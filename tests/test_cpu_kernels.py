@@ -15,7 +15,7 @@ from rawaug.cpu.quantile_table import symmetric, tukey_lambda_table
 from rawaug.distributions import tukey_lambda_upper_quantile
 from rawaug.engine import backend
 from rawaug.engine import layout as L
-from rawaug.rng import bits_at, stream_key, torch_bits
+from rawaug.rng import bits_at, host_normal, host_unit, numpy_bits, stream_key, torch_bits, torch_normal, torch_unit
 
 P_MIN = 1e-3  # a correct sampler fails each goodness-of-fit test at this rate
 
@@ -237,6 +237,16 @@ def test_counter_hash_is_the_same_on_host_torch_and_numba():
     host = [bits_at(key, c) for c in counters]
     assert [v & (2**64 - 1) for v in torch_bits(key, torch.tensor(counters)).tolist()] == host
     assert [int(_draw(np.uint64(key), c)) for c in counters] == host
+    assert [int(v) for v in numpy_bits(key, np.array(counters))] == host
+
+
+def test_host_draws_equal_the_torch_draws():
+    # the per-call parameter draws run in numpy on the host; the torch functions are their reference
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        key, n = int(rng.integers(0, 2**63 - 1)), int(rng.integers(1, 70))
+        assert torch.equal(host_unit(key, n), torch_unit(key, torch.arange(n)))
+        assert torch.equal(host_normal(key, n), torch_normal(key, torch.arange(n)))
 
 
 @njit

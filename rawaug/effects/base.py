@@ -8,8 +8,8 @@ An effect is a small class with
   what it does to one value given its parameters and random numbers, is written in its
   module's docstring and, once per backend, in ``rawaug/cpu/fused.py`` and
   ``rawaug/gpu/fused.py`` under the same flag;
-* ``draw(ctx)``: its per-sample parameters, ``{column: (B,) tensor}`` on the device,
-  given the drawn gain K (no host round trip);
+* ``draw(ctx)``: its per-sample parameters, ``{column: (B,) tensor}`` on the host,
+  given the drawn gain K (the (B, P) table then moves to the device in one copy);
 * ``pattern_streams()``: keys of its fixed patterns (keyed by the profile's seed, the
   sample's sensor instance and the pixel position: one sensor's are the same in every call),
   and ``tables()`` where it needs a small table.
@@ -27,7 +27,7 @@ from typing import ClassVar
 
 import torch
 
-from ..rng import stream_key, torch_normal, torch_unit
+from ..rng import host_normal, host_unit, stream_key, torch_normal, torch_unit
 
 EFFECTS: dict[str, type["NoiseEffect"]] = {}
 
@@ -46,7 +46,8 @@ def register(cls):
 @dataclass
 class DrawContext:
     """What an effect needs to draw its per-sample parameters: all draws are counter-based
-    (``rawaug.rng``) on the device of ``k``, keyed by the call seed and a purpose."""
+    (``rawaug.rng``), keyed by the call seed and a purpose, on the device of ``k`` (the host
+    in ``RawNoiseAugment``: numpy counters there)."""
 
     profile: "object"  # NoiseProfile
     k: torch.Tensor  # (B,) system gain, DN per electron, float64
@@ -74,10 +75,14 @@ class DrawContext:
         return t.expand((self.batch,) + t.shape[1:]) if self.n_draw == 1 else t
 
     def uniform(self, purpose: str) -> torch.Tensor:
-        return self._expand(torch_unit(stream_key(self.seed, "parameter:" + purpose), self._counter()))
+        key = stream_key(self.seed, "parameter:" + purpose)
+        u = host_unit(key, self.n_draw) if self.device.type == "cpu" else torch_unit(key, self._counter())
+        return self._expand(u)
 
     def normal(self, purpose: str) -> torch.Tensor:
-        return self._expand(torch_normal(stream_key(self.seed, "parameter:" + purpose), self._counter()))
+        key = stream_key(self.seed, "parameter:" + purpose)
+        z = host_normal(key, self.n_draw) if self.device.type == "cpu" else torch_normal(key, self._counter())
+        return self._expand(z)
 
     def scale(self, relation, fixed_key: str) -> torch.Tensor:
         """A noise scale (DN) per sample: ``fixed[fixed_key]`` if the user fixed it, else drawn
