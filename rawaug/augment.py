@@ -275,7 +275,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         return super().forward(input, params=params, **kwargs)
 
     def apply_transform(self, input, params, flags, transform=None) -> torch.Tensor:
-        if "values" not in params:  # container path: finish the (deterministic) draws on the device
+        if "values" not in params:  # container path: finish the (deterministic) draws from the seed
             drawn = self.draw_parameters(input.shape[0], "cpu", seed=int(params["seed"].reshape(-1)[0]),
                                          shape=input.shape[-2:])
             params = {**drawn, **params}
@@ -289,7 +289,9 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         keys = self._stream_keys(seed)
         if work.device.type != "cpu":  # one pinned, non-blocking copy of both: no host synchronization
             last = self._device_keys.get(str(work.device))
-            if last is not None and last[0] == seed:  # a replay (CUDA-graph capture too): no copy of the keys
+            # a replay of the last call's seed needs no copy of the keys, so a CUDA graph captured
+            # after one eager call with the same params holds no copy from (reusable) host memory
+            if last is not None and last[0] == seed:
                 values, keys = to_device(values, work.device), last[1]
             else:
                 values, keys = to_device((values, keys), work.device)
