@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from rawaug import NoiseProfile
 
@@ -38,3 +39,22 @@ def test_pairs_hold_the_held_out_dark_frame():
         expected = clean.astype(np.float64) * real_noise.WHITE / ratio / real_noise.K  # Poisson means (e-)
         # the total count of Poisson draws: mean and variance both sum(expected); 6 sigma
         assert abs(shot.sum() - expected.sum()) < 6 * np.sqrt(expected.sum())
+
+
+@pytest.mark.slow
+def test_trainings_as_processes_are_cut_and_resumed(tmp_path):
+    common = ["--out", str(tmp_path), "--smoke", "--dark", str(tmp_path / "absent.raw"), "--rows", "ELD", "sampled real",
+              "--seeds", "0", "1", "--jobs", "2"]
+    # cut before any training can finish (a child needs seconds to start): exit 3, nothing written
+    assert real_noise.main(common + ["--time-limit", "0.5"]) == real_noise.UNFINISHED
+    assert not list((tmp_path / "runs").glob("*.json"))
+    assert real_noise.main(common + ["--time-limit", "600"]) == 0
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert sorted((r["row"], r["seed"]) for r in results) == [("ELD", 0), ("ELD", 1), ("sampled real", 0), ("sampled real", 1)]
+    # the same run in this process: the same scores (to 0.01 dB: thread counts may order sums differently)
+    serial = tmp_path / "serial"
+    assert real_noise.main(["--out", str(serial), "--smoke", "--dark", str(tmp_path / "absent.raw"), "--rows", "ELD",
+                            "--seeds", "1"]) == 0
+    one = json.loads((serial / "results.json").read_text())[0]
+    child = next(r for r in results if r["row"] == "ELD" and r["seed"] == 1)
+    assert one["psnr"] == pytest.approx(child["psnr"], abs=0.01)

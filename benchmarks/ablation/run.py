@@ -40,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import scenes  # noqa: E402
 import testcam  # noqa: E402
+from children import UNFINISHED, run_children  # noqa: E402
 
 from rawaug import NoiseProfile  # noqa: E402
 from rawaug.io import read_frame  # noqa: E402
@@ -70,7 +71,6 @@ SCALES = {
     "gpu-short": dict(seeds=[0, 1], steps=3000, base=32, crop=256, batch=4, tile=128, test_tiles=24, frame=512, n_bias=8, bm3d=True, residual=False,
                       lr=3e-4, ckpt_every=500),
 }
-UNFINISHED = 3  # exit status of an invocation cut by --time-limit
 
 
 def make_data(out: Path, scale: dict) -> dict:
@@ -309,48 +309,6 @@ def plot(rows: list[dict], order: list[str], path: Path) -> None:
     tmp.replace(path)
 
 
-def run_children(out: Path, scale_args: list[str], jobs: list[tuple[str, int]], n_jobs: int, bm3d: bool, deadline: float | None, start: float) -> bool:
-    """Run the trainings ``jobs`` as up to ``n_jobs`` child processes at once (sharing the
-    device; CPU threads split between them) and BM3D in one more on the CPU; at ``deadline``
-    stop them all. Returns True when everything finished."""
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--out", str(out), *scale_args]
-    env = dict(os.environ, OMP_NUM_THREADS=str(max(1, (os.cpu_count() or 1) // max(n_jobs, 1))))
-    pending, running = list(jobs), {}
-
-    def launch(name: str, extra: list[str], log: Path) -> None:
-        log.parent.mkdir(parents=True, exist_ok=True)
-        with open(log, "a") as f:
-            running[name] = (subprocess.Popen(cmd + extra, stdout=f, stderr=subprocess.STDOUT, env=env), log)
-
-    if bm3d and not (out / "bm3d_results.json").exists():
-        launch("BM3D", ["--bm3d-only"], out / "bm3d.log")
-    while pending or running:
-        if deadline is not None and time.time() >= deadline:
-            for proc, _ in running.values():
-                proc.terminate()
-            for proc, _ in running.values():
-                try:
-                    proc.wait(timeout=30)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-            print(f"[{time.time() - start:6.0f} s] time limit: stopped {sorted(running)}; {len(pending)} not started. Run again to resume.")
-            return False
-        while pending and sum(name != "BM3D" for name in running) < n_jobs:
-            row, seed = pending.pop(0)
-            launch(f"{row} seed {seed}", ["--train-one", row, str(seed)], run_dir_of(out, row, seed) / "train.log")
-        for name, (proc, log) in list(running.items()):
-            if proc.poll() is None:
-                continue
-            del running[name]
-            if proc.returncode:
-                for other, _ in running.values():
-                    other.terminate()
-                raise RuntimeError(f"{name} failed (exit {proc.returncode}); see {log}")
-            print(f"[{time.time() - start:6.0f} s] {name} done")
-        time.sleep(0.5)
-    return True
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default="runs/ablation", help="output folder (reused: finished steps are skipped)")
@@ -403,9 +361,11 @@ def main(argv=None) -> int:
     print(f"[{time.time() - start:6.0f} s] profiles: {profiles['eld']} (calibrate), {profiles['loop']} (loop)")
     finished = True
     if not args.collect and (args.jobs > 1 or deadline is not None):
-        jobs = [(row, seed) for row in args.rows or order for seed in scale["seeds"]
-                if not (run_dir_of(out, row, seed) / "test_results.csv").exists()]
-        finished = run_children(out, scale_args, jobs, args.jobs, scale["bm3d"], deadline, start)
+        jobs = [(f"{row} seed {seed}", ["--train-one", row, str(seed)], run_dir_of(out, row, seed) / "train.log")
+                for row in args.rows or order for seed in scale["seeds"] if not (run_dir_of(out, row, seed) / "test_results.csv").exists()]
+        side = [("BM3D", ["--bm3d-only"], out / "bm3d.log")] if scale["bm3d"] and not (out / "bm3d_results.json").exists() else []
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--out", str(out), *scale_args]
+        finished = run_children(cmd, jobs, args.jobs, deadline, start, side)
     rows = []
     for row in args.rows or order:
         for seed in scale["seeds"]:

@@ -2,6 +2,9 @@
 
     python benchmarks/real_noise/run.py --out runs/real_noise            # CPU, about 17 minutes
     python benchmarks/real_noise/run.py --out runs/real_noise --smoke    # seconds, for tests
+    python benchmarks/real_noise/run.py --out runs/real_noise_gpu --scale gpu-short --jobs 9 --time-limit 540
+        # the ablation's GPU recipe (32-wide direct U-Net, 3000 steps of 4 crops of 256, lr 3e-4):
+        # trainings as 9 processes sharing the GPU, exit status 3 when cut: run it again to resume
 
 The real dark frame (InfiniteISP BlackImage, 1920x1080, 12 bit, BGGR, Apache-2.0; whole in
 ../shared beside the checkout, else its 512x512 crop bundled with the tests) has effects
@@ -51,6 +54,7 @@ from rawaug.train.metrics import evaluate
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import scenes  # noqa: E402
+from children import UNFINISHED, run_children  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 DARK = ROOT.parent / "shared/data/frames/InfiniteISP/BlackImage_1920x1080_12bits_BGGR.raw"
@@ -63,7 +67,10 @@ ROWS = ("ELD", "ELD with colour bias", "loop", "loop without CodeMap", "sampled 
 MODELS = {"ELD": "G*+P*+R+U", "ELD with colour bias": "G*+P*+R+U+C", "loop": "G*+P*+R+U+C", "loop without CodeMap": "G*+P*+R+U+C"}
 GRADIENT_CLIP = 1.0  # max gradient norm
 SCALES = {"cpu": dict(steps=1024, seeds=(0, 1, 2), base=16, crop=64, batch=8, tile=128, test_tiles=12, n_synth=8),
-          "smoke": dict(steps=2, seeds=(0,), base=4, crop=32, batch=2, tile=32, test_tiles=2, n_synth=8)}
+          "smoke": dict(steps=2, seeds=(0,), base=4, crop=32, batch=2, tile=32, test_tiles=2, n_synth=8),
+          # the ablation's gpu-short recipe; crops of 256 need the whole frame's training part (360 packed rows)
+          "gpu-short": dict(steps=3000, seeds=(0, 1, 2), base=32, crop=256, batch=4, tile=128, test_tiles=24, n_synth=8,
+                            lr=3e-4, residual=False, accelerator="auto")}
 
 
 def read_dark(path: Path) -> np.ndarray:
@@ -160,8 +167,12 @@ class SampledRealDistribution(SampledRealNoise):
         return (shot + values) / self.white * ratio
 
 
+def run_name(row: str, seed: int) -> str:
+    return f"{row.replace(',', '').replace(' ', '_')}_seed{seed}"
+
+
 def train_and_test(row: str, seed: int, out: Path, profiles: dict, train_dark: np.ndarray, pairs, scale) -> dict:
-    result = out / "runs" / f"{row.replace(',', '').replace(' ', '_')}_seed{seed}.json"
+    result = out / "runs" / f"{run_name(row, seed)}.json"
     if result.exists():
         return json.loads(result.read_text())
     import lightning as L
@@ -169,21 +180,21 @@ def train_and_test(row: str, seed: int, out: Path, profiles: dict, train_dark: n
     from rawaug.train import CleanFolder, DenoiseModule, RawDenoiseData
 
     torch.manual_seed(seed)
-    module = DenoiseModule(base_channels=scale["base"], depth=5, residual=True, profile=str(profiles[row if row in profiles else "ELD"]),
+    module = DenoiseModule(base_channels=scale["base"], depth=5, residual=scale.get("residual", True), profile=str(profiles[row if row in profiles else "ELD"]),
                            noise_model=MODELS.get(row, "G*+P*+R+U"), include_profile_effects=row.startswith("loop"), ratio=[RATIOS[0], RATIOS[-1]], k=K,
-                           crop_size=scale["crop"], lr=1e-3, seed=seed, image_log_size=0, eval_iso=None, eval_k=K)
+                           crop_size=scale["crop"], lr=scale.get("lr", 1e-3), seed=seed, image_log_size=0, eval_iso=None, eval_k=K)
     if row.startswith("sampled real"):
         source = SampledRealDistribution if row == "sampled real, shuffled" else SampledRealNoise
         module.noise = source(train_dark, K, (RATIOS[0], RATIOS[-1]), WHITE)
     data = RawDenoiseData(train=CleanFolder(str(out / "train_scenes"), camera="bundled-scenes", repeat=64, window=scale["crop"]), batch_size=scale["batch"], seed=seed)
     # gradient clipping: without it a loss spike early at lr 1e-3 (the loop row, seed 0: L1 0.03 -> 0.57
     # near step 100) left a run 7 dB below its other seed
-    trainer = L.Trainer(max_steps=scale["steps"], accelerator="cpu", devices=1, logger=False, enable_checkpointing=False,
+    trainer = L.Trainer(max_steps=scale["steps"], accelerator=scale.get("accelerator", "cpu"), devices=1, logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0, default_root_dir=str(out / "runs"),
                         gradient_clip_val=GRADIENT_CLIP)
     start = time.time()
     trainer.fit(module, datamodule=data)
-    module.eval()
+    module = module.cpu().eval()  # tested on the CPU, as the pairs are
     scores = {q: [] for q in RATIOS}
     noisy_scores = {q: [] for q in RATIOS}
     with torch.no_grad():
@@ -226,11 +237,21 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="runs/real_noise", help="output folder (reused: finished runs are skipped)")
     ap.add_argument("--dark", default=str(DARK), help="the whole dark frame (default: beside the checkout)")
-    ap.add_argument("--smoke", action="store_true", help="tiny scale, seconds (for tests)")
+    ap.add_argument("--scale", choices=sorted(SCALES), default="cpu")
+    ap.add_argument("--smoke", action="store_true", help="tiny scale, seconds (for tests): --scale smoke")
     ap.add_argument("--rows", nargs="*", default=list(ROWS), choices=ROWS)
     ap.add_argument("--seeds", type=int, nargs="*", default=None, help="training seeds (default: the scale's)")
+    ap.add_argument("--jobs", type=int, default=1, help="trainings at once, as child processes sharing the device")
+    ap.add_argument("--time-limit", type=float, default=None, metavar="SECONDS",
+                    help=f"stop this invocation after SECONDS (finished runs are kept; exit status {UNFINISHED}); run again to resume")
+    ap.add_argument("--train-one", nargs=2, metavar=("ROW", "SEED"), help=argparse.SUPPRESS)  # a child process
     args = ap.parse_args(argv)
-    scale = dict(SCALES["smoke" if args.smoke else "cpu"])
+    if args.jobs < 1:
+        ap.error(f"--jobs must be >= 1, got {args.jobs}")
+    if args.time_limit is not None and not args.time_limit > 0:
+        ap.error(f"--time-limit must be > 0 seconds, got {args.time_limit}")
+    scale_name = "smoke" if args.smoke else args.scale
+    scale = dict(SCALES[scale_name])
     if args.seeds:
         scale["seeds"] = tuple(args.seeds)
     out = Path(args.out)
@@ -241,6 +262,9 @@ def main(argv=None) -> int:
     cut = dark.shape[1] * 2 // 3
     train_dark, held_out = dark[:, :cut], dark[:, cut:]
     print(f"dark frame {path.name}: packed {dark.shape}; training part {train_dark.shape}, held-out part {held_out.shape}")
+    if min(train_dark.shape[1:]) < scale["crop"] or min(held_out.shape[1:]) < scale["tile"]:
+        ap.error(f"the {scale_name} scale's crops of {scale['crop']} and tiles of {scale['tile']} need a larger dark frame than "
+                 f"{path} (training part {train_dark.shape[1:]}, held-out part {held_out.shape[1:]}): pass the whole frame with --dark")
     eld, base = eld_profile(train_dark)
     profiles = {"ELD": out / "eld_profile.yaml", "loop": out / "loop_profile.yaml"}
     if not profiles["ELD"].exists():
@@ -259,12 +283,25 @@ def main(argv=None) -> int:
     rows = [r for r in args.rows if r != "loop without CodeMap" or "CodeMap" in NoiseProfile.load(profiles["loop"]).effects]
     pairs = test_pairs(held_out, scale)
     write_train_scenes(out / "train_scenes", scale["crop"])
+    if args.train_one:
+        train_and_test(args.train_one[0], int(args.train_one[1]), out, profiles, train_dark, pairs, scale)
+        return 0
+    finished = True
+    if args.jobs > 1 or args.time_limit:
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--out", str(out), "--dark", str(path), "--scale", scale_name,
+               "--seeds", *map(str, scale["seeds"])]
+        jobs = [(f"{row} seed {seed}", ["--train-one", row, str(seed)], out / "runs" / f"{run_name(row, seed)}.log")
+                for row in rows for seed in scale["seeds"] if not (out / "runs" / f"{run_name(row, seed)}.json").exists()]
+        finished = run_children(cmd, jobs, args.jobs, start + args.time_limit if args.time_limit else None, start)
     header = (f"# Real-noise test pairs ({path.name}, held-out bottom third; K = {K:g} DN/e-)\n\n"
               f"{len(pairs) // len(RATIOS)} test tiles per ratio of {', '.join(scenes.TEST_RAW)}; training scenes "
               f"{', '.join(p.stem for p in sorted((out / 'train_scenes').glob('*.npz')))}; scale {json.dumps({k: v for k, v in scale.items() if k != 'seeds'})}; "
               "every finished seed in the folder counts.\n\n")
+    md = header + "No run of these rows and seeds has finished.\n"
     for row in rows:
         for seed in scale["seeds"]:
+            if not finished and not (out / "runs" / f"{run_name(row, seed)}.json").exists():
+                continue
             res = train_and_test(row, seed, out, profiles, train_dark, pairs, scale)
             print(f"[{time.time() - start:5.0f} s] {row} seed {seed}: "
                   + ", ".join(f"x{q} {v:.2f} dB" for q, v in res["psnr"].items()))
@@ -276,7 +313,7 @@ def main(argv=None) -> int:
             write_text_atomic(out / "results.json", json.dumps(results, indent=1))
     print(md)
     print(f"(elapsed {time.time() - start:.0f} s)")
-    return 0
+    return 0 if finished else UNFINISHED
 
 
 if __name__ == "__main__":
