@@ -17,7 +17,10 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from scipy import ndimage
 from scipy import stats as sstats
+
+from .engine.layout import COLUMN_SET, ROW_SET, XTALK_LAGS
 
 _MAD_TO_SIGMA = 1.482602218505602
 _LOW_BAND = 16  # low-frequency band: the lowest 1/16 of the frequencies
@@ -81,14 +84,17 @@ DEFECT_Z = 8.0  # robust sigmas from its neighbours: a line this far off is a de
 
 def _defects(means):
     """Defect lines among line means (..., n): residuals from a running median of 5 lines
-    (smooth shading does not count) beyond ``DEFECT_Z`` x 1.4826 MAD of the residuals.
+    (smooth shading does not count) beyond ``DEFECT_Z`` x the larger of 1.4826 MAD of the
+    residuals and of the line-to-line differences / sqrt(2): a pattern that moves from line
+    to line as much as it stands out (periodic banding) is not a set of defects.
     Returns (mask, residuals)."""
     from scipy.ndimage import median_filter
 
     size = [1] * (means.ndim - 1) + [5]
     resid = means - median_filter(means, size=size, mode="mirror")  # an edge line is judged by its inner neighbours
     _, scale = _robust_scale(resid, axis=-1)
-    return np.abs(resid) > DEFECT_Z * scale, resid
+    _, step = _robust_scale(np.diff(means, axis=-1), axis=-1)
+    return np.abs(resid) > DEFECT_Z * np.maximum(scale, step / np.sqrt(2.0)), resid
 
 
 def defect_line_masks(frames):
@@ -291,6 +297,84 @@ def frame_mean_common_cov(frames, level_dn=None):
     return float((c[0, 2] + c[1, 3]) / 2.0)
 
 
+HIGH_PASS = 7  # packed pixels: the local mean taken out before lag correlations (smooth fields do not count)
+# raw lags of the correlation curve: a half plane of radius 2 (every lag XTALK_LAGS holds among them)
+CURVE_LAGS = tuple((dy, dx) for dy in range(3) for dx in range(-2, 3) if dy > 0 or dx > 0)
+
+
+def temporal_mosaic(frames):
+    """The temporal residual of a stack (N >= 2) as raw mosaics (N, 2h, 2w), DN: each frame
+    minus the stack mean (scaled by sqrt(N / (N - 1)), so its covariances are the frames'),
+    less each channel's row and column means (row and column noise) and its local mean over
+    HIGH_PASS x HIGH_PASS packed pixels (smooth fields), the channels put back at their
+    sensor positions (``rawaug.engine.layout.ROW_SET`` / ``COLUMN_SET``)."""
+    n, _, h, w = frames.shape
+    r = (frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1))
+    r = r - r.mean(axis=3, keepdims=True)
+    r = r - r.mean(axis=2, keepdims=True)
+    r = r - ndimage.uniform_filter(r, size=(1, 1, HIGH_PASS, HIGH_PASS), mode="reflect")
+    raw = np.empty((n, 2 * h, 2 * w))
+    for c in range(4):
+        raw[:, ROW_SET[c]::2, COLUMN_SET[c]::2] = r[:, c]
+    return raw
+
+
+def lag_covariances(frames, lags=XTALK_LAGS):
+    """(variance, covariance at each raw lag (dy, dx)) of ``temporal_mosaic``, DN^2."""
+    raw = temporal_mosaic(np.asarray(frames, dtype=np.float64))
+    _, hh, ww = raw.shape
+    out = []
+    for dy, dx in lags:
+        a = raw[:, : hh - dy, max(0, -dx) : ww - max(0, dx)]
+        b = raw[:, dy:, max(0, dx) : ww - max(0, -dx) if dx < 0 else ww]
+        out.append(float(np.mean(a * b)))
+    return float(np.mean(raw * raw)), np.array(out)
+
+
+def neighbour_corr(frames, level_dn=None):
+    """Rms over the raw lags of ``XTALK_LAGS`` of the correlation of the temporal residual
+    (``temporal_mosaic``): about 1 / sqrt(pixels) for independent pixels, more where
+    neighbouring pixels share noise (crosstalk, a shared readout)."""
+    var, cov = lag_covariances(frames)
+    return _rms(cov / max(var, 1e-12))
+
+
+def sensor_row_means(frames):
+    """(N, 2h) mean of each sensor row (its two packed channels, all columns), DN."""
+    n, _, h, _ = frames.shape
+    out = np.empty((n, 2 * h))
+    for row_set in (0, 1):
+        out[:, row_set::2] = frames[:, [c for c in range(4) if ROW_SET[c] == row_set]].mean(axis=(1, 3))
+    return out
+
+
+def temporal_row_means(frames):
+    """Sensor-row means (``sensor_row_means``) of each frame less the stack mean (scaled by
+    sqrt(N / (N - 1)): its variance is a frame's), each frame's mean taken out: (N, 2h) DN."""
+    n = frames.shape[0]
+    m = sensor_row_means((frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1)))
+    return m - m.mean(axis=1, keepdims=True)
+
+
+def row_tone_spectrum(frames):
+    """(frequency in cycles per sensor row, mean periodogram over frames in DN^2) of the
+    temporal sensor-row means, above the low band (1 / (2 x 16) cycles per row: smooth fields
+    are the low-frequency statistics' concern)."""
+    m = temporal_row_means(np.asarray(frames, dtype=np.float64))
+    p = (np.abs(np.fft.rfft(m, axis=1)) ** 2 / m.shape[1]).mean(axis=0)
+    f = np.fft.rfftfreq(m.shape[1])
+    keep = f >= 0.5 / _LOW_BAND
+    return f[keep], p[keep]
+
+
+def row_tone(frames, level_dn=None):
+    """Power of the largest bin of the temporal sensor-row means' periodogram above its
+    median bin, above the low band (DN^2): for white row noise a few times the median, for a
+    tone of amplitude a over n sensor rows about n a^2 / 4 (periodic banding)."""
+    _, p = row_tone_spectrum(frames)
+    return float(p.max() - np.median(p))
+
+
 def pixel_fixed_std(frames, level_dn=None):
     """Pixel-to-pixel std of the stack-mean map from neighbouring-pixel differences along
     rows (robust: 1.4826 MAD / sqrt(2)), per channel, rms (DN). Smooth patterns (vignetting,
@@ -379,6 +463,8 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("temporal_std", temporal_std, min_frames=2, base="read noise scale sigma_TL / sigma_G"),
         Statistic("fixed_std", fixed_std, min_frames=2, mad_of_mean=True),
         Statistic("fixed_col_excess", fixed_col_excess, min_frames=2),
+        Statistic("neighbour_corr", neighbour_corr, min_frames=2, kind="bias"),
+        Statistic("row_tone", row_tone, min_frames=2, kind="bias"),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),

@@ -7,19 +7,22 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, black_clip, column_noise, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
+from rawaug.engine.layout import XTALK_LAGS
+from rawaug.statistics import sensor_row_means, temporal_mosaic
 
 BASE = NoiseProfile.load("SonyA7S2")
 K = 1.0
 
 
-def synth(effects, batch=8, size=64, level_dn=0.0, model="G", seed=0, sigma_g=1.0, exposure_s=0.0):
-    """A stack of ``batch`` frames of one camera (sensor instance 0: one set of fixed patterns), DN."""
+def synth(effects, batch=8, size=64, level_dn=0.0, model="G", seed=0, sigma_g=1.0, exposure_s=0.0, **fixed):
+    """A stack of ``batch`` frames of one camera (sensor instance 0: one set of fixed patterns), DN;
+    ``fixed``: more fixed parameters (e.g. ``sigma_r``: one camera's, not drawn per frame)."""
     prof = BASE
     for token, params in effects.items():
         prof = prof.with_effect(token, params)
-    aug = RawNoiseAugment(prof, model=model, ratio=1.0, fixed={"k": K, "sigma_g": sigma_g, "exposure_s": exposure_s, "sensor": 0},
+    aug = RawNoiseAugment(prof, model=model, ratio=1.0, fixed={"k": K, "sigma_g": sigma_g, "exposure_s": exposure_s, "sensor": 0, **fixed},
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     x = torch.full((batch, 4, size, size), level_dn / prof.span_dn, dtype=torch.float64)
     return (aug(x) * prof.span_dn).numpy()
@@ -268,6 +271,88 @@ def test_gain_non_linearity_must_keep_the_output_rising():
         RawNoiseAugment(prof)
 
 
+XTALK = {"k": [K], "lag_0_1_dn": [1.0], "lag_1_1_dn": [-0.7], "lag_0_2_dn": [0.8], "lag_2_0_dn": [0.0]}
+
+
+def _raw(f):
+    """(N, 2h, 2w) raw mosaics of packed frames (R, G1, B, G2) of an RGGB sensor."""
+    raw = np.empty((f.shape[0], 2 * f.shape[2], 2 * f.shape[3]))
+    raw[:, 0::2, 0::2], raw[:, 0::2, 1::2], raw[:, 1::2, 1::2], raw[:, 1::2, 0::2] = f[:, 0], f[:, 1], f[:, 2], f[:, 3]
+    return raw
+
+
+def test_crosstalk_covariance_at_each_lag():
+    f = synth({"Xtalk": XTALK}, batch=8, size=64, sigma_g=0.0)
+    raw = _raw(f)
+    amp = {lag: XTALK.get(f"lag_{lag[0]}_{lag[1]}_dn", [0.0])[0] for lag in XTALK_LAGS}
+    var = 2 * sum(a * a for a in amp.values())
+    assert abs(raw.var() / var - 1) < 5 * math.sqrt(2 / raw.size) * 3  # pixel variance 2 sum a^2 (lags correlate pixels)
+    hh, ww = raw.shape[1:]
+    for (dy, dx), a in amp.items():
+        x = raw[:, : hh - dy, max(0, -dx) : ww - max(0, dx)]
+        y = raw[:, dy:, max(0, dx) : ww - max(0, -dx) if dx < 0 else ww]
+        cov = float(np.mean(x * y))
+        # the mean of n products of correlated normals has sd <= var / sqrt(n / 3) (neighbouring products share draws)
+        assert abs(cov - a * abs(a)) < 5 * var / math.sqrt(x.size / 3), ((dy, dx), cov, a * abs(a))
+
+
+def test_crosstalk_estimate_round_trip_and_white_noise_gives_nothing():
+    meas = synth({"Xtalk": XTALK}, batch=8, size=64, sigma_g=1.5)
+    # the base model as calibrated: its white read noise holds all of the pixel variance
+    white_sigma = math.sqrt(1.5**2 + 2 * sum(v[0] ** 2 for key, v in XTALK.items() if key != "k"))
+    base = [synth({}, batch=8, size=64, seed=s, sigma_g=white_sigma) for s in range(1, 7)]
+    est = crosstalk.estimate(meas, base, K)
+    for key in crosstalk.KEYS:
+        true = XTALK.get(key, [0.0])[0]
+        # the residual is high-passed (7x7 local mean out): covariances within a few per cent of the truth
+        assert abs(est[key][0] * abs(est[key][0]) - true * abs(true)) < 0.1 + 0.1 * true * true, (key, est[key], true)
+    white = crosstalk.estimate(synth({}, batch=8, size=64, seed=9, sigma_g=white_sigma), base, K)
+    assert sum(white[key][0] != 0.0 for key in crosstalk.KEYS) <= 1, white  # 3 sd per lag: P(any of 6) ~ 1.6 %
+    with pytest.raises(ValueError, match="bias and dark"):
+        crosstalk.estimate(meas, base, K, level_dn=100.0)
+
+
+def test_temporal_mosaic_puts_each_channel_at_its_sensor_position():
+    f = np.zeros((2, 4, 16, 16))
+    f[0, 2, 5, 7] = 1.0  # B of tile (5, 7): raw (11, 15)
+    raw = temporal_mosaic(f)
+    assert np.unravel_index(np.argmax(raw[0]), raw[0].shape) == (11, 15)
+
+
+BAND = {"k": [K], "freq_per_row": [[0.0713, 0.23]], "amplitude_dn": [[1.2, 0.6]]}
+
+
+def test_banding_tones_have_their_amplitude_and_a_uniform_phase_per_frame():
+    f = synth({"Band": BAND}, batch=64, size=32, sigma_g=0.01)
+    m = sensor_row_means(f)  # (64 frames, 64 sensor rows)
+    y = np.arange(m.shape[1])
+    for freq, amp in zip(BAND["freq_per_row"][0], BAND["amplitude_dn"][0]):
+        basis = np.stack([np.cos(2 * np.pi * freq * y), np.sin(2 * np.pi * freq * y)], axis=1)
+        coef, *_ = np.linalg.lstsq(basis, (m - m.mean(axis=1, keepdims=True)).T, rcond=None)
+        # the other tone leaks into the fit by at most ~1 / (pi x 64 x 0.16) of its amplitude
+        assert np.allclose(np.hypot(*coef), amp, atol=0.05), np.hypot(*coef)
+        phase = (np.arctan2(-coef[1], coef[0]) / (2 * np.pi)) % 1.0
+        ks = np.abs(np.sort(phase) - (np.arange(1, 65) - 0.5) / 64).max()  # Kolmogorov-Smirnov distance to U(0, 1)
+        assert ks < 1.95 / np.sqrt(64), ks  # 0.1 % critical value
+    # both channels of a sensor row carry the same offset
+    assert np.allclose(f[:, 0].mean(axis=2), f[:, 1].mean(axis=2), atol=0.02)
+
+
+def test_banding_estimate_finds_the_tones_and_nothing_in_white_row_noise():
+    row = {"sigma_g": 2.0, "model": "G+R", "sigma_r": 0.5}  # one camera: its row noise fixed, as the loop's syntheses have it
+    meas = synth({"Band": BAND}, batch=8, size=64, **row)
+    base = [synth({}, batch=8, size=64, seed=s, **row) for s in range(1, 6)]
+    est = banding.estimate(meas, base, K)
+    order = np.argsort(est["freq_per_row"][0])
+    assert np.allclose(np.array(est["freq_per_row"][0])[order], BAND["freq_per_row"][0], atol=0.1 / 128), est
+    assert np.allclose(np.array(est["amplitude_dn"][0])[order], BAND["amplitude_dn"][0], rtol=0.15), est
+    # family-wise 1e-3 per stack: 10 white stacks find a tone with probability ~1 %
+    found = [banding.estimate(synth({}, batch=8, size=64, seed=s, **row), base, K)["freq_per_row"][0] for s in range(20, 30)]
+    assert sum(bool(t) for t in found) <= 1, found
+    with pytest.raises(ValueError, match="bias and dark"):
+        banding.estimate(meas, base, K, level_dn=100.0)
+
+
 def test_effects_replay_bit_exactly():
     prof = BASE.with_effect("BLE", {"k": [K], "sigma_dn": [0.5]}).with_effect(
         "Col", {"seed": 1, "k": [K], "sigma_dn": [1.0], "fixed_dn": [1.0]})
@@ -289,6 +374,12 @@ def test_effects_replay_bit_exactly():
      "negative"),
     ("BLE", {"k": [0.0], "sigma_dn": [1.0]}, "k must be > 0"),
     ("PRNU", {"seed": -1, "sigma": 0.01}, "seed"),
+    ("Xtalk", {"k": [1.0]}, "at least one of"),
+    ("Band", {"k": [1.0], "freq_per_row": [[0.6]], "amplitude_dn": [[1.0]]}, r"must be in \(0, 0.5\], got 0.6"),
+    ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2]], "amplitude_dn": [[1.0]]}, "equal lists"),
+    ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2, 0.3, 0.4]], "amplitude_dn": [[1.0] * 4]}, "at most 3 tones"),
+    ("Xtalk", {"k": [1.0], "lag_0_1_dn": [1.0], "lag_3_0_dn": [1.0]}, r"unknown keys \['lag_3_0_dn'\]"),
+    ("Xtalk", {"k": [1.0], "lag_0_1_dn": [float("nan")]}, "finite"),
 ])
 def test_bad_effect_params_raise(token, params, match):
     with pytest.raises(ValueError, match=match):

@@ -29,6 +29,8 @@ LOOP_EFFECTS = {
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "Lines": {"seed": 23, "row_density": 0.05, "col_density": 0.08, "log_std": 0.5, "negative": 0.3, "k": [1.0, 3.0],
               "median_dn": [20.0, 40.0]},
+    "Band": {"k": [1.0, 3.0], "freq_per_row": [[0.0713, 0.31], [0.45]], "amplitude_dn": [[1.2, 0.4], [0.9]]},
+    "Xtalk": {"k": [1.0, 3.0], "lag_0_1_dn": [0.5, -0.8], "lag_1_-1_dn": [0.3, 0.0], "lag_2_0_dn": [0.6, 0.4]},
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]]},
     "ReadDist": {"k": [1.0, 3.0], "quantiles_dn": (np.linspace(-6, 6, 257)[None, None] ** 3 / 20
                                                   * np.array([1.0, 2.0])[:, None, None] * np.ones((1, 4, 1))).tolist()},

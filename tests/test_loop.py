@@ -52,8 +52,10 @@ def two_level_read_noise():
     return {"ReadDist": {"k": [K], "quantiles_dn": [[q.tolist()] * 4]}}
 
 
+XTALK = {"Xtalk": {"k": [K], "lag_0_1_dn": [1.2], "lag_1_-1_dn": [-0.8]}}  # a shared readout, opposite coupling on a diagonal
+BAND = {"Band": {"k": [K], "freq_per_row": [[0.137]], "amplitude_dn": [[1.0]]}}  # interference during readout
 CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "defect lines": LINES, "mixed": {**COL, **FPN, **HOT},
-         "two-level read": two_level_read_noise()}
+         "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND}
 
 
 def loop_succeeds(effects, seed):

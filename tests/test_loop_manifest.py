@@ -48,6 +48,24 @@ def soft_knee(dn, rng, **_):
     return dn / (1.0 + 0.08 * np.maximum(dn, 0.0) / BASE.span_dn)
 
 
+def coupled_readout(dn, rng, **_):
+    """Read noise coupled between raw neighbours (made outside rawaug): a raw field of 1.5 DN
+    plus 0.6 of its left neighbour's and 0.4 of its upper neighbour's value."""
+    _, h, w = dn.shape
+    n = rng.normal(0.0, 1.5, (2 * h + 1, 2 * w + 1))
+    raw = n[1:, 1:] + 0.6 * n[1:, :-1] + 0.4 * n[:-1, 1:]
+    return dn + np.stack([raw[0::2, 0::2], raw[0::2, 1::2], raw[1::2, 1::2], raw[1::2, 0::2]])  # R, G1, B, G2 of RGGB
+
+
+def interference_tone(dn, rng, **_):
+    """Banding from interference during readout (made outside rawaug): 1.2 DN at 0.0813
+    cycles per sensor row, a phase of its own in every frame."""
+    h = dn.shape[1]
+    tone = 1.2 * np.cos(2 * np.pi * 0.0813 * np.arange(2 * h) + rng.uniform(0, 2 * np.pi))
+    rows = np.stack([tone[0::2], tone[0::2], tone[1::2], tone[1::2]])  # R, G1 on even sensor rows; B, G2 on odd
+    return dn + rows[:, :, None]
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -57,6 +75,8 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "comb": (None, None, digital_gain, ["CodeMap"]), "interference": (None, None, interference, ["LowFreq"]),
          "glow": (None, None, amp_glow, ["Glow"]),
          "nonlin": (None, None, soft_knee, ["NonLin"]),
+         "crosstalk": (None, None, coupled_readout, ["Xtalk"]),
+         "banding": (None, None, interference_tone, ["Band"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import importlib.util
 import json
 import math
 import os
@@ -140,7 +141,8 @@ def train_and_test(row: str, seed: int, out: Path, data: dict, profiles: dict, s
     model = "G*+P*+R+U" if row in ("loop", "paired real") else row  # the loop row: the best ELD row's base + the loop's effects
     sid = str(data["sid"])
     calibrated = NoiseProfile.load(profiles["eld"])
-    k_train = [calibrated.k_at_iso(min(TEST_ISOS)) / 1.25, calibrated.k_at_iso(max(TEST_ISOS)) * 1.25]  # DN/e-
+    isos = scale.get("train_isos", TEST_ISOS)  # training gains: K over these ISOs' range, x1.25 each side
+    k_train = [calibrated.k_at_iso(min(isos)) / 1.25, calibrated.k_at_iso(max(isos)) * 1.25]  # DN/e-
     config = {
         "seed_everything": seed,
         "trainer": {"accelerator": "auto", "devices": 1, "max_steps": scale["steps"], "logger": False, "enable_checkpointing": False,
@@ -322,6 +324,10 @@ def main(argv=None) -> int:
                              f"the exit status is {UNFINISHED}; run again to resume")
     parser.add_argument("--steps", type=int, default=None, help="training steps instead of the scale's")
     parser.add_argument("--seeds", type=int, nargs="+", default=None, help="training seeds instead of the scale's")
+    parser.add_argument("--train-isos", type=float, nargs="+", default=None, metavar="ISO",
+                        help=f"train over the gains of these ISOs (K from the lowest's / 1.25 to the highest's x 1.25) instead of "
+                             f"the test ISOs {TEST_ISOS}: e.g. 800 for a denoiser of one gain")
+    parser.add_argument("--no-bm3d", action="store_true", help="leave out the BM3D and A-BM3D rows (they need `pip install bm3d`)")
     parser.add_argument("--train-one", nargs=2, metavar=("ROW", "SEED"), help=argparse.SUPPRESS)  # a child process
     parser.add_argument("--bm3d-only", action="store_true", help=argparse.SUPPRESS)  # a child process
     args = parser.parse_args(argv)
@@ -339,6 +345,16 @@ def main(argv=None) -> int:
     if args.seeds is not None:
         scale["seeds"] = list(args.seeds)
         scale_args += ["--seeds", *map(str, args.seeds)]
+    if args.train_isos is not None:
+        if min(args.train_isos) <= 0:
+            parser.error(f"--train-isos must be positive ISOs, got {args.train_isos}")
+        scale["train_isos"] = list(args.train_isos)
+        scale_args += ["--train-isos", *map(str, args.train_isos)]
+    if args.no_bm3d:
+        scale["bm3d"] = False
+        scale_args += ["--no-bm3d"]
+    if scale["bm3d"] and importlib.util.find_spec("bm3d") is None:  # said before hours of training, not after
+        parser.error(f"the {args.scale} scale's BM3D rows need the bm3d package: pip install bm3d, or pass --no-bm3d")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     start = time.time()

@@ -56,6 +56,14 @@ _READ = L.STREAM["read"]
 _COL = L.STREAM["col"]
 _COL_PATTERN = L.STREAM["col_pattern"]
 _QUANT = L.STREAM["quant"]
+_XT0 = L.COLUMN["xt_0"]
+_BF0, _BA0 = L.COLUMN["band_f0"], L.COLUMN["band_a0"]
+_BAND = L.STREAM["band"]
+_TONES = L.BAND_TONES
+_XTALK = L.STREAM["xtalk"]
+_XT_DY = np.array([lag[0] for lag in L.XTALK_LAGS], dtype=np.int64)
+_XT_DX = np.array([lag[1] for lag in L.XTALK_LAGS], dtype=np.int64)
+_XT_PAD = L.XTALK_PAD
 _ROW_SET = np.array(L.ROW_SET, dtype=np.int64)
 _COL_SET = np.array(L.COLUMN_SET, dtype=np.int64)
 
@@ -88,6 +96,35 @@ def lowfreq_at(normal, key, b, y, x, h, w, gh, gw):
     z10 = symmetric(normal, draw(key, (base + y1) * gw + x0))
     z11 = symmetric(normal, draw(key, (base + y1) * gw + x1))
     return (z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy
+
+
+@njit(inline="always")
+def banding_at(key, v, b, ry):
+    """Banding (DN) on sensor row ``ry`` of sample b: sum of a_j cos(2 pi f_j ry + phi_j), the
+    phase phi_j = 2 pi U(0, 1) drawn per frame and tone (counter b * BAND_TONES + j)."""
+    out = 0.0
+    for j in range(_TONES):
+        a = v[_BA0 + j]
+        if a != 0.0:
+            phase = 2.0 * math.pi * unit(draw(key, b * _TONES + j))
+            out += a * math.cos(2.0 * math.pi * v[_BF0 + j] * ry + phase)
+    return out
+
+
+@njit(inline="always")
+def crosstalk_at(normal, key, v, b, ry, rx, rh, rw):
+    """Correlated read noise (DN) at raw pixel (ry, rx) of a raw frame rh x rw of sample b:
+    for each lag (dy, dx), |a| g(ry, rx) + a g(ry - dy, rx - dx) of a per-frame normal field g
+    of its own (counter over the frame padded by XTALK_PAD), so pixels one lag apart share a."""
+    out = 0.0
+    for i in range(_XT_DY.shape[0]):
+        a = v[_XT0 + i]
+        if a != 0.0:
+            base = (b * _XT_DY.shape[0] + i) * (rh + 2 * _XT_PAD)
+            here = (base + ry + _XT_PAD) * (rw + 2 * _XT_PAD) + rx + _XT_PAD
+            there = (base + ry - _XT_DY[i] + _XT_PAD) * (rw + 2 * _XT_PAD) + rx - _XT_DX[i] + _XT_PAD
+            out += abs(a) * symmetric(normal, draw(key, here)) + a * symmetric(normal, draw(key, there))
+    return out
 
 
 @njit(inline="always")
@@ -136,6 +173,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         if stages & L.BLE:
             line += v[_BS] * symmetric(normal, draw(keys[_BLE], b * 5))
             line += v[_BC] * symmetric(normal, draw(keys[_BLE], b * 5 + 1 + c))
+        if stages & L.BAND:
+            line += banding_at(keys[_BAND], v, b, 2 * y + row_set)
         if stages & L.LINES:
             line += defect_line_at(normal, keys[_LINES_ROW], (sensor * 2 + row_set) * h + y, v[_LRD], v[_LM], v[_LLS], v[_LNEG])
         table = read_tables[read_index[b]]
@@ -200,6 +239,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += v[_TL] * symmetric(table, draw(keys[_READ], g))
             elif stages & L.READ_GAUSS:
                 s += v[_G] * symmetric(normal, draw(keys[_READ], g))
+            if stages & L.XTALK:
+                s += crosstalk_at(normal, keys[_XTALK], v, b, 2 * y + row_set, 2 * x + col_set, 2 * h, 2 * w)
             if stages & L.COL:
                 s += v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))

@@ -28,6 +28,8 @@ READ_TABLE = 1 << 17  # measured fallback: read noise from a measured quantile t
 LINES = 1 << 18  # defect lines: sparse sensor rows and columns with a large fixed offset
 GLOW = 1 << 19  # amplifier glow: a smooth dark-current map (electrons per second), before shot noise
 NONLIN = 1 << 20  # gain non-linearity: the photo signal compressed after shot noise, before read noise
+XTALK = 1 << 21  # correlated read noise: pixels XTALK_LAGS apart share part of their read noise
+BAND = 1 << 22  # periodic banding: tones along the sensor rows, a random phase in every frame
 
 COLUMNS = (
     "k", "ratio",
@@ -51,6 +53,8 @@ COLUMNS = (
     "glow_s", "glow_record", "glow_oy", "glow_ox", "glow_h", "glow_w", "glow_gh", "glow_gw",  # exposure, grid, window
     "nl_c",  # gain non-linearity: compression per DN of signal
     "sensor",  # sensor instance of the fixed patterns (an integer; 0: the profile's own)
+    "xt_0", "xt_1", "xt_2", "xt_3", "xt_4", "xt_5",  # correlated read noise: signed amplitude (DN) at each of XTALK_LAGS
+    "band_f0", "band_f1", "band_f2", "band_a0", "band_a1", "band_a2",  # banding tones: cycles per sensor row, amplitude (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -62,10 +66,17 @@ N_COLUMNS = len(COLUMNS)
 STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
-    "lines_row", "lines_col",
+    "lines_row", "lines_col", "xtalk", "band",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)
+
+# Raw-mosaic lags (rows, columns) of the correlated read noise: the horizontal and vertical
+# neighbours, both diagonals (a 2x2 shared-pixel readout) and the next pixel of the same
+# colour along each axis.
+XTALK_LAGS = ((0, 1), (1, 0), (1, 1), (1, -1), (0, 2), (2, 0))
+BAND_TONES = 3  # banding tones a profile may hold
+XTALK_PAD = 2  # raw pixels of margin in the draw index, so that a lag's neighbour index is never negative
 
 # Packed (R, G1, B, G2): which of a 2x2 tile's sensor rows / columns a channel lies on.
 ROW_SET = (0, 0, 1, 1)

@@ -35,6 +35,13 @@ C_FGH, C_FGW = _column("fpn_gh"), _column("fpn_gw")
 C_GLS, C_GLR, C_GLOY, C_GLOX = _column("glow_s"), _column("glow_record"), _column("glow_oy"), _column("glow_ox")
 C_GLH, C_GLW, C_GLGH, C_GLGW = _column("glow_h"), _column("glow_w"), _column("glow_gh"), _column("glow_gw")
 C_NL = _column("nl_c")
+C_XT0 = _column("xt_0")
+C_BF0, C_BA0 = _column("band_f0"), _column("band_a0")
+TONES = tl.constexpr(L.BAND_TONES)
+XT_PAD = tl.constexpr(L.XTALK_PAD)
+XT_N = tl.constexpr(len(L.XTALK_LAGS))
+XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5 = (
+    tl.constexpr(d) for lag in L.XTALK_LAGS for d in lag)
 C_SENSOR = _column("sensor")
 C_HD, C_HM, C_HL = _column("hot_density"), _column("hot_median"), _column("hot_log_std")
 C_Q, C_B0, C_BS, C_BC, C_CL = (_column("step_dn"), _column("bias_r"), _column("ble_sigma"),
@@ -44,6 +51,7 @@ K_SHOT, K_SHOT_REST, K_SHOT_COARSE, K_READ = S["shot"], S["shot_rest"], S["shot_
 K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
 K_DSNU, K_LOWFREQ = S["dsnu_pattern"], S["lowfreq"]
 K_LINES_ROW, K_LINES_COL = S["lines_row"], S["lines_col"]
+K_XTALK, K_BAND = S["xtalk"], S["band"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -82,6 +90,24 @@ def _shading(grids_ptr, GH, GW, record, y, x, h, w, gh, gw, live):
     top = tl.load(base + y0 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y0 * GW + x1, mask=live, other=0.0) * fx
     bottom = tl.load(base + y1 * GW + x0, mask=live, other=0.0) * (1.0 - fx) + tl.load(base + y1 * GW + x1, mask=live, other=0.0) * fx
     return top * (1.0 - fy) + bottom * fy
+
+
+@triton.jit
+def _tone(key, v, j: tl.constexpr, b, ry):
+    """As one tone of ``rawaug.cpu.fused.banding_at``: a_j cos(2 pi f_j ry + phi_j)."""
+    phase = 6.283185307179586 * unit(draw(key, (b.to(tl.int64) * TONES + j).to(tl.uint64) + tl.zeros_like(ry).to(tl.uint64)))
+    arg = 6.283185307179586 * _col(v, C_BF0 + j) * ry.to(tl.float64) + phase.to(tl.float64)
+    return _col(v, C_BA0 + j) * tl.cos(arg)
+
+
+@triton.jit
+def _xtalk_lag(key, v, i: tl.constexpr, dy: tl.constexpr, dx: tl.constexpr, b, ry, rx, RH, RW):
+    """As one lag of ``rawaug.cpu.fused.crosstalk_at``: |a| g(ry, rx) + a g(ry - dy, rx - dx)."""
+    a = _col(v, C_XT0 + i)
+    base = (b.to(tl.int64) * XT_N + i) * (RH + 2 * XT_PAD)
+    here = ((base + ry + XT_PAD) * (RW + 2 * XT_PAD) + rx + XT_PAD).to(tl.uint64)
+    there = ((base + ry - dy + XT_PAD) * (RW + 2 * XT_PAD) + rx - dx + XT_PAD).to(tl.uint64)
+    return tl.abs(a) * _normal(draw(key, here)) + a * _normal(draw(key, there))
 
 
 @triton.jit
@@ -164,6 +190,15 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += _col(v, C_TL) * (sign * tukey_upper(t, _col(v, C_LAM).to(tl.float32))).to(tl.float64)
     elif FLAGS & 64:  # G
         s += _col(v, C_G) * _normal(draw(_key(keys_ptr, K_READ), g))
+    if FLAGS & 2097152:  # correlated read noise: one per-frame raw normal field per lag
+        kx = _key(keys_ptr, K_XTALK)
+        ry = 2 * y + row_set
+        rx = 2 * x + col_set
+        RH = 2 * H.to(tl.int64)
+        RW = 2 * W.to(tl.int64)
+        s += _xtalk_lag(kx, v, 0, XT_DY0, XT_DX0, b, ry, rx, RH, RW) + _xtalk_lag(kx, v, 1, XT_DY1, XT_DX1, b, ry, rx, RH, RW)
+        s += _xtalk_lag(kx, v, 2, XT_DY2, XT_DX2, b, ry, rx, RH, RW) + _xtalk_lag(kx, v, 3, XT_DY3, XT_DX3, b, ry, rx, RH, RW)
+        s += _xtalk_lag(kx, v, 4, XT_DY4, XT_DX4, b, ry, rx, RH, RW) + _xtalk_lag(kx, v, 5, XT_DY5, XT_DX5, b, ry, rx, RH, RW)
     if FLAGS & 256:  # column noise: per frame and fixed
         s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
@@ -186,6 +221,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     line = 0.0
     if FLAGS & 128:  # R: one offset per sensor row
         line += _col(v, C_R) * _normal(draw(_key(keys_ptr, K_ROW), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
+    if FLAGS & 4194304:  # banding: tones along the sensor rows, a phase per frame and tone
+        ry = 2 * y + row_set
+        kb = _key(keys_ptr, K_BAND)
+        line += _tone(kb, v, 0, b, ry) + _tone(kb, v, 1, b, ry) + _tone(kb, v, 2, b, ry)
     if FLAGS & 262144:  # defect lines: the sensor row's offset
         line += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_ROW), ((sensor * 2 + row_set) * H + y).to(tl.uint64),
                              _col(v, C_LRD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))

@@ -31,7 +31,7 @@ from ..profile import NoiseProfile
 from ..relations import KTable
 from ..statistics import repaired
 from .diagnose import FrameStack, Residual, battery_error, diagnose, fitted_offsets
-from .refit import apply_read_noise_factors, read_noise_factors
+from .refit import apply_read_noise_factors, apply_row_noise_factors, read_noise_factors, row_noise_factors
 from .registry import CANDIDATES
 from .signatures import step_signature
 
@@ -131,6 +131,15 @@ def _evidence_error(token, evidence, before, after) -> tuple[float, float]:
     names = {r.statistic for r in before if r.significant and r.statistic in CANDIDATES[token].statistics}
     mean = lambda res: float(np.mean([r.rel_error for r in res if r.statistic in names]))  # noqa: E731
     return mean(before), mean(after)
+
+
+def _shares_noise(token) -> str:
+    """The base stage whose variance a candidate takes over ("read noise": ``SHARES_READ_NOISE``
+    in its module; "row noise": ``SHARES_ROW_NOISE``), which calibration gave all of it; the
+    candidate is then judged with that stage re-fitted. "" for the others."""
+    module = CANDIDATES[token].module
+    return ("read noise" if getattr(module, "SHARES_READ_NOISE", False)
+            else "row noise" if getattr(module, "SHARES_ROW_NOISE", False) else "")
 
 
 def _measured(token) -> bool:
@@ -255,6 +264,17 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                     continue
                 trial = current.with_effect(token, params)
                 new_diags = diagnose_all(trial, seed + 1000 * step_no)
+                trial_stacks, factors = stacks, {}
+                shared = _shares_noise(token)  # judged with its variance taken out of the base stage it shares
+                if shared:
+                    factors = (read_noise_factors(stacks, new_diags, trial, model, z_min=z_min) if shared == "read noise"
+                               else row_noise_factors(stacks, new_diags, trial, z_min=z_min))
+                    if factors:
+                        trial_stacks, trial = (apply_read_noise_factors(stacks, trial, factors, model) if shared == "read noise"
+                                               else apply_row_noise_factors(stacks, trial, factors))
+                        new_diags = diagnose_all(trial, seed + 1000 * step_no, trial_stacks)
+                        say(f"step {step_no}: {token} judged with the {shared} re-fitted ("
+                            + ", ".join(f"{label} x{f:.3f}" for label, f in factors.items()) + ")")
                 after = next(r for r in new_diags[label][0] if r.statistic == evidence.statistic)
                 after_b = _battery(new_diags)
                 err_before, err_after = _evidence_error(token, evidence, diags[label][0], new_diags[label][0])
@@ -266,12 +286,12 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 step = Step(token, params, ok, evidence.to_dict(), label, err_before, err_after, after.z, before_b,
                             after_b, round=step_no, kind="measured" if _measured(token) else "physical",
                             evidence_after=after.to_dict())
-                trials.append((step, trial, new_diags))
+                trials.append((step, trial, new_diags, trial_stacks, factors))
             if any(t[0].accepted for t in trials):
                 break
         acceptable = [t for t in trials if t[0].accepted]
         chosen = min(acceptable, key=lambda t: (t[0].battery_after["mean_rel_error"], t[0].battery_after["n_significant"])) if acceptable else None
-        for step, _, _ in trials:
+        for step, *_ in trials:
             if step is not (chosen[0] if chosen else None):
                 if step.accepted:
                     step.accepted, step.note = False, f"acceptable, but {chosen[0].effect} explains more"
@@ -291,6 +311,12 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         chosen[0].signature = step_signature(chosen[0].evidence["statistic"], by_label[chosen[0].stack].frames_dn,
                                              diags[chosen[0].stack][1], chosen[2][chosen[0].stack][1])
         current, diags = chosen[1], chosen[2]
+        if chosen[3] is not stacks:  # the read noise it was judged with
+            stacks = chosen[3]
+            by_label = {st.label: st for st in stacks}
+            result.refits.append({"after": chosen[0].effect, "round": step_no, "factors": chosen[4], "kept": True,
+                                  "what": _shares_noise(chosen[0].effect),
+                                  "battery_before": chosen[0].battery_before, "battery_after": chosen[0].battery_after})
         tried = {t for t in tried if t in current.effects}  # estimates depend on the model: retry the rejected
         checks.clear()
         result.unconfirmed.clear()  # confirmations belong to a model

@@ -24,9 +24,11 @@ import numpy as np
 from ..augment import parse_model
 from ..distributions import tukey_lambda_variance
 from ..relations import LogLinear
+from ..statistics import repaired, sensor_row_means
 from .diagnose import synthesis_fixed
 
 MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated value
+ROW_MIN_FACTOR = 0.1  # sigma_r may fall further: a strong tone can hold most of a sensor's row variance
 
 
 def _read_variance(fixed: dict, tokens) -> float:
@@ -103,3 +105,62 @@ def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
     new = dataclasses.replace(profile, tukey_scale=_shift(profile.tukey_scale, float(slope), float(intercept), k_ref),
                               gaussian_scale=_shift(profile.gaussian_scale, float(slope), float(intercept), k_ref))
     return out, new
+
+
+def _row_variance(frames) -> float:
+    """Variance over sensor rows of the sensor-row means (each frame's channels centred),
+    mean over frames, DN^2: what calibration reads sigma_r from (plus read noise / row length)."""
+    f = np.asarray(repaired(np.asarray(frames, dtype=np.float64)))
+    m = sensor_row_means(f - f.mean(axis=(2, 3), keepdims=True))
+    return float(m.var(axis=1, ddof=1).mean())
+
+
+def row_noise_factors(stacks, diags, profile, z_min: float = 6.0) -> dict:
+    """{bias stack label: factor on the row-noise sigma_r} where the model's sensor-row
+    means vary more than the measured ones by more than ``z_min`` spreads of the syntheses:
+    an added effect (a banding tone) now explains row variance calibration gave sigma_r.
+    sigma_r_new^2 = sigma_r^2 - (synthesized - measured variance); no cut below ROW_MIN_FACTOR."""
+    factors = {}
+    for stack in stacks:
+        if stack.kind != "bias":
+            continue
+        synth = [_row_variance(s) for s in diags[stack.label][1]]
+        if len(synth) < 2:
+            continue
+        measured, model, spread = _row_variance(stack.frames_dn), float(np.mean(synth)), float(np.std(synth, ddof=1))
+        if model - measured <= z_min * spread:
+            continue
+        sigma_r = float(synthesis_fixed(profile, stack).get("sigma_r", 0.0))
+        if sigma_r <= 0:
+            continue
+        f2 = 1.0 - (model - measured) / sigma_r**2
+        if f2 < ROW_MIN_FACTOR**2:
+            continue
+        factors[stack.label] = float(math.sqrt(f2))
+    return factors
+
+
+def apply_row_noise_factors(stacks, profile, factors: dict):
+    """(stacks, profile) with sigma_r scaled by ``factors`` (bias stack label -> factor), as
+    ``apply_read_noise_factors`` does for the read noise: every stack of that gain, and the
+    profile's row-noise relation by the line through log(factor) against log(K)."""
+    by_k = {stack.k: factors.get(stack.label, 1.0) for stack in stacks if stack.kind == "bias"}
+    out = []
+    for stack in stacks:
+        f = by_k.get(stack.k, 1.0)
+        if f == 1.0:
+            out.append(stack)
+            continue
+        base = dict(stack.base)
+        base["sigma_r"] = float(synthesis_fixed(profile, stack)["sigma_r"]) * f
+        out.append(dataclasses.replace(stack, base=base))
+    renewed = {id(old): new for old, new in zip(stacks, out) if old.kind == "bias" and new is not old}
+    out = [dataclasses.replace(s, offsets_of=renewed[id(s.offsets_of)]) if id(s.offsets_of) in renewed else s for s in out]
+    ks = np.array(sorted(by_k))
+    logf = np.log([by_k[k] for k in ks])
+    if ks.size >= 2 and np.ptp(np.log(ks)) > 0:
+        slope, intercept = np.polyfit(np.log(ks), logf, 1)
+    else:
+        slope, intercept = 0.0, float(logf.mean())
+    k_ref = float(np.exp(np.log(ks).mean()))
+    return out, dataclasses.replace(profile, row_scale=_shift(profile.row_scale, float(slope), float(intercept), k_ref))

@@ -79,7 +79,8 @@ def outcome_summary(result) -> str:
                      + ", ".join(f"`{t}`" for t in result.reproduced_by_measurement) + ".")
     for refit in getattr(result, "refits", []):
         if refit["kept"]:
-            lines.append(f"After `{refit['after']}` was added, the base read noise was re-fitted (it had counted "
+            what = refit.get("what") or "read noise"
+            lines.append(f"After `{refit['after']}` was added, the base {what} was re-fitted (it had counted "
                          f"the temporal noise `{refit['after']}` now explains): sigma x "
                          + ", ".join(f"{f:.3f} ({label})" for label, f in refit["factors"].items()) + ".")
     chance = getattr(result, "unconfirmed", [])

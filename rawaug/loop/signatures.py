@@ -5,14 +5,15 @@ the radial 2-D power spectrum (``psd2d_lowfreq``), the spectrum of the row or co
 (row / column noise and shading), the histogram of the pixel values (read-noise shape,
 clipping), of the codes one by one (missing codes), of the stack-mean map (dark signal,
 DSNU, PRNU, hot pixels), of the per-pixel temporal std, the sorted line means (defect
-lines) or the sorted frame means (black-level error). ``step_signature`` gives the measured curve and the model's before and after a step
+lines), the sorted frame means (black-level error) or the correlation of neighbouring
+pixels' temporal noise at raw lags (crosstalk). ``step_signature`` gives the measured curve and the model's before and after a step
 (mean and spread over its syntheses), on the measured curve's grid.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..statistics import repaired
+from ..statistics import CURVE_LAGS, lag_covariances, repaired, row_tone_spectrum
 
 KIND = {
     "psd2d_lowfreq": "radial_spectrum",
@@ -23,6 +24,7 @@ KIND = {
     "temporal_std": "temporal_histogram",
     "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means",
     "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
+    "neighbour_corr": "lag_correlations", "row_tone": "row_tone_spectrum",
 }  # every other statistic: the histogram of the pixel values
 LABEL = {
     "radial_spectrum": ("radial frequency (cycles/pixel)", "power (DN^2)", True),
@@ -35,6 +37,9 @@ LABEL = {
     "frame_means": ("frame (sorted)", "frame mean about the stack's (DN)", False),
     "code_histogram": ("code (DN), one bin each, about the median", "fraction of pixels", False),
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
+    "row_tone_spectrum": ("frequency (cycles per sensor row)", "temporal sensor-row-mean power (DN^2)", True),
+    "lag_correlations": ("raw lag, in order " + " ".join(f"({dy},{dx})" for dy, dx in CURVE_LAGS),
+                         "correlation of the temporal residual", False),
 }
 CODES = 24  # code_histogram: codes either side of the median
 BINS = 48
@@ -95,6 +100,11 @@ def curve(kind: str, frames, edges=None):
         m = frames.mean(axis=0)
         lines = np.concatenate([m.mean(axis=2).ravel(), m.mean(axis=1).ravel()])
         return np.arange(1, lines.size + 1, dtype=np.float64), np.sort(lines - np.median(lines))
+    if kind == "row_tone_spectrum":
+        return row_tone_spectrum(frames)
+    if kind == "lag_correlations":
+        var, cov = lag_covariances(frames, CURVE_LAGS)
+        return np.arange(1, len(CURVE_LAGS) + 1, dtype=np.float64), cov / max(var, 1e-12)
     if kind == "frame_means":
         m = frames.mean(axis=(1, 2, 3))
         return np.arange(1, len(m) + 1, dtype=np.float64), np.sort(m - m.mean())
@@ -126,7 +136,7 @@ def step_signature(statistic: str, frames, before, after) -> dict:
         out[name] = ys.mean(axis=0).tolist()
         out[name + "_std"] = ys.std(axis=0, ddof=1).tolist() if len(ys) > 1 else [0.0] * len(x)
     out["xlabel"], out["ylabel"], out["log_y"] = LABEL[kind]
-    out["log_x"] = kind.endswith("spectrum")
+    out["log_x"] = kind.endswith("spectrum") and kind != "row_tone_spectrum"
     out["distance_before"], out["distance_after"] = distance(out, "before"), distance(out, "after")
     return out
 

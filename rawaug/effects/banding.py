@@ -1,0 +1,131 @@
+"""Periodic banding (Band): tones along the sensor rows, new in phase in every frame.
+
+Physics: interference picked up during readout (a switching regulator, a clock) is a tone
+in time; a rolling readout turns it into horizontal bands at a fixed spatial frequency
+(cycles per sensor row = tone frequency x row time), with a phase that depends on when the
+frame started: random from frame to frame. The ELD row noise is white along the rows, so
+calibration counts the tone's power as row noise (sigma_r).
+
+Synthesis: ``sum_j a_j cos(2 pi f_j Y + phi_j)`` on sensor row ``Y`` (both channels of the
+row), ``phi_j`` uniform per frame and tone; at most ``rawaug.engine.layout.BAND_TONES``.
+
+Profile entry (per-K records)::
+
+    Band: {k: [K, ...], freq_per_row: [[f1, f2], ...], amplitude_dn: [[a1, a2], ...]}
+
+Detected by ``row_tone`` (power of the largest bin of the temporal sensor-row means'
+periodogram above its median bin, above the low band). Estimated by ``estimate``: bins of that periodogram above the
+model's by more than chance allows (family-wise p 1e-3), each refined to the frequency
+that maximizes the frames' power (grid of 1/40 bin), its amplitude from the power above
+the model's there. Judged with the row noise re-fitted (the tone's power had gone into it).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage, stats
+
+from ..engine import layout as L
+from ..statistics import row_tone_spectrum, temporal_row_means
+from .base import BANDING, NoiseEffect, register
+from .k_records import _number, validate_records
+
+STATISTICS = ("row_tone",)
+SHARES_ROW_NOISE = True  # the tone's power is row noise calibration counted as white
+FAMILY_P = 1e-3  # a bin counts as a tone when its power above the model's has this chance over all bins
+SMOOTH = 9  # bins of the model's spectrum in its running median
+
+
+@register
+class Banding(NoiseEffect):
+    token = "Band"
+    order = BANDING
+    flag = L.BAND
+    columns = tuple(f"band_f{j}" for j in range(L.BAND_TONES)) + tuple(f"band_a{j}" for j in range(L.BAND_TONES))
+
+    def draw(self, ctx):
+        from .k_records import record_index
+
+        p = self.profile.effects[self.token]
+        idx = record_index(p, ctx.k)
+        out = {}
+        for name, key in (("f", "freq_per_row"), ("a", "amplitude_dn")):
+            table = np.zeros((len(p["k"]), L.BAND_TONES))
+            for r, values in enumerate(p[key]):
+                table[r, : len(values)] = values
+            for j in range(L.BAND_TONES):
+                out[f"band_{name}{j}"] = ctx.k.new_tensor(table[:, j])[idx]
+        return out
+
+    @classmethod
+    def validate_params(cls, params):
+        validate_records(cls.token, params, ("freq_per_row", "amplitude_dn"))
+        for r, (fs, amps) in enumerate(zip(params["freq_per_row"], params["amplitude_dn"])):
+            if not isinstance(fs, (list, tuple)) or not isinstance(amps, (list, tuple)) or len(fs) != len(amps):
+                raise ValueError(f"effect 'Band': record {r} needs equal lists freq_per_row and amplitude_dn, got {fs!r} / {amps!r}")
+            if len(fs) > L.BAND_TONES:
+                raise ValueError(f"effect 'Band': at most {L.BAND_TONES} tones per record, got {len(fs)}")
+            for f in fs:
+                if not 0.0 < _number(f, "Band.freq_per_row[]") <= 0.5:
+                    raise ValueError(f"effect 'Band': freq_per_row (cycles per sensor row) must be in (0, 0.5], got {f}")
+            for a in amps:
+                if _number(a, "Band.amplitude_dn[]") < 0:
+                    raise ValueError(f"effect 'Band': amplitude_dn must be >= 0, got {a}")
+
+
+def _power_at(m, f):
+    """Mean over frames of |sum_Y m(Y) exp(-2 pi i f Y)|^2 / n at each frequency ``f``: (len(f),) DN^2."""
+    y = np.arange(m.shape[1])
+    basis = np.exp(-2j * np.pi * np.outer(f, y))
+    return (np.abs(m @ basis.T) ** 2).mean(axis=0) / m.shape[1]
+
+
+def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
+    """Band record at gain ``k`` from a bias or dark stack (N >= 2, 4, h, w) in DN. Tones are
+    taken one at a time, strongest first, each removed from the frames' row means (fitted
+    per frame) before the next is looked for, so a tone's leakage is not taken for another."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if level_dn is not None or frames.shape[0] < 2 or not synthesized:
+        raise ValueError("Band is measured on bias and dark stacks of >= 2 frames, against syntheses")
+    f, _ = row_tone_spectrum(frames)
+    # the model's spectrum, smoothed over SMOOTH bins (it has no tone: its shape is smooth)
+    model = ndimage.median_filter(np.mean([row_tone_spectrum(s)[1] for s in synthesized], axis=0), size=SMOOTH, mode="nearest")
+    m_model = [temporal_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized]
+    m = temporal_row_means(frames)
+    n_frames, n = m.shape
+    # a bin's power over N frames less their mean has 2 (N - 1) degrees of freedom; the model's,
+    # over its syntheses' frames and SMOOTH bins, many more: their ratio is F-distributed
+    dof_model = 2 * sum(np.asarray(s).shape[0] - 1 for s in synthesized) * SMOOTH
+    threshold = stats.f.isf(FAMILY_P / len(f), 2 * (n_frames - 1), dof_model)
+    step = 1.0 / n
+    y = np.arange(n)
+    tones, amps = [], []
+    while len(tones) < L.BAND_TONES:
+        measured = _power_at(m, f)
+        i = int(np.argmax(measured / np.maximum(model, 1e-30)))
+        if measured[i] / max(model[i], 1e-30) <= threshold:
+            break
+        grid = np.clip(f[i] + step * np.linspace(-1, 1, 81), step, 0.5)
+        best = float(grid[int(np.argmax(_power_at(m, grid)))])
+        excess = float(_power_at(m, [best])[0] - np.mean([_power_at(mm, [best])[0] for mm in m_model]))
+        if excess <= 0:
+            break
+        tones.append(best)
+        amps.append(2.0 * np.sqrt(excess / n))  # a cos tone: |X|^2 / n = n a^2 / 4
+        # remove the tone from every frame (least squares on cos and sin) before the next
+        basis = np.stack([np.cos(2 * np.pi * best * y), np.sin(2 * np.pi * best * y)], axis=1)
+        coef, *_ = np.linalg.lstsq(basis, m.T, rcond=None)
+        m = m - (basis @ coef).T
+    return {"k": [float(k)], "freq_per_row": [tones], "amplitude_dn": [[float(a) for a in amps]]}
+
+
+def combine(records: list[dict]) -> dict:
+    """One record per gain: of the stacks at one K, the one whose tones hold the most power."""
+    by_k: dict = {}
+    for r in records:
+        k = float(r["k"][0])
+        power = float(np.sum(np.square(r["amplitude_dn"][0])))
+        if k not in by_k or power > by_k[k][0]:
+            by_k[k] = (power, r)
+    ks = sorted(by_k)
+    return {"k": ks, "freq_per_row": [by_k[k][1]["freq_per_row"][0] for k in ks],
+            "amplitude_dn": [by_k[k][1]["amplitude_dn"][0] for k in ks]}
