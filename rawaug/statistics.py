@@ -279,6 +279,11 @@ def fixed_col_excess(frames, level_dn=None):
     return _profile_excess(_mean_map(frames)[None], 2)
 
 
+def fixed_row_excess(frames, level_dn=None):
+    """``row_excess`` of the stack-mean map: a fixed row pattern."""
+    return _profile_excess(_mean_map(frames)[None], 3)
+
+
 def frame_means(frames):
     """(N, 4) per-frame, per-channel means (DN)."""
     return frames.mean(axis=(2, 3))
@@ -348,19 +353,19 @@ def sensor_row_means(frames):
     return out
 
 
-def temporal_row_means(frames):
-    """Sensor-row means (``sensor_row_means``) of each frame less the stack mean (scaled by
-    sqrt(N / (N - 1)): its variance is a frame's), each frame's mean taken out: (N, 2h) DN."""
-    n = frames.shape[0]
-    m = sensor_row_means((frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1)))
+def frame_row_means(frames):
+    """Sensor-row means (``sensor_row_means``) of each frame less that frame's mean: (N, 2h) DN."""
+    m = sensor_row_means(frames)
     return m - m.mean(axis=1, keepdims=True)
 
 
 def row_tone_spectrum(frames):
-    """(frequency in cycles per sensor row, mean periodogram over frames in DN^2) of the
-    temporal sensor-row means, above the low band (1 / (2 x 16) cycles per row: smooth fields
-    are the low-frequency statistics' concern)."""
-    m = temporal_row_means(np.asarray(frames, dtype=np.float64))
+    """(frequency in cycles per sensor row, mean periodogram over frames in DN^2) of each
+    frame's sensor-row means, above the low band (1 / (2 x 16) cycles per row: smooth fields
+    are the low-frequency statistics' concern). Per frame, not about the stack mean: a tone of
+    random phase has the same power in every frame, while its residual about the mean of a
+    few frames does not."""
+    m = frame_row_means(np.asarray(frames, dtype=np.float64))
     p = (np.abs(np.fft.rfft(m, axis=1)) ** 2 / m.shape[1]).mean(axis=0)
     f = np.fft.rfftfreq(m.shape[1])
     keep = f >= 0.5 / _LOW_BAND
@@ -368,9 +373,9 @@ def row_tone_spectrum(frames):
 
 
 def row_tone(frames, level_dn=None):
-    """Power of the largest bin of the temporal sensor-row means' periodogram above its
-    median bin, above the low band (DN^2): for white row noise a few times the median, for a
-    tone of amplitude a over n sensor rows about n a^2 / 4 (periodic banding)."""
+    """Power of the largest bin of the sensor-row means' periodogram (``row_tone_spectrum``)
+    above its median bin, above the low band (DN^2): for white row noise a few times the
+    median, for a tone of amplitude a over n sensor rows about n a^2 / 4 (periodic banding)."""
     _, p = row_tone_spectrum(frames)
     return float(p.max() - np.median(p))
 
@@ -463,8 +468,9 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("temporal_std", temporal_std, min_frames=2, base="read noise scale sigma_TL / sigma_G"),
         Statistic("fixed_std", fixed_std, min_frames=2, mad_of_mean=True),
         Statistic("fixed_col_excess", fixed_col_excess, min_frames=2),
+        Statistic("fixed_row_excess", fixed_row_excess, min_frames=2),
         Statistic("neighbour_corr", neighbour_corr, min_frames=2, kind="bias"),
-        Statistic("row_tone", row_tone, min_frames=2, kind="bias"),
+        Statistic("row_tone", row_tone, kind="bias"),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, row_pattern, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import sensor_row_means, temporal_mosaic
@@ -353,6 +353,22 @@ def test_banding_estimate_finds_the_tones_and_nothing_in_white_row_noise():
         banding.estimate(meas, base, K, level_dn=100.0)
 
 
+def test_fixed_row_pattern_is_shared_by_a_sensor_row_and_estimated():
+    truth = {"seed": 5, "k": [K], "fixed_dn": [1.0]}
+    meas = synth({"RowFix": truth}, batch=8, size=64, model="G+R", sigma_g=1.0, sigma_r=0.6)
+    rows = meas.mean(axis=(0, 3))  # (4, h) stack-mean row means
+    assert np.corrcoef(rows[0], rows[1])[0, 1] > 0.9  # R and G1 share a sensor row
+    assert abs(np.corrcoef(rows[0], rows[2])[0, 1]) < 5 / math.sqrt(64)  # B is on the other sensor row
+    # the model as calibrated: sigma_r holds the fixed rows' variance (it is read frame by frame)
+    base = [synth({}, batch=8, size=64, seed=s, model="G+R", sigma_g=1.0, sigma_r=math.sqrt(0.36 + 1.0)) for s in range(1, 5)]
+    est = row_pattern.estimate(meas, base, K)
+    # 128 sensor-row values: the relative sd of their variance ~ sqrt(2 / 128) = 0.125 (x1.5 for the robust scale)
+    assert abs(est["fixed_dn"][0] ** 2 - 1.0) < 3 * 0.125 * 1.5, est
+    white = row_pattern.estimate(synth({}, batch=8, size=64, seed=9, model="G+R", sigma_g=1.0, sigma_r=0.6),
+                                 [synth({}, batch=8, size=64, seed=s, model="G+R", sigma_g=1.0, sigma_r=0.6) for s in range(1, 5)], K)
+    assert white["fixed_dn"][0] < 0.3, white  # no fixed rows: at most the spread of the estimate
+
+
 def test_effects_replay_bit_exactly():
     prof = BASE.with_effect("BLE", {"k": [K], "sigma_dn": [0.5]}).with_effect(
         "Col", {"seed": 1, "k": [K], "sigma_dn": [1.0], "fixed_dn": [1.0]})
@@ -376,6 +392,8 @@ def test_effects_replay_bit_exactly():
     ("PRNU", {"seed": -1, "sigma": 0.01}, "seed"),
     ("Xtalk", {"k": [1.0]}, "at least one of"),
     ("Band", {"k": [1.0], "freq_per_row": [[0.6]], "amplitude_dn": [[1.0]]}, r"must be in \(0, 0.5\], got 0.6"),
+    ("RowFix", {"seed": 1, "k": [1.0], "fixed_dn": [-1.0]}, "fixed_dn must be >= 0"),
+    ("RowFix", {"k": [1.0], "fixed_dn": [1.0]}, "seed"),
     ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2]], "amplitude_dn": [[1.0]]}, "equal lists"),
     ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2, 0.3, 0.4]], "amplitude_dn": [[1.0] * 4]}, "at most 3 tones"),
     ("Xtalk", {"k": [1.0], "lag_0_1_dn": [1.0], "lag_3_0_dn": [1.0]}, r"unknown keys \['lag_3_0_dn'\]"),

@@ -29,6 +29,7 @@ LOOP_EFFECTS = {
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "Lines": {"seed": 23, "row_density": 0.05, "col_density": 0.08, "log_std": 0.5, "negative": 0.3, "k": [1.0, 3.0],
               "median_dn": [20.0, 40.0]},
+    "RowFix": {"seed": 31, "k": [1.0, 3.0], "fixed_dn": [0.8, 1.4]},
     "Band": {"k": [1.0, 3.0], "freq_per_row": [[0.0713, 0.31], [0.45]], "amplitude_dn": [[1.2, 0.4], [0.9]]},
     "Xtalk": {"k": [1.0, 3.0], "lag_0_1_dn": [0.5, -0.8], "lag_1_-1_dn": [0.3, 0.0], "lag_2_0_dn": [0.6, 0.4]},
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]]},
@@ -270,6 +271,7 @@ PATTERNS = {
     "PRNU": LOOP_EFFECTS["PRNU"],
     "Dark": LOOP_EFFECTS["Dark"],
     "Lines": LOOP_EFFECTS["Lines"],
+    "RowFix": LOOP_EFFECTS["RowFix"],
 }
 
 
@@ -295,7 +297,7 @@ def test_each_sample_has_a_sensor_of_its_own_unless_the_sensor_is_fixed(token):
     r = (a * b).sum(1) / (a.norm(dim=1) * b.norm(dim=1))
     # independent patterns: each pair's correlation has sd 1/sqrt(n_eff); n_eff = the
     # independent units (pixels, or the sensor lines of Col and Lines: 2 x 48 columns + 2 x 32 rows)
-    n_eff = 2 * 48 if token == "Col" else 2 * (48 + 32) if token == "Lines" else 4 * 32 * 48
+    n_eff = 2 * 48 if token == "Col" else 2 * 32 if token == "RowFix" else 2 * (48 + 32) if token == "Lines" else 4 * 32 * 48
     assert abs(float(r.mean())) < 5 / math.sqrt(n_eff * len(r)), float(r.mean())
 
 

@@ -5,11 +5,11 @@ import warnings
 
 import numpy as np
 import pytest
-import torch
 import yaml
 
-from rawaug import NoiseProfile, RawNoiseAugment, unpack
+from rawaug import NoiseProfile
 from rawaug.calibration.diagnostics import CalibrationWarning
+from rawaug.calibration.synthetic import write_manifest_camera
 from rawaug.cli import main
 
 BASE = NoiseProfile.load("SonyA7S2")
@@ -66,6 +66,12 @@ def interference_tone(dn, rng, **_):
     return dn + rows[:, :, None]
 
 
+def row_drivers(dn, rng, **_):
+    """A fixed row pattern (made outside rawaug): 1.5 DN per sensor row, the same in every frame."""
+    rows = np.random.default_rng(7).normal(0.0, 1.5, (2, dn.shape[1], 1))
+    return dn + rows[[0, 0, 1, 1]]  # R, G1 on even sensor rows; B, G2 on odd
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -77,6 +83,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "nonlin": (None, None, soft_knee, ["NonLin"]),
          "crosstalk": (None, None, coupled_readout, ["Xtalk"]),
          "banding": (None, None, interference_tone, ["Band"]),
+         "fixed rows": (None, None, row_drivers, ["RowFix"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
@@ -84,34 +91,11 @@ FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two
 
 def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_exposures=(4.0,), flat_levels=(0.02, 0.1),
                  lights=False):
-    """Bias frames, dark frames (4 each) of ``dark_exposures`` seconds and flat pairs at
-    ``flat_levels`` (exposure in seconds = level; with ``lights``, all at 0.5 s under a
-    relative light = level, listed in the manifest's ``light`` column) at two ISOs of the
-    base camera, plus ``effect`` nobody declared, plus ``post`` (a change to the DN no
-    rawaug stage makes): a manifest of 16-bit frames."""
+    """The manifest camera (``write_manifest_camera``) of the base camera plus ``effect`` nobody
+    declared, plus ``post`` (a change to the DN no rawaug stage makes)."""
     profile = BASE.with_effect(effect, params) if effect else BASE
-    rng = np.random.default_rng(5 + seed)
-    rows = []
-    for i, (iso, k) in enumerate([(800, 0.75), (3200, 3.0)]):
-        frames = ([("bias", 1e-4, 0.0, j) for j in range(6)] + [("dark", t, 0.0, j) for t in dark_exposures for j in range(4)]
-                  + [("flat", 0.5 if lights else level, level, j) for level in flat_levels for j in range(2)])
-        for kind, exposure, level, j in frames:
-            fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": BASE.row_scale.median(k),
-                     "exposure_s": exposure, "sensor": 0}  # one camera: one sensor in every frame
-            aug = RawNoiseAugment(profile, model="G*+P*+R", ratio=1.0, fixed=fixed,
-                                  generator=torch.Generator().manual_seed(1000 * i + 10 * j + len(rows) + 100_003 * seed), rank_seeding=False)
-            clean = torch.full((1, 4, 64, 64), level)
-            dn = aug(clean).numpy()[0] * BASE.span_dn
-            dn = post(dn, rng, kind=kind, exposure=exposure, k=k) if post else dn
-            packed = np.clip(np.rint(dn + BASE.black_level), 0, BASE.white_level)
-            name = f"{kind}_{iso}_{exposure:g}_{level:g}_{j}.npy"
-            np.save(folder / name, unpack(packed, "RGGB").astype(np.uint16))
-            rows.append([name, kind, iso, exposure, "RGGB", 512, 16383] + ([level if kind == "flat" else ""] if lights else []))
-    manifest = folder / "manifest.csv"
-    with open(manifest, "w", newline="") as f:
-        header = ["path", "kind", "iso", "exposure_s", "cfa", "black_level", "white_level"] + (["light"] if lights else [])
-        csv.writer(f).writerows([header] + rows)
-    return manifest
+    return write_manifest_camera(folder, profile, post=post, seed=seed, dark_exposures=dark_exposures,
+                                 flat_levels=flat_levels, lights=lights)
 
 
 @pytest.mark.parametrize("case", list(CASES))

@@ -13,11 +13,12 @@ Profile entry (per-K records)::
 
     Band: {k: [K, ...], freq_per_row: [[f1, f2], ...], amplitude_dn: [[a1, a2], ...]}
 
-Detected by ``row_tone`` (power of the largest bin of the temporal sensor-row means'
-periodogram above its median bin, above the low band). Estimated by ``estimate``: bins of that periodogram above the
-model's by more than chance allows (family-wise p 1e-3), each refined to the frequency
-that maximizes the frames' power (grid of 1/40 bin), its amplitude from the power above
-the model's there. Judged with the row noise re-fitted (the tone's power had gone into it).
+Detected by ``row_tone`` (power of the largest bin of the frames' sensor-row-mean periodogram
+above its median bin, above the low band). Estimated by ``estimate``: bins of that periodogram
+above the model's by more than chance allows (F-test, family-wise p 1e-3), each refined to the
+frequency that maximizes the frames' power (grid of 1/40 bin), its amplitude from a circle
+fitted to the frames' Fourier coefficients there (radius: the tone; centre: a fixed part).
+Judged with the row noise re-fitted (the tone's power had gone into it).
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ import numpy as np
 from scipy import ndimage, stats
 
 from ..engine import layout as L
-from ..statistics import row_tone_spectrum, temporal_row_means
+from ..statistics import frame_row_means, row_tone_spectrum
 from .base import BANDING, NoiseEffect, register
 from .k_records import _number, validate_records
 
@@ -79,23 +80,43 @@ def _power_at(m, f):
     return (np.abs(m @ basis.T) ** 2).mean(axis=0) / m.shape[1]
 
 
+def _tone_amplitude(raw, f: float, noise: float) -> float:
+    """Amplitude (DN) of a tone at ``f`` in the frames' sensor-row means ``raw`` (N, n): each
+    frame's Fourier coefficient X_b lies on a circle, its centre what is the same in every
+    frame (a fixed row pattern), its radius n a / 2 (the tone, its phase new in every frame).
+    The circle is fitted by least squares (Kasa); the noise power ``noise`` (DN^2, a
+    periodogram value) adds n * noise to the squared radius and is taken off. With two frames
+    the radius is |X_1 - X_2| / sqrt(2); with one, |X_1|."""
+    n_frames, n = raw.shape
+    x = raw @ np.exp(-2j * np.pi * f * np.arange(n))
+    if n_frames >= 3:
+        design = np.stack([2 * x.real, 2 * x.imag, np.ones(n_frames)], axis=1)
+        (cx, cy, d), *_ = np.linalg.lstsq(design, np.abs(x) ** 2, rcond=None)
+        r2 = d + cx * cx + cy * cy
+    elif n_frames == 2:
+        r2 = float(np.abs(x[0] - x[1]) ** 2) / 2.0
+    else:
+        r2 = float(np.abs(x[0]) ** 2)  # one frame: a fixed part cannot be told apart
+    r2 -= n * noise
+    return 2.0 * np.sqrt(r2) / n if r2 > 0 else 0.0
+
+
 def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
-    """Band record at gain ``k`` from a bias or dark stack (N >= 2, 4, h, w) in DN. Tones are
-    taken one at a time, strongest first, each removed from the frames' row means (fitted
-    per frame) before the next is looked for, so a tone's leakage is not taken for another."""
+    """Band record at gain ``k`` from a bias or dark stack (N, 4, h, w) in DN. Tones are taken
+    one at a time, strongest first, each removed from every frame's row means (least squares)
+    before the next is looked for, so a tone's leakage is not taken for another."""
     frames = np.asarray(frames, dtype=np.float64)
-    if level_dn is not None or frames.shape[0] < 2 or not synthesized:
-        raise ValueError("Band is measured on bias and dark stacks of >= 2 frames, against syntheses")
+    if level_dn is not None or not synthesized:
+        raise ValueError("Band is measured on bias and dark stacks, against syntheses")
     f, _ = row_tone_spectrum(frames)
     # the model's spectrum, smoothed over SMOOTH bins (it has no tone: its shape is smooth)
     model = ndimage.median_filter(np.mean([row_tone_spectrum(s)[1] for s in synthesized], axis=0), size=SMOOTH, mode="nearest")
-    m_model = [temporal_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized]
-    m = temporal_row_means(frames)
+    m = frame_row_means(frames)
+    m_model = [frame_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized]
     n_frames, n = m.shape
-    # a bin's power over N frames less their mean has 2 (N - 1) degrees of freedom; the model's,
-    # over its syntheses' frames and SMOOTH bins, many more: their ratio is F-distributed
-    dof_model = 2 * sum(np.asarray(s).shape[0] - 1 for s in synthesized) * SMOOTH
-    threshold = stats.f.isf(FAMILY_P / len(f), 2 * (n_frames - 1), dof_model)
+    # a bin's power over N frames has 2 N degrees of freedom; the model's, over its syntheses'
+    # frames and SMOOTH bins, many more: their ratio is F-distributed
+    threshold = stats.f.isf(FAMILY_P / len(f), 2 * n_frames, 2 * sum(len(mm) for mm in m_model) * SMOOTH)
     step = 1.0 / n
     y = np.arange(n)
     tones, amps = [], []
@@ -106,12 +127,12 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
             break
         grid = np.clip(f[i] + step * np.linspace(-1, 1, 81), step, 0.5)
         best = float(grid[int(np.argmax(_power_at(m, grid)))])
-        excess = float(_power_at(m, [best])[0] - np.mean([_power_at(mm, [best])[0] for mm in m_model]))
-        if excess <= 0:
+        noise = float(np.mean([_power_at(mm, [best])[0] for mm in m_model]))  # the model's power there, DN^2
+        amplitude = _tone_amplitude(m, best, noise)
+        if amplitude <= 0:
             break
         tones.append(best)
-        amps.append(2.0 * np.sqrt(excess / n))  # a cos tone: |X|^2 / n = n a^2 / 4
-        # remove the tone from every frame (least squares on cos and sin) before the next
+        amps.append(amplitude)
         basis = np.stack([np.cos(2 * np.pi * best * y), np.sin(2 * np.pi * best * y)], axis=1)
         coef, *_ = np.linalg.lstsq(basis, m.T, rcond=None)
         m = m - (basis @ coef).T
@@ -119,13 +140,19 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
 
 
 def combine(records: list[dict]) -> dict:
-    """One record per gain: of the stacks at one K, the one whose tones hold the most power."""
+    """One record per gain: the tones of the first stack at that K (bias before dark), each
+    amplitude the rms over the stacks at that K that found it (within 1/200 cycle per row)."""
     by_k: dict = {}
     for r in records:
-        k = float(r["k"][0])
-        power = float(np.sum(np.square(r["amplitude_dn"][0])))
-        if k not in by_k or power > by_k[k][0]:
-            by_k[k] = (power, r)
+        by_k.setdefault(float(r["k"][0]), []).append(r)
     ks = sorted(by_k)
-    return {"k": ks, "freq_per_row": [by_k[k][1]["freq_per_row"][0] for k in ks],
-            "amplitude_dn": [by_k[k][1]["amplitude_dn"][0] for k in ks]}
+    freqs, amps = [], []
+    for k in ks:
+        first = by_k[k][0]
+        freqs.append(list(first["freq_per_row"][0]))
+        row = []
+        for f in first["freq_per_row"][0]:
+            found = [a for r in by_k[k] for g, a in zip(r["freq_per_row"][0], r["amplitude_dn"][0]) if abs(g - f) < 0.005]
+            row.append(float(np.sqrt(np.mean(np.square(found)))))
+        amps.append(row)
+    return {"k": ks, "freq_per_row": freqs, "amplitude_dn": amps}

@@ -30,6 +30,7 @@ GLOW = 1 << 19  # amplifier glow: a smooth dark-current map (electrons per secon
 NONLIN = 1 << 20  # gain non-linearity: the photo signal compressed after shot noise, before read noise
 XTALK = 1 << 21  # correlated read noise: pixels XTALK_LAGS apart share part of their read noise
 BAND = 1 << 22  # periodic banding: tones along the sensor rows, a random phase in every frame
+ROW_FIX = 1 << 23  # fixed row pattern: one offset per sensor row, the same in every frame
 
 COLUMNS = (
     "k", "ratio",
@@ -55,6 +56,7 @@ COLUMNS = (
     "sensor",  # sensor instance of the fixed patterns (an integer; 0: the profile's own)
     "xt_0", "xt_1", "xt_2", "xt_3", "xt_4", "xt_5",  # correlated read noise: signed amplitude (DN) at each of XTALK_LAGS
     "band_f0", "band_f1", "band_f2", "band_a0", "band_a1", "band_a2",  # banding tones: cycles per sensor row, amplitude (DN)
+    "rowfix_sigma",  # fixed row pattern: std of the sensor-row offsets (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -66,7 +68,7 @@ N_COLUMNS = len(COLUMNS)
 STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
-    "lines_row", "lines_col", "xtalk", "band",
+    "lines_row", "lines_col", "xtalk", "band", "row_pattern",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

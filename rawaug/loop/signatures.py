@@ -19,6 +19,7 @@ KIND = {
     "psd2d_lowfreq": "radial_spectrum",
     "row_lowfreq": "row_spectrum", "row_excess": "row_spectrum",
     "col_lowfreq": "col_spectrum", "col_excess": "col_spectrum", "fixed_col_excess": "mean_col_spectrum",
+    "fixed_row_excess": "mean_row_spectrum",
     "mean_dn": "mean_map_histogram", "fixed_std": "mean_map_histogram", "flat_fixed_rel": "mean_map_histogram",
     "flat_linearity": "mean_map_histogram",
     "temporal_std": "temporal_histogram",
@@ -31,6 +32,7 @@ LABEL = {
     "row_spectrum": ("frequency along columns (cycles/row)", "row-mean power (DN^2)", True),
     "col_spectrum": ("frequency along rows (cycles/column)", "column-mean power (DN^2)", True),
     "mean_col_spectrum": ("frequency along rows (cycles/column)", "stack-mean column power (DN^2)", True),
+    "mean_row_spectrum": ("frequency along columns (cycles/row)", "stack-mean row power (DN^2)", True),
     "pixel_histogram": ("pixel value about its frame-channel mean (DN)", "fraction of pixels", True),
     "mean_map_histogram": ("stack-mean map (DN)", "fraction of pixels", True),
     "temporal_histogram": ("per-pixel std across frames (DN)", "fraction of pixels", True),
@@ -91,10 +93,11 @@ def curve(kind: str, frames, edges=None):
     frames = np.asarray(frames, dtype=np.float64)
     if kind == "radial_spectrum":
         return _radial(frames)
-    if kind in ("row_spectrum", "col_spectrum", "mean_col_spectrum"):
-        view = frames.mean(axis=0, keepdims=True) if kind == "mean_col_spectrum" else frames
-        y = _power(view.mean(axis=3 if kind == "row_spectrum" else 2))
-        n = frames.shape[2 if kind == "row_spectrum" else 3]
+    if kind in ("row_spectrum", "col_spectrum", "mean_col_spectrum", "mean_row_spectrum"):
+        view = frames.mean(axis=0, keepdims=True) if kind.startswith("mean_") else frames
+        rows = kind in ("row_spectrum", "mean_row_spectrum")
+        y = _power(view.mean(axis=3 if rows else 2))
+        n = frames.shape[2 if rows else 3]
         return _log_binned(np.fft.rfftfreq(n)[1:], y, 1.0 / n)
     if kind == "line_means":  # rows and columns of the raw view: a defect line stands out of the sorted curve
         m = frames.mean(axis=0)
