@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, row_pattern, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, row_channel, row_pattern, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import sensor_row_means, temporal_mosaic
@@ -369,6 +369,20 @@ def test_fixed_row_pattern_is_shared_by_a_sensor_row_and_estimated():
     assert white["fixed_dn"][0] < 0.3, white  # no fixed rows: at most the spread of the estimate
 
 
+def test_row_noise_per_channel_is_its_own_and_estimated():
+    f = synth({"RowCh": {"k": [K], "sigma_dn": [1.5]}}, batch=16, size=64, sigma_g=0.5)
+    rows = f.mean(axis=3)  # (16, 4, 64)
+    n = rows[:, 0].size
+    assert abs(np.corrcoef(rows[:, 0].ravel(), rows[:, 1].ravel())[0, 1]) < 5 / math.sqrt(n)  # R and G1 do not share it
+    var = rows.var(axis=2, ddof=1).mean() - 0.25 / 64  # less read noise / row length
+    assert abs(var / 2.25 - 1) < 5 * math.sqrt(2 / (4 * n)), var  # chi-square spread over 4 x 16 x 64 row offsets
+    base = [synth({}, batch=8, size=64, seed=s, sigma_g=0.5) for s in range(1, 5)]
+    est = row_channel.estimate(f[:8], base, K)
+    assert abs(est["sigma_dn"][0] ** 2 / 2.25 - 1) < 5 * math.sqrt(2 / (2 * 8 * 64)), est
+    with pytest.raises(ValueError, match="bias and dark"):
+        row_channel.estimate(f, base, K, level_dn=100.0)
+
+
 def test_effects_replay_bit_exactly():
     prof = BASE.with_effect("BLE", {"k": [K], "sigma_dn": [0.5]}).with_effect(
         "Col", {"seed": 1, "k": [K], "sigma_dn": [1.0], "fixed_dn": [1.0]})
@@ -394,6 +408,7 @@ def test_effects_replay_bit_exactly():
     ("Band", {"k": [1.0], "freq_per_row": [[0.6]], "amplitude_dn": [[1.0]]}, r"must be in \(0, 0.5\], got 0.6"),
     ("RowFix", {"seed": 1, "k": [1.0], "fixed_dn": [-1.0]}, "fixed_dn must be >= 0"),
     ("RowFix", {"k": [1.0], "fixed_dn": [1.0]}, "seed"),
+    ("RowCh", {"k": [1.0], "sigma_dn": [-0.5]}, "sigma_dn must be >= 0"),
     ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2]], "amplitude_dn": [[1.0]]}, "equal lists"),
     ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2, 0.3, 0.4]], "amplitude_dn": [[1.0] * 4]}, "at most 3 tones"),
     ("Xtalk", {"k": [1.0], "lag_0_1_dn": [1.0], "lag_3_0_dn": [1.0]}, r"unknown keys \['lag_3_0_dn'\]"),

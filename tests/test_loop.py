@@ -55,8 +55,10 @@ def two_level_read_noise():
 XTALK = {"Xtalk": {"k": [K], "lag_0_1_dn": [1.2], "lag_1_-1_dn": [-0.8]}}  # a shared readout, opposite coupling on a diagonal
 BAND = {"Band": {"k": [K], "freq_per_row": [[0.137]], "amplitude_dn": [[1.0]]}}  # interference during readout
 ROWFIX = {"RowFix": {"seed": 37, "k": [K], "fixed_dn": [1.2]}}  # row drivers' offsets
+ROWCH = {"RowCh": {"k": [K], "sigma_dn": [1.2]}}  # two ADC banks, a row offset each
 CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "defect lines": LINES, "mixed": {**COL, **FPN, **HOT},
-         "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "fixed rows": ROWFIX}
+         "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "fixed rows": ROWFIX,
+         "row per channel": ROWCH}
 
 
 def loop_succeeds(effects, seed):

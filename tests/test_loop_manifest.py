@@ -72,6 +72,11 @@ def row_drivers(dn, rng, **_):
     return dn + rows[[0, 0, 1, 1]]  # R, G1 on even sensor rows; B, G2 on odd
 
 
+def adc_banks(dn, rng, **_):
+    """Row noise of each ADC bank (made outside rawaug): 1.5 DN per channel row and frame."""
+    return dn + rng.normal(0.0, 1.5, (dn.shape[0], dn.shape[1], 1))
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -84,6 +89,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "crosstalk": (None, None, coupled_readout, ["Xtalk"]),
          "banding": (None, None, interference_tone, ["Band"]),
          "fixed rows": (None, None, row_drivers, ["RowFix"]),
+         "row per channel": (None, None, adc_banks, ["RowCh"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series

@@ -60,6 +60,7 @@ _XT0 = L.COLUMN["xt_0"]
 _BF0, _BA0 = L.COLUMN["band_f0"], L.COLUMN["band_a0"]
 _BAND = L.STREAM["band"]
 _RF, _ROW_PATTERN = L.COLUMN["rowfix_sigma"], L.STREAM["row_pattern"]
+_RC, _ROW_CHANNEL = L.COLUMN["rowch_sigma"], L.STREAM["row_channel"]
 _TONES = L.BAND_TONES
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([lag[0] for lag in L.XTALK_LAGS], dtype=np.int64)
@@ -176,6 +177,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             line += v[_BC] * symmetric(normal, draw(keys[_BLE], b * 5 + 1 + c))
         if stages & L.BAND:
             line += banding_at(keys[_BAND], v, b, 2 * y + row_set)
+        if stages & L.ROW_CHANNEL:
+            line += v[_RC] * symmetric(normal, draw(keys[_ROW_CHANNEL], (b * 4 + c) * h + y))
         if stages & L.ROW_FIX:
             line += v[_RF] * symmetric(normal, draw(keys[_ROW_PATTERN], (sensor * 2 + row_set) * h + y))
         if stages & L.LINES:

@@ -31,6 +31,7 @@ NONLIN = 1 << 20  # gain non-linearity: the photo signal compressed after shot n
 XTALK = 1 << 21  # correlated read noise: pixels XTALK_LAGS apart share part of their read noise
 BAND = 1 << 22  # periodic banding: tones along the sensor rows, a random phase in every frame
 ROW_FIX = 1 << 23  # fixed row pattern: one offset per sensor row, the same in every frame
+ROW_CHANNEL = 1 << 24  # row noise of each channel's own: one offset per packed row and frame
 
 COLUMNS = (
     "k", "ratio",
@@ -57,6 +58,7 @@ COLUMNS = (
     "xt_0", "xt_1", "xt_2", "xt_3", "xt_4", "xt_5",  # correlated read noise: signed amplitude (DN) at each of XTALK_LAGS
     "band_f0", "band_f1", "band_f2", "band_a0", "band_a1", "band_a2",  # banding tones: cycles per sensor row, amplitude (DN)
     "rowfix_sigma",  # fixed row pattern: std of the sensor-row offsets (DN)
+    "rowch_sigma",  # row noise of each channel's own (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -68,7 +70,7 @@ N_COLUMNS = len(COLUMNS)
 STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
-    "lines_row", "lines_col", "xtalk", "band", "row_pattern",
+    "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -37,7 +37,7 @@ C_GLH, C_GLW, C_GLGH, C_GLGW = _column("glow_h"), _column("glow_w"), _column("gl
 C_NL = _column("nl_c")
 C_XT0 = _column("xt_0")
 C_BF0, C_BA0 = _column("band_f0"), _column("band_a0")
-C_RF = _column("rowfix_sigma")
+C_RF, C_RC = _column("rowfix_sigma"), _column("rowch_sigma")
 TONES = tl.constexpr(L.BAND_TONES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_N = tl.constexpr(len(L.XTALK_LAGS))
@@ -52,7 +52,7 @@ K_SHOT, K_SHOT_REST, K_SHOT_COARSE, K_READ = S["shot"], S["shot_rest"], S["shot_
 K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
 K_DSNU, K_LOWFREQ = S["dsnu_pattern"], S["lowfreq"]
 K_LINES_ROW, K_LINES_COL = S["lines_row"], S["lines_col"]
-K_XTALK, K_BAND, K_ROW_PATTERN = S["xtalk"], S["band"], S["row_pattern"]
+K_XTALK, K_BAND, K_ROW_PATTERN, K_ROW_CHANNEL = S["xtalk"], S["band"], S["row_pattern"], S["row_channel"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -226,6 +226,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         ry = 2 * y + row_set
         kb = _key(keys_ptr, K_BAND)
         line += _tone(kb, v, 0, b, ry) + _tone(kb, v, 1, b, ry) + _tone(kb, v, 2, b, ry)
+    if FLAGS & 16777216:  # row noise of each channel's own: per packed row and frame
+        line += _col(v, C_RC) * _normal(draw(_key(keys_ptr, K_ROW_CHANNEL), ((plane.to(tl.int64)) * H + y).to(tl.uint64)))
     if FLAGS & 8388608:  # fixed row pattern: the sensor row's offset, the same in every frame
         line += _col(v, C_RF) * _normal(draw(_key(keys_ptr, K_ROW_PATTERN), ((sensor * 2 + row_set) * H + y).to(tl.uint64)))
     if FLAGS & 262144:  # defect lines: the sensor row's offset

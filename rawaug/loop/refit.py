@@ -71,15 +71,10 @@ def _shift(rel: LogLinear | None, slope: float, intercept: float, k_ref: float) 
                                segments=segments, floor_dn=floor)
 
 
-def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
-    """(stacks, profile) with the read noise scaled by ``factors`` (bias stack label ->
-    factor): every stack of that bias stack's gain gets the new sigmas in its ``base``, and
-    the profile's read-noise relations move by the line through log(factor) against log(K)
-    over all bias stacks (factor 1 where nothing was re-fitted)."""
-    by_k = {}
-    for stack in stacks:
-        if stack.kind == "bias":
-            by_k[stack.k] = factors.get(stack.label, 1.0)
+def _scaled_stacks(stacks, profile, factors: dict, keys: tuple[str, ...]):
+    """(stacks with the sigmas ``keys`` of their base scaled by their gain's factor, the
+    line (slope, intercept, K_ref) through log(factor) against log(K) over the bias stacks)."""
+    by_k = {stack.k: factors.get(stack.label, 1.0) for stack in stacks if stack.kind == "bias"}
     out = []
     for stack in stacks:
         f = by_k.get(stack.k, 1.0)
@@ -88,9 +83,7 @@ def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
             continue
         fixed = synthesis_fixed(profile, stack)
         base = dict(stack.base)
-        base["sigma_g"] = float(fixed["sigma_g"]) * f
-        if "sigma_tl" in fixed:
-            base["sigma_tl"] = float(fixed["sigma_tl"]) * f
+        base.update({key: float(fixed[key]) * f for key in keys if key in fixed})
         out.append(dataclasses.replace(stack, base=base))
     # a dark or flat stack takes its offsets from its bias stack: from the re-fitted one
     renewed = {id(old): new for old, new in zip(stacks, out) if old.kind == "bias" and new is not old}
@@ -101,10 +94,17 @@ def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
         slope, intercept = np.polyfit(np.log(ks), logf, 1)
     else:
         slope, intercept = 0.0, float(logf.mean())
-    k_ref = float(np.exp(np.log(ks).mean()))
-    new = dataclasses.replace(profile, tukey_scale=_shift(profile.tukey_scale, float(slope), float(intercept), k_ref),
-                              gaussian_scale=_shift(profile.gaussian_scale, float(slope), float(intercept), k_ref))
-    return out, new
+    return out, (float(slope), float(intercept), float(np.exp(np.log(ks).mean())))
+
+
+def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
+    """(stacks, profile) with the read noise scaled by ``factors`` (bias stack label ->
+    factor): every stack of that bias stack's gain gets the new sigmas in its ``base``, and
+    the profile's read-noise relations move by the line through log(factor) against log(K)
+    over all bias stacks (factor 1 where nothing was re-fitted)."""
+    out, line = _scaled_stacks(stacks, profile, factors, ("sigma_g", "sigma_tl"))
+    return out, dataclasses.replace(profile, tukey_scale=_shift(profile.tukey_scale, *line),
+                                    gaussian_scale=_shift(profile.gaussian_scale, *line))
 
 
 def _row_variance(frames) -> float:
@@ -144,23 +144,5 @@ def apply_row_noise_factors(stacks, profile, factors: dict):
     """(stacks, profile) with sigma_r scaled by ``factors`` (bias stack label -> factor), as
     ``apply_read_noise_factors`` does for the read noise: every stack of that gain, and the
     profile's row-noise relation by the line through log(factor) against log(K)."""
-    by_k = {stack.k: factors.get(stack.label, 1.0) for stack in stacks if stack.kind == "bias"}
-    out = []
-    for stack in stacks:
-        f = by_k.get(stack.k, 1.0)
-        if f == 1.0:
-            out.append(stack)
-            continue
-        base = dict(stack.base)
-        base["sigma_r"] = float(synthesis_fixed(profile, stack)["sigma_r"]) * f
-        out.append(dataclasses.replace(stack, base=base))
-    renewed = {id(old): new for old, new in zip(stacks, out) if old.kind == "bias" and new is not old}
-    out = [dataclasses.replace(s, offsets_of=renewed[id(s.offsets_of)]) if id(s.offsets_of) in renewed else s for s in out]
-    ks = np.array(sorted(by_k))
-    logf = np.log([by_k[k] for k in ks])
-    if ks.size >= 2 and np.ptp(np.log(ks)) > 0:
-        slope, intercept = np.polyfit(np.log(ks), logf, 1)
-    else:
-        slope, intercept = 0.0, float(logf.mean())
-    k_ref = float(np.exp(np.log(ks).mean()))
-    return out, dataclasses.replace(profile, row_scale=_shift(profile.row_scale, float(slope), float(intercept), k_ref))
+    out, line = _scaled_stacks(stacks, profile, factors, ("sigma_r",))
+    return out, dataclasses.replace(profile, row_scale=_shift(profile.row_scale, *line))
