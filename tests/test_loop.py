@@ -77,8 +77,8 @@ def loop_succeeds(effects, seed):
 
 
 # Measured over the 20 measured-stack seeds 200-219 (test_loop_rates_over_seeds, slow; last
-# counted 2026-11-23 with Lines among the candidates): every case of CASES named and fixed in
-# 20 of 20; the ELD-only stack got nothing added in 20 of 20. The default run checks the
+# counted 2026-11-24 with Xtalk, Band, RowFix and RowCh among the candidates): every case of
+# CASES named and fixed in 20 of 20; the ELD-only stack got nothing added in 20 of 20. The default run checks the
 # first seed of that range.
 @pytest.mark.parametrize("effects", list(CASES.values()), ids=list(CASES))
 def test_loop_names_each_undeclared_effect_and_halves_its_error(effects):

@@ -191,7 +191,8 @@ def check_setting_curves(report, data, dark_added, n_flats=2):
 
 
 # Measured over sessions 1-10 (python -m pytest -m slow tests/test_loop_manifest.py): Col, Dark,
-# PRNU, comb, interference, glow, nonlin, none and none_series 10 of 10 each (2026-11-24); over
+# PRNU, comb, interference, glow, nonlin, none and none_series 10 of 10 each (2026-11-24; again
+# with crosstalk, banding, fixed rows and row per channel, also 10 of 10 each); over
 # sessions 11-20 nonlin, none and none_series 10 of 10 each (none_series was 18 of 20 over 1-20
 # before residuals were confirmed on 24 syntheses). Interference was 4 of 10 (FPN added besides
 # LowFreq) before FPN's shading left out the temporal smooth power a mean of N frames keeps and

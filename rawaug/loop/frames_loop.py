@@ -15,7 +15,10 @@ when no significant residual points to an effect untried in the current model.
 
 After each added effect the base read noise is re-fitted where the model's bias frames now
 come out noisier than the measured ones (``refit``): calibration had given the read noise
-all of the temporal noise, part of which the added effect now explains.
+all of the temporal noise, part of which the added effect now explains. A candidate whose
+module says it takes over a base stage's variance (``SHARES_READ_NOISE``: correlated read
+noise; ``SHARES_ROW_NOISE``: banding, fixed rows, per-channel rows) is judged with that
+stage re-fitted already, or its added variance alone would get it rejected.
 """
 from __future__ import annotations
 
@@ -311,7 +314,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         chosen[0].signature = step_signature(chosen[0].evidence["statistic"], by_label[chosen[0].stack].frames_dn,
                                              diags[chosen[0].stack][1], chosen[2][chosen[0].stack][1])
         current, diags = chosen[1], chosen[2]
-        if chosen[3] is not stacks:  # the read noise it was judged with
+        if chosen[3] is not stacks:  # the base stage it was judged with, re-fitted
             stacks = chosen[3]
             by_label = {st.label: st for st in stacks}
             result.refits.append({"after": chosen[0].effect, "round": step_no, "factors": chosen[4], "kept": True,
