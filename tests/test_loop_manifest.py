@@ -104,7 +104,12 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
                                  flat_levels=flat_levels, lights=lights)
 
 
-@pytest.mark.parametrize("case", list(CASES))
+# cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
+# they run with the slow rates below, to keep the default run short
+SLOW_CASES = {"crosstalk", "banding", "fixed rows", "row per channel"}
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])
 def test_loop_on_a_manifest_names_the_undeclared_effect(tmp_path, case):
     check_case(tmp_path, case, seed=0)
 
