@@ -331,7 +331,7 @@ def lag_covariances(frames, lags=XTALK_LAGS):
     out = []
     for dy, dx in lags:
         a = raw[:, : hh - dy, max(0, -dx) : ww - max(0, dx)]
-        b = raw[:, dy:, max(0, dx) : ww - max(0, -dx) if dx < 0 else ww]
+        b = raw[:, dy:, max(0, dx) : ww - max(0, -dx)]
         out.append(float(np.mean(a * b)))
     return float(np.mean(raw * raw)), np.array(out)
 

@@ -290,7 +290,7 @@ def test_crosstalk_covariance_at_each_lag():
     hh, ww = raw.shape[1:]
     for (dy, dx), a in amp.items():
         x = raw[:, : hh - dy, max(0, -dx) : ww - max(0, dx)]
-        y = raw[:, dy:, max(0, dx) : ww - max(0, -dx) if dx < 0 else ww]
+        y = raw[:, dy:, max(0, dx) : ww - max(0, -dx)]
         cov = float(np.mean(x * y))
         # the mean of n products of correlated normals has sd <= var / sqrt(n / 3) (neighbouring products share draws)
         assert abs(cov - a * abs(a)) < 5 * var / math.sqrt(x.size / 3), ((dy, dx), cov, a * abs(a))

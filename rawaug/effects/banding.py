@@ -28,7 +28,7 @@ from scipy import ndimage, stats
 from ..engine import layout as L
 from ..statistics import frame_row_means, row_tone_spectrum
 from .base import BANDING, NoiseEffect, register
-from .k_records import _number, validate_records
+from .k_records import _number, record_index, validate_records
 
 STATISTICS = ("row_tone",)
 SHARES_ROW_NOISE = True  # the tone's power is row noise calibration counted as white
@@ -44,8 +44,6 @@ class Banding(NoiseEffect):
     columns = tuple(f"band_f{j}" for j in range(L.BAND_TONES)) + tuple(f"band_a{j}" for j in range(L.BAND_TONES))
 
     def draw(self, ctx):
-        from .k_records import record_index
-
         p = self.profile.effects[self.token]
         idx = record_index(p, ctx.k)
         out = {}
