@@ -20,7 +20,7 @@ import numpy as np
 from scipy import ndimage
 from scipy import stats as sstats
 
-from .engine.layout import COLUMN_SET, ROW_SET, XTALK_LAGS
+from .engine.layout import COLUMN_SET, READ_MAP_BLOCKS, ROW_SET, XTALK_LAGS
 
 _MAD_TO_SIGMA = 1.482602218505602
 _LOW_BAND = 16  # low-frequency band: the lowest 1/16 of the frequencies
@@ -344,6 +344,45 @@ def neighbour_corr(frames, level_dn=None):
     return _rms(cov / max(var, 1e-12))
 
 
+def block_index(n: int, blocks: int = READ_MAP_BLOCKS) -> np.ndarray:
+    """Block of each of ``n`` lines when they are cut into ``blocks`` equal runs (int, (n,))."""
+    return (np.arange(n) * blocks) // n
+
+
+FLICKER = 25.0  # a pixel whose temporal variance exceeds this many times the stack's median flickers (telegraph noise)
+
+
+def temporal_variance_cells(frames):
+    """(4, B, B) mean over each cell of the per-pixel temporal variance (DN^2, ddof 1), the
+    cells being each channel cut into B = READ_MAP_BLOCKS row and column blocks. Pixels that
+    flicker (variance beyond FLICKER x the stack's median: telegraph noise) are left out; a mean,
+    not a median, so that the noise's shape (its kurtosis) does not weigh on the level."""
+    frames = np.asarray(frames, dtype=np.float64)
+    _, _, h, w = frames.shape
+    var = frames.var(axis=0, ddof=1)
+    keep = var <= FLICKER * max(float(np.median(var)), 1e-12)
+    rows = np.eye(READ_MAP_BLOCKS)[block_index(h)]  # (h, B) one-hot: the row block of each row
+    cols = np.eye(READ_MAP_BLOCKS)[block_index(w)]
+    total = np.einsum("chw,hi,wj->cij", np.where(keep, var, 0.0), rows, cols)
+    count = np.einsum("chw,hi,wj->cij", keep.astype(np.float64), rows, cols)
+    return total / np.maximum(count, 1.0)
+
+
+def map_effects(cells):
+    """(channel, row-block, column-block) main effects of a (4, B, B) array: its means over
+    the other two axes less the grand mean."""
+    m = cells.mean()
+    return cells.mean(axis=(1, 2)) - m, cells.mean(axis=(0, 2)) - m, cells.mean(axis=(0, 1)) - m
+
+
+def read_noise_spread(frames, level_dn=None):
+    """Rms of the channel, row-block and column-block main effects (``map_effects``) of the
+    log temporal variance per cell (``temporal_variance_cells``): near 0 for read noise the same
+    everywhere; more for a channel's own amplifier or a readout half of its own."""
+    parts = map_effects(np.log(np.maximum(temporal_variance_cells(frames), 1e-12)))
+    return float(np.sqrt(sum(np.mean(p**2) for p in parts)))
+
+
 def sensor_row_means(frames):
     """(N, 2h) mean of each sensor row (its two packed channels, all columns), DN."""
     n, _, h, _ = frames.shape
@@ -470,6 +509,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("fixed_col_excess", fixed_col_excess, min_frames=2),
         Statistic("fixed_row_excess", fixed_row_excess, min_frames=2),
         Statistic("neighbour_corr", neighbour_corr, min_frames=2, kind="bias"),
+        Statistic("read_noise_spread", read_noise_spread, min_frames=2, kind="bias"),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, row_channel, row_pattern, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, read_map, row_channel, row_pattern, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import sensor_row_means, temporal_mosaic
@@ -409,6 +409,10 @@ def test_effects_replay_bit_exactly():
     ("RowFix", {"seed": 1, "k": [1.0], "fixed_dn": [-1.0]}, "fixed_dn must be >= 0"),
     ("RowFix", {"k": [1.0], "fixed_dn": [1.0]}, "seed"),
     ("RowCh", {"k": [1.0], "sigma_dn": [-0.5]}, "sigma_dn must be >= 0"),
+    ("ReadMap", {"k": [1.0], "channel_dn": [[0.0] * 3], "row_block_dn": [[0.0] * 8], "col_block_dn": [[0.0] * 8]},
+     "channel_dn record 0 must list 4 values"),
+    ("ReadMap", {"k": [1.0], "channel_dn": [[0.0] * 4], "row_block_dn": [[-1.0] * 8], "col_block_dn": [[0.0] * 8]},
+     "finite and >= 0"),
     ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2]], "amplitude_dn": [[1.0]]}, "equal lists"),
     ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2, 0.3, 0.4]], "amplitude_dn": [[1.0] * 4]}, "at most 3 tones"),
     ("Xtalk", {"k": [1.0], "lag_0_1_dn": [1.0], "lag_3_0_dn": [1.0]}, r"unknown keys \['lag_3_0_dn'\]"),
@@ -417,3 +421,40 @@ def test_effects_replay_bit_exactly():
 def test_bad_effect_params_raise(token, params, match):
     with pytest.raises(ValueError, match=match):
         BASE.with_effect(token, params)
+
+
+READ_MAP = {"k": [K], "channel_dn": [[0.0, 2.0, 0.0, 0.0]], "row_block_dn": [[0.0] * 8],
+            "col_block_dn": [[0.0] * 4 + [1.5] * 4]}  # a noisy G1 amplifier; the right half read by a noisier one
+
+
+def test_read_noise_map_adds_its_variance_where_it_says():
+    f = synth({"ReadMap": READ_MAP}, batch=16, size=64, sigma_g=1.0)
+    var = f.var(axis=0, ddof=1)  # (4, 64, 64) temporal variance, DN^2
+    left, right = var[:, :, :32].mean(axis=(1, 2)), var[:, :, 32:].mean(axis=(1, 2))
+    truth_left = 1.0 + np.array([0.0, 4.0, 0.0, 0.0])
+    truth_right = truth_left + 2.25
+    # each mean: 64 x 32 pixels x 15 degrees of freedom, relative sd of a variance sqrt(2 / 15) / sqrt(2048)
+    sd = math.sqrt(2 / 15) / math.sqrt(64 * 32)
+    assert np.all(np.abs(left / truth_left - 1) < 5 * sd), left
+    assert np.all(np.abs(right / truth_right - 1) < 5 * sd), right
+
+
+def test_read_noise_map_is_estimated_and_white_stacks_get_none():
+    meas = synth({"ReadMap": READ_MAP}, batch=6, size=64, sigma_g=1.0)
+    # the model as calibrated: one read noise, the frame's average variance
+    avg = math.sqrt(1.0 + 4.0 / 4 + 2.25 / 2)
+    base = [synth({}, batch=6, size=64, seed=s, sigma_g=avg) for s in range(1, 9)]
+    est = read_map.estimate(meas, base, K)
+    ch, cols, rows = np.square(est["channel_dn"][0]), np.square(est["col_block_dn"][0]), np.square(est["row_block_dn"][0])
+    # a channel mean pools 64 x 64 pixels x 5 degrees of freedom (relative sd ~ 0.01 of ~3 DN^2 plus the
+    # median's inefficiency), a column-block mean 4 x 64 x 8: bounds of 0.35 DN^2 are several sd
+    assert abs(ch[1] - 4.0) < 0.35 and np.all(ch[[0, 2, 3]] < 0.35), ch
+    assert np.all(np.abs(cols[4:] - 2.25) < 0.35) and np.all(cols[:4] < 0.35), cols
+    assert np.all(rows == 0.0), rows  # no row-block structure: the group is not significant
+    # white stacks: a group is kept where an F-test gives p < 1e-3: 30 groups keep 2 or more with p ~ 4e-4
+    white_base = [synth({}, batch=6, size=64, seed=s, sigma_g=1.0) for s in range(1, 9)]
+    white = [read_map.estimate(synth({}, batch=6, size=64, seed=s, sigma_g=1.0), white_base, K) for s in range(20, 30)]
+    kept = sum(any(v > 0 for v in w[key][0]) for w in white for key in ("channel_dn", "row_block_dn", "col_block_dn"))
+    assert kept <= 2, white
+    with pytest.raises(ValueError, match="bias stacks"):
+        read_map.estimate(meas, base, K, level_dn=100.0)

@@ -33,6 +33,9 @@ LOOP_EFFECTS = {
     "RowCh": {"k": [1.0, 3.0], "sigma_dn": [0.7, 1.3]},
     "Band": {"k": [1.0, 3.0], "freq_per_row": [[0.0713, 0.31], [0.45]], "amplitude_dn": [[1.2, 0.4], [0.9]]},
     "Xtalk": {"k": [1.0, 3.0], "lag_0_1_dn": [0.5, -0.8], "lag_1_-1_dn": [0.3, 0.0], "lag_2_0_dn": [0.6, 0.4]},
+    "ReadMap": {"k": [1.0, 3.0], "channel_dn": [[0.0, 2.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0]],
+                "row_block_dn": [[0.0] * 4 + [1.5] * 4, [0.3] * 8], "col_block_dn": [[0.0, 0.7] * 4, [0.0] * 7 + [2.0]],
+                "frame_h": 40, "frame_w": 64},  # larger than the test inputs' 24 rows: a window per sample
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]]},
     "ReadDist": {"k": [1.0, 3.0], "quantiles_dn": (np.linspace(-6, 6, 257)[None, None] ** 3 / 20
                                                   * np.array([1.0, 2.0])[:, None, None] * np.ones((1, 4, 1))).tolist()},

@@ -56,9 +56,11 @@ XTALK = {"Xtalk": {"k": [K], "lag_0_1_dn": [1.2], "lag_1_-1_dn": [-0.8]}}  # a s
 BAND = {"Band": {"k": [K], "freq_per_row": [[0.137]], "amplitude_dn": [[1.0]]}}  # interference during readout
 ROWFIX = {"RowFix": {"seed": 37, "k": [K], "fixed_dn": [1.2]}}  # row drivers' offsets
 ROWCH = {"RowCh": {"k": [K], "sigma_dn": [1.2]}}  # two ADC banks, a row offset each
+READMAP = {"ReadMap": {"k": [K], "channel_dn": [[0.0, 0.0, 2.0, 0.0]], "row_block_dn": [[0.0] * 8],
+                       "col_block_dn": [[0.0] * 4 + [1.5] * 4]}}  # B's own amplifier; the right half read by a noisier one
 CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "defect lines": LINES, "mixed": {**COL, **FPN, **HOT},
          "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "fixed rows": ROWFIX,
-         "row per channel": ROWCH}
+         "row per channel": ROWCH, "read-noise map": READMAP}
 
 
 def loop_succeeds(effects, seed):

@@ -62,6 +62,9 @@ _BAND = L.STREAM["band"]
 _RF, _ROW_PATTERN = L.COLUMN["rowfix_sigma"], L.STREAM["row_pattern"]
 _RC, _ROW_CHANNEL = L.COLUMN["rowch_sigma"], L.STREAM["row_channel"]
 _TONES = L.BAND_TONES
+_RMC0, _RMY0, _RMX0 = L.COLUMN["rmap_c0"], L.COLUMN["rmap_y0"], L.COLUMN["rmap_x0"]
+_RMOY, _RMOX, _RMH, _RMW = L.COLUMN["rmap_oy"], L.COLUMN["rmap_ox"], L.COLUMN["rmap_h"], L.COLUMN["rmap_w"]
+_READ_MAP, _NB = L.STREAM["read_map"], L.READ_MAP_BLOCKS
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([lag[0] for lag in L.XTALK_LAGS], dtype=np.int64)
 _XT_DX = np.array([lag[1] for lag in L.XTALK_LAGS], dtype=np.int64)
@@ -198,6 +201,12 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         glw = v[_GLW] if v[_GLW] > 0.0 else float(w)
         glox = v[_GLOX]
         glrec, glgh, glgw = int(v[_GLR]), int(v[_GLGH]), int(v[_GLGW])
+        rmw, rmox, rm_row = w, 0, 0.0
+        if stages & L.READ_MAP:  # the row block's and channel's part of the read-noise map; the column block's below
+            rmh = int(v[_RMH]) if v[_RMH] > 0.0 else h
+            rmw = int(v[_RMW]) if v[_RMW] > 0.0 else w
+            rmox = int(v[_RMOX])
+            rm_row = v[_RMC0 + c] ** 2 + v[_RMY0 + min((y + int(v[_RMOY])) * _NB // rmh, _NB - 1)] ** 2
         g0 = r * w
         p0 = ((sensor * 4 + c) * h + y) * w
         for x in range(w):
@@ -247,6 +256,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += v[_G] * symmetric(normal, draw(keys[_READ], g))
             if stages & L.XTALK:
                 s += crosstalk_at(normal, keys[_XTALK], v, b, 2 * y + row_set, 2 * x + col_set, 2 * h, 2 * w)
+            if stages & L.READ_MAP:
+                s += math.sqrt(rm_row + v[_RMX0 + min((x + rmox) * _NB // rmw, _NB - 1)] ** 2) * symmetric(normal, draw(keys[_READ_MAP], g))
             if stages & L.COL:
                 s += v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))

@@ -88,23 +88,31 @@ def check_seed(token: str, params: dict) -> None:
         raise ValueError(f"effect {token!r} needs an integer 'seed' >= 0 for its fixed pattern, got {seed!r}")
 
 
-def grid_columns(ctx, token: str, params: dict, prefix: str) -> dict:
-    """Kernel columns of a grid measured over a frame (``FPN`` shading, ``Glow``):
-    ``{prefix}_record`` (the record nearest each K, in the call's shared grids table),
-    ``{prefix}_gh``/``_gw`` (its size) and the window ``{prefix}_oy``/``_ox``/``_h``/``_w``:
-    an input smaller than the measured frame is a window of it at a whole-pixel offset drawn
-    per sample (``ctx.uniform``), so the pattern keeps its measured scale on training crops;
-    an input as large or larger (or a grid without ``frame_h``/``frame_w``) is the sensor (0)."""
-    first, gh, gw = ctx.grid_slot(token)
-    out = {f"{prefix}_record": (first + record_index(params, ctx.k)).to(torch.float64),
-           f"{prefix}_gh": torch.full_like(ctx.k, float(gh)), f"{prefix}_gw": torch.full_like(ctx.k, float(gw))}
+def window_columns(ctx, token: str, params: dict, names: tuple[str, str, str, str]) -> dict:
+    """Kernel columns ``names`` = (oy, ox, h, w) of the window an input is of the measured
+    frame: an input smaller than the frame (``frame_h``/``frame_w``) is a window of it at a
+    whole-pixel offset drawn per sample (``ctx.uniform``), so a measured pattern keeps its
+    scale and place on training crops; an input as large or larger (or a pattern without
+    ``frame_h``/``frame_w``) is the sensor (all 0)."""
     frame = frame_size(token, params)
     zero = torch.zeros_like(ctx.k)
-    for axis, (oy, size) in enumerate(((f"{prefix}_oy", f"{prefix}_h"), (f"{prefix}_ox", f"{prefix}_w"))):
+    out = {}
+    for axis, (oy, size) in enumerate(((names[0], names[2]), (names[1], names[3]))):
         if frame is None or ctx.shape is None or ctx.shape[axis] >= frame[axis]:
             out[oy], out[size] = zero, zero
         else:
             room = frame[axis] - ctx.shape[axis] + 1
             out[oy] = torch.floor(ctx.uniform(oy) * room).clamp(max=room - 1)
             out[size] = torch.full_like(ctx.k, float(frame[axis]))
+    return out
+
+
+def grid_columns(ctx, token: str, params: dict, prefix: str) -> dict:
+    """Kernel columns of a grid measured over a frame (``FPN`` shading, ``Glow``):
+    ``{prefix}_record`` (the record nearest each K, in the call's shared grids table),
+    ``{prefix}_gh``/``_gw`` (its size) and its window (``window_columns``)."""
+    first, gh, gw = ctx.grid_slot(token)
+    out = {f"{prefix}_record": (first + record_index(params, ctx.k)).to(torch.float64),
+           f"{prefix}_gh": torch.full_like(ctx.k, float(gh)), f"{prefix}_gw": torch.full_like(ctx.k, float(gw))}
+    out.update(window_columns(ctx, token, params, tuple(f"{prefix}_{n}" for n in ("oy", "ox", "h", "w"))))
     return out

@@ -32,6 +32,8 @@ XTALK = 1 << 21  # correlated read noise: pixels XTALK_LAGS apart share part of 
 BAND = 1 << 22  # periodic banding: tones along the sensor rows, a random phase in every frame
 ROW_FIX = 1 << 23  # fixed row pattern: one offset per sensor row, the same in every frame
 ROW_CHANNEL = 1 << 24  # row noise of each channel's own: one offset per packed row and frame
+READ_MAP = 1 << 25  # read-noise non-uniformity: extra white read noise per channel, row block and column block
+READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 
 COLUMNS = (
     "k", "ratio",
@@ -59,6 +61,9 @@ COLUMNS = (
     "band_f0", "band_f1", "band_f2", "band_a0", "band_a1", "band_a2",  # banding tones: cycles per sensor row, amplitude (DN)
     "rowfix_sigma",  # fixed row pattern: std of the sensor-row offsets (DN)
     "rowch_sigma",  # row noise of each channel's own (DN)
+    "rmap_c0", "rmap_c1", "rmap_c2", "rmap_c3",  # read-noise map: extra sigma per packed channel (DN)
+    *(f"rmap_y{i}" for i in range(READ_MAP_BLOCKS)), *(f"rmap_x{i}" for i in range(READ_MAP_BLOCKS)),  # ... per row block, per column block (DN)
+    "rmap_oy", "rmap_ox", "rmap_h", "rmap_w",  # its window in packed pixels (rmap_h 0: the input is the sensor)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -70,7 +75,7 @@ N_COLUMNS = len(COLUMNS)
 STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
-    "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel",
+    "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -158,7 +158,7 @@ def _estimate(token, stacks, diags, seed):
             # repaired, but for an effect that makes defect lines
             frames = stack.frames_dn if getattr(cand.module, "RAW_FRAMES", False) else repaired(stack.frames_dn)
             rec = cand.estimate(frames, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
-                                exposure_s=stack.exposure_s, seed=seed, series=stack.series)
+                                exposure_s=stack.exposure_s, seed=seed, series=stack.series, kind=stack.kind)
         except ValueError:
             continue  # this stack cannot show the effect (too few frames, not a flat)
         records.append(rec)
