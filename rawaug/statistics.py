@@ -307,6 +307,24 @@ HIGH_PASS = 7  # packed pixels: the local mean taken out before lag correlations
 CURVE_LAGS = tuple((dy, dx) for dy in range(3) for dx in range(-2, 3) if dy > 0 or dx > 0)
 
 
+def highpass_gain(h: int, w: int) -> float:
+    """Fraction of a white noise's variance that ``temporal_highpass`` keeps on h x w channels
+    (its row means, column means and local means taken out), to first order."""
+    return (1.0 - 1.0 / h) * (1.0 - 1.0 / w) * (1.0 - 1.0 / HIGH_PASS**2)
+
+
+def temporal_highpass(frames):
+    """The temporal residual of a stack (N >= 2, 4, h, w), DN: each frame minus the stack mean
+    (scaled by sqrt(N / (N - 1)), so its variances are the frames'), less each channel's row
+    and column means (row and column noise) and its local mean over HIGH_PASS x HIGH_PASS
+    packed pixels (smooth fields). White noise keeps ``highpass_gain(h, w)`` of its variance."""
+    n = frames.shape[0]
+    r = (frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1))
+    r = r - r.mean(axis=3, keepdims=True)
+    r = r - r.mean(axis=2, keepdims=True)
+    return r - ndimage.uniform_filter(r, size=(1, 1, HIGH_PASS, HIGH_PASS), mode="reflect")
+
+
 def temporal_mosaic(frames):
     """The temporal residual of a stack (N >= 2) as raw mosaics (N, 2h, 2w), DN: each frame
     minus the stack mean (scaled by sqrt(N / (N - 1)), so its covariances are the frames'),
@@ -314,10 +332,7 @@ def temporal_mosaic(frames):
     HIGH_PASS x HIGH_PASS packed pixels (smooth fields), the channels put back at their
     sensor positions (``rawaug.engine.layout.ROW_SET`` / ``COLUMN_SET``)."""
     n, _, h, w = frames.shape
-    r = (frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1))
-    r = r - r.mean(axis=3, keepdims=True)
-    r = r - r.mean(axis=2, keepdims=True)
-    r = r - ndimage.uniform_filter(r, size=(1, 1, HIGH_PASS, HIGH_PASS), mode="reflect")
+    r = temporal_highpass(frames)
     raw = np.empty((n, 2 * h, 2 * w))
     for c in range(4):
         raw[:, ROW_SET[c]::2, COLUMN_SET[c]::2] = r[:, c]
@@ -353,13 +368,15 @@ FLICKER = 25.0  # a pixel whose temporal variance exceeds this many times the st
 
 
 def temporal_variance_cells(frames):
-    """(4, B, B) mean over each cell of the per-pixel temporal variance (DN^2, ddof 1), the
-    cells being each channel cut into B = READ_MAP_BLOCKS row and column blocks. Pixels that
-    flicker (variance beyond FLICKER x the stack's median: telegraph noise) are left out; a mean,
-    not a median, so that the noise's shape (its kurtosis) does not weigh on the level."""
+    """(4, B, B) mean over each cell of the per-pixel variance of the high-passed temporal
+    residual (``temporal_highpass``; DN^2), the cells being each channel cut into
+    B = READ_MAP_BLOCKS row and column blocks: white temporal noise only, so that a per-frame
+    field of uneven amplitude (interference) does not count. Pixels that flicker (variance
+    beyond FLICKER x the stack's median: telegraph noise) are left out; a mean, not a median,
+    so that the noise's shape (its kurtosis) does not weigh on the level."""
     frames = np.asarray(frames, dtype=np.float64)
     _, _, h, w = frames.shape
-    var = frames.var(axis=0, ddof=1)
+    var = np.mean(temporal_highpass(frames) ** 2, axis=0)
     keep = var <= FLICKER * max(float(np.median(var)), 1e-12)
     rows = np.eye(READ_MAP_BLOCKS)[block_index(h)]  # (h, B) one-hot: the row block of each row
     cols = np.eye(READ_MAP_BLOCKS)[block_index(w)]

@@ -16,9 +16,9 @@ Profile entry (per-K records; extra sigma in DN, frame size in packed pixels)::
               col_block_dn: [[8 values], ...], frame_h: H, frame_w: W}
 
 Detected by ``read_noise_spread`` (the channel, row-block and column-block main effects of the
-log temporal variance per cell, flickering pixels left out). Estimated by ``estimate`` from
-bias stacks: per cell, the measured over the model's temporal variance, times the model's
-variance, less it; the channel, row-block and column-block main effects of that excess, each
+log white temporal variance per cell: per-frame smooth fields and flickering pixels left
+out). Estimated by ``estimate`` from bias stacks: per cell, the measured over the model's
+white temporal variance, times the model's, less it; the channel, row-block and column-block main effects of that excess, each
 group shifted to start at 0 and kept only where an F-test puts its pattern beyond the
 model's at p < 1e-3. Judged with the read noise re-fitted (calibration counted the extra
 noise in the frame's average).
@@ -29,7 +29,7 @@ import numpy as np
 from scipy import stats
 
 from ..engine import layout as L
-from ..statistics import map_effects, temporal_variance_cells
+from ..statistics import highpass_gain, map_effects, temporal_variance_cells
 from .base import READ, NoiseEffect, register
 from .k_records import frame_size, record_index, validate_records, window_columns
 
@@ -97,8 +97,9 @@ def estimate(frames, synthesized, k: float, level_dn=None, kind: str = "bias", *
         raise ValueError("ReadMap is measured on bias stacks of >= 2 frames, against >= 3 syntheses")
     measured = temporal_variance_cells(frames)
     synth = np.array([temporal_variance_cells(s) for s in synthesized])
-    model_var = np.mean([np.asarray(s, dtype=np.float64).var(axis=0, ddof=1).mean() for s in synthesized])
-    excess = model_var * (measured / np.maximum(synth.mean(axis=0), 1e-12) - 1.0)  # DN^2 per cell
+    model = synth.mean(axis=0)
+    # per cell, the white variance the model lacks (the high pass kept highpass_gain of it), DN^2
+    excess = model.mean() * (measured / np.maximum(model, 1e-12) - 1.0) / highpass_gain(*frames.shape[2:])
     out = {"k": [float(k)], "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3])}
     for part, keep, (key, _, _) in zip(map_effects(excess), _significant(measured, synth), GROUPS):
         var = part - part.min() if keep else np.zeros_like(part)
