@@ -339,16 +339,58 @@ def temporal_mosaic(frames):
     return raw
 
 
-def lag_covariances(frames, lags=XTALK_LAGS):
-    """(variance, covariance at each raw lag (dy, dx)) of ``temporal_mosaic``, DN^2."""
-    raw = temporal_mosaic(np.asarray(frames, dtype=np.float64))
+TILE_LAGS = XTALK_LAGS[:4]  # raw lags at which two pixels may lie in one 2x2 (Bayer) tile
+
+
+def lag_pairs(raw, dy, dx):
+    """(products of the raw-mosaic pairs (dy, dx) apart, (N, hh - dy, ww - |dx|); mask of the
+    pairs whose two pixels lie in one 2x2 tile)."""
     _, hh, ww = raw.shape
+    a = raw[:, : hh - dy, max(0, -dx) : ww - max(0, dx)]
+    b = raw[:, dy:, max(0, dx) : ww - max(0, -dx)]
+    y = np.arange(hh - dy)[:, None]
+    x = np.arange(max(0, -dx), ww - max(0, dx))[None, :]
+    return a * b, (y // 2 == (y + dy) // 2) & (x // 2 == (x + dx) // 2)
+
+
+def lag_covariances(frames, lags=XTALK_LAGS, across_tiles=False):
+    """(variance, covariance at each raw lag (dy, dx)) of ``temporal_mosaic``, DN^2; with
+    ``across_tiles``, of the pairs whose pixels lie in different 2x2 tiles only (what a
+    shared-pixel readout does not touch)."""
+    raw = temporal_mosaic(np.asarray(frames, dtype=np.float64))
     out = []
     for dy, dx in lags:
-        a = raw[:, : hh - dy, max(0, -dx) : ww - max(0, dx)]
-        b = raw[:, dy:, max(0, dx) : ww - max(0, -dx)]
-        out.append(float(np.mean(a * b)))
+        prod, within = lag_pairs(raw, dy, dx)
+        out.append(float(np.mean(prod[:, ~within] if across_tiles else prod)))
     return float(np.mean(raw * raw)), np.array(out)
+
+
+def tile_covariance_excess(frames):
+    """(mean over TILE_LAGS of the covariance of raw neighbours in one 2x2 tile less that of
+    neighbours in adjacent tiles, the variance), DN^2, of the temporal residual (each frame less
+    the stack mean, values beyond 5 robust sigma clipped: flickering pixels). Row, column and
+    smooth noise, crosstalk and black-level errors touch both kinds of pair alike; a
+    shared-pixel readout only the first."""
+    frames = np.asarray(frames, dtype=np.float64)
+    n, _, h, w = frames.shape
+    r = (frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1))
+    _, scale = _robust_scale(r.reshape(-1), axis=0)
+    r = np.clip(r, -5.0 * scale, 5.0 * scale)
+    raw = np.empty((n, 2 * h, 2 * w))
+    for c in range(4):
+        raw[:, ROW_SET[c]::2, COLUMN_SET[c]::2] = r[:, c]
+    diffs = []
+    for dy, dx in TILE_LAGS:
+        prod, within = lag_pairs(raw, dy, dx)
+        diffs.append(prod[:, within].mean() - prod[:, ~within].mean())
+    return float(np.mean(diffs)), float(np.mean(raw * raw))
+
+
+def tile_corr(frames, level_dn=None):
+    """``tile_covariance_excess`` over the variance: about 0 (spread ~ 1 / sqrt(pixels)) but
+    for a shared-pixel readout, the fraction of the noise a tile's pixels share."""
+    d, var = tile_covariance_excess(frames)
+    return d / max(var, 1e-12)
 
 
 def neighbour_corr(frames, level_dn=None):
@@ -527,6 +569,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("fixed_row_excess", fixed_row_excess, min_frames=2),
         Statistic("neighbour_corr", neighbour_corr, min_frames=2, kind="bias"),
         Statistic("read_noise_spread", read_noise_spread, min_frames=2, kind="bias"),
+        Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),

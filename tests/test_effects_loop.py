@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, read_map, row_channel, row_pattern, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, read_map, row_channel, row_pattern, shared_pixel, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import sensor_row_means, temporal_mosaic
@@ -409,6 +409,7 @@ def test_effects_replay_bit_exactly():
     ("RowFix", {"seed": 1, "k": [1.0], "fixed_dn": [-1.0]}, "fixed_dn must be >= 0"),
     ("RowFix", {"k": [1.0], "fixed_dn": [1.0]}, "seed"),
     ("RowCh", {"k": [1.0], "sigma_dn": [-0.5]}, "sigma_dn must be >= 0"),
+    ("Shared", {"k": [1.0], "sigma_dn": [-0.1]}, "sigma_dn must be >= 0"),
     ("ReadMap", {"k": [1.0], "channel_dn": [[0.0] * 3], "row_block_dn": [[0.0] * 8], "col_block_dn": [[0.0] * 8]},
      "channel_dn record 0 must list 4 values"),
     ("ReadMap", {"k": [1.0], "channel_dn": [[0.0] * 4], "row_block_dn": [[-1.0] * 8], "col_block_dn": [[0.0] * 8]},
@@ -458,3 +459,24 @@ def test_read_noise_map_is_estimated_and_white_stacks_get_none():
     assert kept <= 2, white
     with pytest.raises(ValueError, match="bias stacks"):
         read_map.estimate(meas, base, K, level_dn=100.0)
+
+
+def test_shared_pixel_noise_is_shared_by_a_tile_and_estimated():
+    f = synth({"Shared": {"k": [K], "sigma_dn": [1.2]}}, batch=8, size=64, sigma_g=1.0)
+    r = f - f.mean(axis=0, keepdims=True)
+    n = f.shape[0] * 64 * 64
+    # the four channels at one packed position share 1.44 of 2.44 DN^2: correlation 0.59 (sd ~ 1 / sqrt(n))
+    corr = np.corrcoef(r[:, 0].ravel(), r[:, 2].ravel())[0, 1]
+    assert abs(corr - 1.44 / 2.44) < 5 / math.sqrt(n), corr
+    # neighbouring tiles do not share it: R at x and G1 at x - 1 (the left tile)
+    assert abs(np.corrcoef(r[:, 0, :, 1:].ravel(), r[:, 1, :, :-1].ravel())[0, 1]) < 5 / math.sqrt(n)
+    base = [synth({}, batch=8, size=64, seed=s, sigma_g=math.sqrt(2.44)) for s in range(1, 6)]
+    est = shared_pixel.estimate(f, base, K)
+    assert abs(est["sigma_dn"][0] ** 2 - 1.44) < 5 * 2.44 / math.sqrt(n), est  # a covariance of n pairs x 4 lags
+    # coupling between all neighbours alike (Xtalk) is not a shared readout, and white noise is neither
+    assert shared_pixel.estimate(synth({"Xtalk": XTALK}, batch=8, size=64, sigma_g=1.0), base, K)["sigma_dn"][0] == 0.0
+    assert shared_pixel.estimate(synth({}, batch=8, size=64, seed=9, sigma_g=1.0), base, K)["sigma_dn"][0] == 0.0
+    # Xtalk reads the pairs in different tiles: a shared readout leaves it (nearly) nothing; read
+    # from all pairs, lags (0, 1), (1, 0), (1, 1), (1, -1) would get 0.72 DN^2 (|a| 0.85)
+    xt = crosstalk.estimate(f, base, K)
+    assert all(abs(v[0]) < 0.3 for key, v in xt.items() if key != "k"), xt

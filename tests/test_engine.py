@@ -36,6 +36,7 @@ LOOP_EFFECTS = {
     "ReadMap": {"k": [1.0, 3.0], "channel_dn": [[0.0, 2.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0]],
                 "row_block_dn": [[0.0] * 4 + [1.5] * 4, [0.3] * 8], "col_block_dn": [[0.0, 0.7] * 4, [0.0] * 7 + [2.0]],
                 "frame_h": 40, "frame_w": 64},  # larger than the test inputs' 24 rows: a window per sample
+    "Shared": {"k": [1.0, 3.0], "sigma_dn": [0.9, 1.6]},
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]]},
     "ReadDist": {"k": [1.0, 3.0], "quantiles_dn": (np.linspace(-6, 6, 257)[None, None] ** 3 / 20
                                                   * np.array([1.0, 2.0])[:, None, None] * np.ones((1, 4, 1))).tolist()},

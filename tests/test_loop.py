@@ -58,9 +58,10 @@ ROWFIX = {"RowFix": {"seed": 37, "k": [K], "fixed_dn": [1.2]}}  # row drivers' o
 ROWCH = {"RowCh": {"k": [K], "sigma_dn": [1.2]}}  # two ADC banks, a row offset each
 READMAP = {"ReadMap": {"k": [K], "channel_dn": [[0.0, 0.0, 2.0, 0.0]], "row_block_dn": [[0.0] * 8],
                        "col_block_dn": [[0.0] * 4 + [1.5] * 4]}}  # B's own amplifier; the right half read by a noisier one
+SHARED = {"Shared": {"k": [K], "sigma_dn": [1.2]}}  # a 2x2 shared-pixel readout
 CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "defect lines": LINES, "mixed": {**COL, **FPN, **HOT},
          "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "fixed rows": ROWFIX,
-         "row per channel": ROWCH, "read-noise map": READMAP}
+         "row per channel": ROWCH, "read-noise map": READMAP, "shared pixels": SHARED}
 
 
 def loop_succeeds(effects, seed):

@@ -65,6 +65,7 @@ _TONES = L.BAND_TONES
 _RMC0, _RMY0, _RMX0 = L.COLUMN["rmap_c0"], L.COLUMN["rmap_y0"], L.COLUMN["rmap_x0"]
 _RMOY, _RMOX, _RMH, _RMW = L.COLUMN["rmap_oy"], L.COLUMN["rmap_ox"], L.COLUMN["rmap_h"], L.COLUMN["rmap_w"]
 _READ_MAP, _NB = L.STREAM["read_map"], L.READ_MAP_BLOCKS
+_SH, _SHARED = L.COLUMN["shared_sigma"], L.STREAM["shared"]
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([lag[0] for lag in L.XTALK_LAGS], dtype=np.int64)
 _XT_DX = np.array([lag[1] for lag in L.XTALK_LAGS], dtype=np.int64)
@@ -256,6 +257,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += v[_G] * symmetric(normal, draw(keys[_READ], g))
             if stages & L.XTALK:
                 s += crosstalk_at(normal, keys[_XTALK], v, b, 2 * y + row_set, 2 * x + col_set, 2 * h, 2 * w)
+            if stages & L.SHARED:  # one value per frame and packed position: the tile's four pixels
+                s += v[_SH] * symmetric(normal, draw(keys[_SHARED], (b * h + y) * w + x))
             if stages & L.READ_MAP:
                 s += math.sqrt(rm_row + v[_RMX0 + min((x + rmox) * _NB // rmw, _NB - 1)] ** 2) * symmetric(normal, draw(keys[_READ_MAP], g))
             if stages & L.COL:

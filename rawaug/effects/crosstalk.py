@@ -18,8 +18,10 @@ Profile entry (per-K records, signed amplitudes in DN, one key per lag)::
 
 Detected by ``neighbour_corr`` (the correlation of the temporal residual at those lags,
 row/column means and smooth fields taken out). Estimated by ``estimate``: the covariance at
-each lag over the current model's, from bias and dark stacks; lags whose excess lies within
-3 sd of the model's spread are left at 0.
+each lag over the current model's, from bias and dark stacks, of pixel pairs in different
+2x2 tiles (coupling is the same everywhere; what pairs within one tile share beyond it is a
+shared-pixel readout, ``Shared``); lags whose excess lies within 3 sd of the model's spread
+are left at 0.
 """
 from __future__ import annotations
 
@@ -63,8 +65,8 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     frames = np.asarray(frames, dtype=np.float64)
     if level_dn is not None or frames.shape[0] < 2:
         raise ValueError("Xtalk is measured on bias and dark stacks of >= 2 frames")
-    measured = lag_covariances(frames)[1]
-    model = np.array([lag_covariances(np.asarray(s, dtype=np.float64))[1] for s in synthesized])
+    measured = lag_covariances(frames, across_tiles=True)[1]
+    model = np.array([lag_covariances(np.asarray(s, dtype=np.float64), across_tiles=True)[1] for s in synthesized])
     excess = measured - model.mean(axis=0)
     spread = model.std(axis=0, ddof=1) * np.sqrt(1.0 + 1.0 / len(model)) if len(model) > 1 else np.zeros_like(excess)
     excess = np.where(np.abs(excess) > SIGNIFICANT * spread, excess, 0.0)

@@ -33,6 +33,7 @@ BAND = 1 << 22  # periodic banding: tones along the sensor rows, a random phase 
 ROW_FIX = 1 << 23  # fixed row pattern: one offset per sensor row, the same in every frame
 ROW_CHANNEL = 1 << 24  # row noise of each channel's own: one offset per packed row and frame
 READ_MAP = 1 << 25  # read-noise non-uniformity: extra white read noise per channel, row block and column block
+SHARED = 1 << 26  # shared-pixel readout: read noise shared by the four pixels of a Bayer tile
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 
 COLUMNS = (
@@ -64,6 +65,7 @@ COLUMNS = (
     "rmap_c0", "rmap_c1", "rmap_c2", "rmap_c3",  # read-noise map: extra sigma per packed channel (DN)
     *(f"rmap_y{i}" for i in range(READ_MAP_BLOCKS)), *(f"rmap_x{i}" for i in range(READ_MAP_BLOCKS)),  # ... per row block, per column block (DN)
     "rmap_oy", "rmap_ox", "rmap_h", "rmap_w",  # its window in packed pixels (rmap_h 0: the input is the sensor)
+    "shared_sigma",  # shared-pixel readout: the noise a Bayer tile's four pixels share (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -75,7 +77,7 @@ N_COLUMNS = len(COLUMNS)
 STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
-    "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map",
+    "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map", "shared",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

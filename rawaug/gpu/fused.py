@@ -42,6 +42,7 @@ TONES = tl.constexpr(L.BAND_TONES)
 C_RMC0, C_RMY0, C_RMX0 = _column("rmap_c0"), _column("rmap_y0"), _column("rmap_x0")
 C_RMOY, C_RMOX, C_RMH, C_RMW = _column("rmap_oy"), _column("rmap_ox"), _column("rmap_h"), _column("rmap_w")
 NB = tl.constexpr(L.READ_MAP_BLOCKS)
+C_SH = _column("shared_sigma")
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_N = tl.constexpr(len(L.XTALK_LAGS))
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5 = (
@@ -56,7 +57,7 @@ K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
 K_DSNU, K_LOWFREQ = S["dsnu_pattern"], S["lowfreq"]
 K_LINES_ROW, K_LINES_COL = S["lines_row"], S["lines_col"]
 K_XTALK, K_BAND, K_ROW_PATTERN, K_ROW_CHANNEL = S["xtalk"], S["band"], S["row_pattern"], S["row_channel"]
-K_READ_MAP = S["read_map"]
+K_READ_MAP, K_SHARED = S["read_map"], S["shared"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -204,6 +205,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += _xtalk_lag(kx, v, 0, XT_DY0, XT_DX0, b, ry, rx, RH, RW) + _xtalk_lag(kx, v, 1, XT_DY1, XT_DX1, b, ry, rx, RH, RW)
         s += _xtalk_lag(kx, v, 2, XT_DY2, XT_DX2, b, ry, rx, RH, RW) + _xtalk_lag(kx, v, 3, XT_DY3, XT_DX3, b, ry, rx, RH, RW)
         s += _xtalk_lag(kx, v, 4, XT_DY4, XT_DX4, b, ry, rx, RH, RW) + _xtalk_lag(kx, v, 5, XT_DY5, XT_DX5, b, ry, rx, RH, RW)
+    if FLAGS & 67108864:  # shared-pixel readout: one value per frame and packed position (the tile's four pixels)
+        s += _col(v, C_SH) * _normal(draw(_key(keys_ptr, K_SHARED), ((b.to(tl.int64) * H + y) * W + x).to(tl.uint64)))
     if FLAGS & 33554432:  # read-noise map: extra white read noise of the pixel's channel, row block and column block
         rmh = _col(v, C_RMH).to(tl.int64)
         rmw = _col(v, C_RMW).to(tl.int64)
