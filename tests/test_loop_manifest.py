@@ -77,6 +77,20 @@ def adc_banks(dn, rng, **_):
     return dn + rng.normal(0.0, 1.5, (dn.shape[0], dn.shape[1], 1))
 
 
+def split_amplifiers(dn, rng, **_):
+    """Read noise of its own per readout half and channel (made outside rawaug): the right
+    half of the columns 2.0 DN more, the B channel 2.0 DN more."""
+    out = dn.copy()
+    out[:, :, dn.shape[2] // 2:] += rng.normal(0.0, 2.0, out[:, :, dn.shape[2] // 2:].shape)
+    out[2] += rng.normal(0.0, 2.0, dn.shape[1:])
+    return out
+
+
+def shared_readout(dn, rng, **_):
+    """A 2x2 shared-pixel readout (made outside rawaug): a Bayer tile's four pixels share 1.5 DN."""
+    return dn + rng.normal(0.0, 1.5, dn.shape[1:])[None]
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -90,6 +104,8 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "banding": (None, None, interference_tone, ["Band"]),
          "fixed rows": (None, None, row_drivers, ["RowFix"]),
          "row per channel": (None, None, adc_banks, ["RowCh"]),
+         "split amplifiers": (None, None, split_amplifiers, ["ReadMap"]),
+         "shared readout": (None, None, shared_readout, ["Shared"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
@@ -106,7 +122,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
-SLOW_CASES = {"crosstalk", "banding", "fixed rows", "row per channel"}
+SLOW_CASES = {"crosstalk", "banding", "fixed rows", "row per channel", "split amplifiers", "shared readout"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])
