@@ -427,6 +427,28 @@ def temporal_variance_cells(frames):
     return total / np.maximum(count, 1.0)
 
 
+FLICKER_P = 1e-6  # a white pixel's chance of being counted as flickering
+
+
+def flicker_threshold(n: int) -> float:
+    """Temporal variance (ddof 1) over the stack's median that a pixel of white noise exceeds
+    with probability FLICKER_P in a stack of ``n`` frames (chi-square of n - 1 degrees)."""
+    return float(sstats.chi2.isf(FLICKER_P, n - 1) / sstats.chi2.median(n - 1))
+
+
+def flickering(frames):
+    """(4, h, w) mask of the pixels that flicker: temporal variance (ddof 1) beyond
+    ``flicker_threshold`` x the stack's median (random telegraph pixels)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    var = frames.var(axis=0, ddof=1)
+    return var > flicker_threshold(frames.shape[0]) * max(float(np.median(var)), 1e-12)
+
+
+def flicker_fraction(frames, level_dn=None):
+    """Fraction of the pixels that flicker (``flickering``)."""
+    return float(flickering(frames).mean())
+
+
 def map_effects(cells):
     """(channel, row-block, column-block) main effects of a (4, B, B) array: its means over
     the other two axes less the grand mean."""
@@ -570,6 +592,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("neighbour_corr", neighbour_corr, min_frames=2, kind="bias"),
         Statistic("read_noise_spread", read_noise_spread, min_frames=2, kind="bias"),
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
+        Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),

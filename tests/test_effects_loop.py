@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, read_map, row_channel, row_pattern, shared_pixel, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import sensor_row_means, temporal_mosaic
@@ -410,6 +410,9 @@ def test_effects_replay_bit_exactly():
     ("RowFix", {"k": [1.0], "fixed_dn": [1.0]}, "seed"),
     ("RowCh", {"k": [1.0], "sigma_dn": [-0.5]}, "sigma_dn must be >= 0"),
     ("Shared", {"k": [1.0], "sigma_dn": [-0.1]}, "sigma_dn must be >= 0"),
+    ("RTS", {"seed": 1, "density": 0.01, "high": 1.0, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]},
+     r"high \(share of frames in the high state\) must be in \(0, 1\), got 1.0"),
+    ("RTS", {"seed": 1, "density": 0.5, "high": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]}, "density"),
     ("ReadMap", {"k": [1.0], "channel_dn": [[0.0] * 3], "row_block_dn": [[0.0] * 8], "col_block_dn": [[0.0] * 8]},
      "channel_dn record 0 must list 4 values"),
     ("ReadMap", {"k": [1.0], "channel_dn": [[0.0] * 4], "row_block_dn": [[-1.0] * 8], "col_block_dn": [[0.0] * 8]},
@@ -480,3 +483,29 @@ def test_shared_pixel_noise_is_shared_by_a_tile_and_estimated():
     # from all pairs, lags (0, 1), (1, 0), (1, 1), (1, -1) would get 0.72 DN^2 (|a| 0.85)
     xt = crosstalk.estimate(f, base, K)
     assert all(abs(v[0]) < 0.3 for key, v in xt.items() if key != "k"), xt
+
+
+RTS = {"seed": 41, "density": 0.02, "high": 0.4, "log_std": 0.3, "k": [K], "median_dn": [20.0]}
+
+
+def test_telegraph_pixels_jump_between_two_levels_and_are_estimated():
+    f = synth({"RTS": RTS}, batch=12, size=64, sigma_g=1.0)
+    where = (f.max(axis=0) - f.min(axis=0)) > 10.0  # a step of ~20 DN against 1 DN of read noise
+    n = where.size
+    # pixels that flicker: the density, less those high or low in all 12 frames (0.4^12 + 0.6^12 ~ 0.2 %)
+    assert abs(where.mean() - 0.02) < 5 * math.sqrt(0.02 / n), where.mean()
+    # the same pixels in every call (a fixed pattern), each in the high state in ~40 % of the frames
+    g = synth({"RTS": RTS}, batch=12, size=64, sigma_g=1.0, seed=5)
+    again = (g.max(axis=0) - g.min(axis=0)) > 10.0  # a pixel may sit in one state in all 12 frames, or a small step near 10 DN
+    assert (where & again).sum() / (where | again).sum() > 0.95
+    high = (f[:, where] - np.median(f, axis=0)[where] > 10.0) | (f[:, where] - f[:, where].min(axis=0) > 10.0)
+    assert abs(high.mean() - 0.4) < 5 * math.sqrt(0.24 / high.size), high.mean()
+    base = [synth({}, batch=12, size=64, seed=s, sigma_g=1.0) for s in range(1, 5)]
+    est = telegraph.estimate(f, base, K)
+    # ~330 pixels: density within ~3 sd (Poisson), median step within a few % (log sd 0.3 / sqrt(330))
+    assert abs(est["density"] - 0.02) < 3 * math.sqrt(0.02 / n), est
+    assert abs(est["median_dn"][0] / 20.0 - 1) < 0.05 and abs(est["log_std"] - 0.3) < 0.05, est
+    assert abs(est["high"] - 0.4) < 0.05, est
+    assert telegraph.estimate(base[0], base[1:], K)["density"] == 0.0  # white noise does not flicker
+    with pytest.raises(ValueError, match="bias stacks"):
+        telegraph.estimate(f, base, K, kind="dark")

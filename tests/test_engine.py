@@ -37,6 +37,7 @@ LOOP_EFFECTS = {
                 "row_block_dn": [[0.0] * 4 + [1.5] * 4, [0.3] * 8], "col_block_dn": [[0.0, 0.7] * 4, [0.0] * 7 + [2.0]],
                 "frame_h": 40, "frame_w": 64},  # larger than the test inputs' 24 rows: a window per sample
     "Shared": {"k": [1.0, 3.0], "sigma_dn": [0.9, 1.6]},
+    "RTS": {"seed": 43, "density": 0.05, "high": 0.3, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [15.0, 30.0]},
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]]},
     "ReadDist": {"k": [1.0, 3.0], "quantiles_dn": (np.linspace(-6, 6, 257)[None, None] ** 3 / 20
                                                   * np.array([1.0, 2.0])[:, None, None] * np.ones((1, 4, 1))).tolist()},

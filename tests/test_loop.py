@@ -59,9 +59,11 @@ ROWCH = {"RowCh": {"k": [K], "sigma_dn": [1.2]}}  # two ADC banks, a row offset 
 READMAP = {"ReadMap": {"k": [K], "channel_dn": [[0.0, 0.0, 2.0, 0.0]], "row_block_dn": [[0.0] * 8],
                        "col_block_dn": [[0.0] * 4 + [1.5] * 4]}}  # B's own amplifier; the right half read by a noisier one
 SHARED = {"Shared": {"k": [K], "sigma_dn": [1.2]}}  # a 2x2 shared-pixel readout
+RTS = {"RTS": {"seed": 41, "density": 0.01, "high": 0.5, "log_std": 0.3, "k": [K], "median_dn": [20.0]}}  # telegraph pixels
 CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "defect lines": LINES, "mixed": {**COL, **FPN, **HOT},
          "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "fixed rows": ROWFIX,
-         "row per channel": ROWCH, "read-noise map": READMAP, "shared pixels": SHARED}
+         "row per channel": ROWCH, "read-noise map": READMAP, "shared pixels": SHARED,
+         "telegraph": RTS}
 
 
 def loop_succeeds(effects, seed):

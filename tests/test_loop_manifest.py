@@ -91,6 +91,13 @@ def shared_readout(dn, rng, **_):
     return dn + rng.normal(0.0, 1.5, dn.shape[1:])[None]
 
 
+def flicker(dn, rng, **_):
+    """Random telegraph pixels (made outside rawaug): 1 % of the pixels (fixed) jump by +20 DN in
+    about half the frames."""
+    where = np.random.default_rng(99).random(dn.shape) < 0.01
+    return dn + 20.0 * (where & (rng.random(dn.shape) < 0.5))
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -106,6 +113,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "row per channel": (None, None, adc_banks, ["RowCh"]),
          "split amplifiers": (None, None, split_amplifiers, ["ReadMap"]),
          "shared readout": (None, None, shared_readout, ["Shared"]),
+         "telegraph": (None, None, flicker, ["RTS"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
@@ -122,7 +130,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
-SLOW_CASES = {"crosstalk", "banding", "fixed rows", "row per channel", "split amplifiers", "shared readout"}
+SLOW_CASES = {"crosstalk", "banding", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

@@ -66,6 +66,8 @@ _RMC0, _RMY0, _RMX0 = L.COLUMN["rmap_c0"], L.COLUMN["rmap_y0"], L.COLUMN["rmap_x
 _RMOY, _RMOX, _RMH, _RMW = L.COLUMN["rmap_oy"], L.COLUMN["rmap_ox"], L.COLUMN["rmap_h"], L.COLUMN["rmap_w"]
 _READ_MAP, _NB = L.STREAM["read_map"], L.READ_MAP_BLOCKS
 _SH, _SHARED = L.COLUMN["shared_sigma"], L.STREAM["shared"]
+_RTD, _RTM, _RTL, _RTH = L.COLUMN["rts_density"], L.COLUMN["rts_median"], L.COLUMN["rts_log_std"], L.COLUMN["rts_high"]
+_RTS_WHERE, _RTS_SIZE, _RTS_STATE = L.STREAM["rts_where"], L.STREAM["rts_size"], L.STREAM["rts_state"]
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([lag[0] for lag in L.XTALK_LAGS], dtype=np.int64)
 _XT_DX = np.array([lag[1] for lag in L.XTALK_LAGS], dtype=np.int64)
@@ -249,6 +251,9 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.HOT:
                 if unit(draw(keys[_HOT_WHERE], p)) < v[_HD]:
                     s += v[_HM] * math.exp(v[_HL] * symmetric(normal, draw(keys[_HOT_SIZE], p)))
+            if stages & L.RTS:  # a telegraph pixel's step, in the frames where it is high
+                if unit(draw(keys[_RTS_WHERE], p)) < v[_RTD] and unit(draw(keys[_RTS_STATE], g)) < v[_RTH]:
+                    s += v[_RTM] * math.exp(v[_RTL] * symmetric(normal, draw(keys[_RTS_SIZE], p)))
             if stages & L.READ_TABLE:  # measured quantiles on a grid of normal scores, linear between
                 s += v[_RQ_SCALE] * table_at(read_lut, int(v[_RQ_REC]) * 4 + c, symmetric(normal, draw(keys[_READ], g)))
             elif stages & L.READ_TUKEY:

@@ -34,6 +34,7 @@ ROW_FIX = 1 << 23  # fixed row pattern: one offset per sensor row, the same in e
 ROW_CHANNEL = 1 << 24  # row noise of each channel's own: one offset per packed row and frame
 READ_MAP = 1 << 25  # read-noise non-uniformity: extra white read noise per channel, row block and column block
 SHARED = 1 << 26  # shared-pixel readout: read noise shared by the four pixels of a Bayer tile
+RTS = 1 << 27  # random telegraph noise: sparse pixels with a step, in the high state in some frames
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 
 COLUMNS = (
@@ -66,6 +67,7 @@ COLUMNS = (
     *(f"rmap_y{i}" for i in range(READ_MAP_BLOCKS)), *(f"rmap_x{i}" for i in range(READ_MAP_BLOCKS)),  # ... per row block, per column block (DN)
     "rmap_oy", "rmap_ox", "rmap_h", "rmap_w",  # its window in packed pixels (rmap_h 0: the input is the sensor)
     "shared_sigma",  # shared-pixel readout: the noise a Bayer tile's four pixels share (DN)
+    "rts_density", "rts_median", "rts_log_std", "rts_high",  # telegraph pixels: share, step (DN), share of frames high
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -78,6 +80,7 @@ STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
     "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map", "shared",
+    "rts_where", "rts_size", "rts_state",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -43,6 +43,7 @@ C_RMC0, C_RMY0, C_RMX0 = _column("rmap_c0"), _column("rmap_y0"), _column("rmap_x
 C_RMOY, C_RMOX, C_RMH, C_RMW = _column("rmap_oy"), _column("rmap_ox"), _column("rmap_h"), _column("rmap_w")
 NB = tl.constexpr(L.READ_MAP_BLOCKS)
 C_SH = _column("shared_sigma")
+C_RTD, C_RTM, C_RTL, C_RTH = _column("rts_density"), _column("rts_median"), _column("rts_log_std"), _column("rts_high")
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_N = tl.constexpr(len(L.XTALK_LAGS))
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5 = (
@@ -58,6 +59,7 @@ K_DSNU, K_LOWFREQ = S["dsnu_pattern"], S["lowfreq"]
 K_LINES_ROW, K_LINES_COL = S["lines_row"], S["lines_col"]
 K_XTALK, K_BAND, K_ROW_PATTERN, K_ROW_CHANNEL = S["xtalk"], S["band"], S["row_pattern"], S["row_channel"]
 K_READ_MAP, K_SHARED = S["read_map"], S["shared"]
+K_RTS_WHERE, K_RTS_SIZE, K_RTS_STATE = S["rts_where"], S["rts_size"], S["rts_state"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -184,6 +186,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         hot = unit(draw(_key(keys_ptr, K_HOT_WHERE), p)) < _col(v, C_HD)
         size = _col(v, C_HM) * tl.exp(_col(v, C_HL) * _normal(draw(_key(keys_ptr, K_HOT_SIZE), p)))
         s += tl.where(hot, size, 0.0)
+    if FLAGS & 134217728:  # telegraph pixels: the step, in the frames where the pixel is high
+        flips = (unit(draw(_key(keys_ptr, K_RTS_WHERE), p)) < _col(v, C_RTD)) & (unit(draw(_key(keys_ptr, K_RTS_STATE), g)) < _col(v, C_RTH))
+        step = _col(v, C_RTM) * tl.exp(_col(v, C_RTL) * _normal(draw(_key(keys_ptr, K_RTS_SIZE), p)))
+        s += tl.where(flips, step, 0.0)
     if FLAGS & 131072:  # measured read-noise quantiles on a grid of normal scores, linear between
         n1 = (READ_N - 1).to(tl.float64)
         t = tl.minimum(tl.maximum((_normal(draw(_key(keys_ptr, K_READ), g)) + Z_MAX) * (n1 / (2.0 * Z_MAX)), 0.0), n1)

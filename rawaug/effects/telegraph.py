@@ -1,0 +1,151 @@
+"""Random telegraph noise (RTS): a few pixels jump between two levels from frame to frame.
+
+Physics: a trap in the gate oxide of a pixel's source follower captures and releases an
+electron at random; while it holds one the pixel reads a fixed step higher (random
+telegraph signal). It touches a small, fixed set of pixels, each with its own step, and in
+any frame a pixel is in either state. ``Hot`` pixels have a fixed offset in every frame; the
+ELD read noise has no such pixels.
+
+Synthesis: positions are the pixels where a seeded U(0, 1) pattern falls below ``density``;
+each has a log-normal step ``median_dn * exp(log_std * z)`` (seeded standard-normal ``z``),
+added in a frame where that frame's U(0, 1) for the pixel falls below ``high`` (the share of
+frames in the high state).
+
+Profile entry::
+
+    RTS: {seed: 41, density: 0.01, high: 0.5, log_std: 0.3, k: [K, ...], median_dn: [...]}
+
+Detected by ``flicker_fraction`` (pixels whose temporal variance in bias frames a white pixel
+exceeds with probability 1e-6) and ``hot_fraction`` (in the stack mean they sit high).
+Estimated by ``estimate``: the flickering pixels of a bias stack with, in 4 or more frames,
+at least 2 frames on each side of the largest gap in their sorted values (one extreme value
+of heavy-tailed read noise is not a state), over the model's; each one's step is the gap
+between the means of its frames above and below, its share of high frames the count above;
+the population is the one whose simulated detected part matches those (steps near the read
+noise, and pixels high or low in all but one frame, are seen less often).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+from ..engine import layout as L
+from ..statistics import flicker_threshold
+from .base import DARK, NoiseEffect, pattern_key, register
+from .k_records import _number, check_seed, validate_records, value_at_k
+
+STATISTICS = ("flicker_fraction", "hot_fraction")  # a pixel high in some frames is also high in the stack mean
+SIMULATED = 20_000  # telegraph pixels simulated per round of the estimate
+ROUNDS = 4
+
+
+@register
+class Telegraph(NoiseEffect):
+    token = "RTS"
+    order = DARK
+    flag = L.RTS
+    columns = ("rts_density", "rts_median", "rts_log_std", "rts_high")
+
+    def draw(self, ctx):
+        p = self.profile.effects[self.token]
+        n = ctx.k.shape[0]
+        return {"rts_density": ctx.k.new_full((n,), float(p["density"])), "rts_median": value_at_k(p, "median_dn", ctx.k),
+                "rts_log_std": ctx.k.new_full((n,), float(p["log_std"])), "rts_high": ctx.k.new_full((n,), float(p["high"]))}
+
+    def pattern_streams(self):
+        seed = self.profile.effects[self.token]["seed"]
+        return {"rts_where": pattern_key(seed, self.token, "where"), "rts_size": pattern_key(seed, self.token, "size")}
+
+    @classmethod
+    def validate_params(cls, params):
+        validate_records(cls.token, params, ("median_dn",), nonnegative=("median_dn",))
+        check_seed(cls.token, params)
+        density = _number(params.get("density"), "RTS.density")
+        if not 0.0 <= density <= 0.1:
+            raise ValueError(f"effect 'RTS': density (fraction of pixels) must be in [0, 0.1], got {density}")
+        high = _number(params.get("high"), "RTS.high")
+        if not 0.0 < high < 1.0:
+            raise ValueError(f"effect 'RTS': high (share of frames in the high state) must be in (0, 1), got {high}")
+        if _number(params.get("log_std"), "RTS.log_std") < 0:
+            raise ValueError(f"effect 'RTS': log_std must be >= 0, got {params.get('log_std')}")
+
+
+def two_levels(values):
+    """(step, share of high values) of each row of ``values`` (M, N), split at the largest gap
+    between its sorted values."""
+    v = np.sort(values, axis=1)
+    n = v.shape[1]
+    cut = np.argmax(np.diff(v, axis=1), axis=1) + 1  # first index of the high group
+    csum = np.cumsum(v, axis=1)
+    rows = np.arange(v.shape[0])
+    low = csum[rows, cut - 1] / cut
+    high = (csum[:, -1] - csum[rows, cut - 1]) / (n - cut)
+    return high - low, (n - cut) / n
+
+
+def _two_state(values, threshold):
+    """Which rows of ``values`` (M, N) show two states: variance (ddof 1) over ``threshold`` and,
+    with N >= 4, at least 2 values on each side of the largest gap (a single extreme value of
+    heavy-tailed read noise is not a state); and (step, share of high values) of those."""
+    seen = values.var(axis=1, ddof=1) > threshold
+    step, share = two_levels(values[seen])
+    n = values.shape[1]
+    if n >= 4:
+        ok = (share * n >= 2 - 1e-9) & ((1 - share) * n >= 2 - 1e-9)
+        idx = np.flatnonzero(seen)
+        seen[idx[~ok]] = False
+        step, share = step[ok], share[ok]
+    return seen, step, share
+
+
+def _detected(steps, share, n, sigma, threshold, rng):
+    """(fraction detected, log steps of the detected) of telegraph pixels with ``steps`` (DN)
+    in the high state with probability ``share``, over ``n`` frames of white noise ``sigma``,
+    by the rule of ``_two_state``."""
+    states = rng.random((steps.size, n)) < share
+    values = steps[:, None] * states + sigma * rng.standard_normal((steps.size, n))
+    seen, step, _ = _two_state(values, threshold)
+    return float(seen.mean()), np.log(np.maximum(step, 1e-6))
+
+
+def estimate(frames, synthesized, k: float, seed: int = 41, kind: str = "bias", **_) -> dict:
+    """RTS parameters at gain ``k`` from a bias stack (N >= 3, 4, h, w) in DN.
+
+    The flickering pixels are those whose step stands out of the read noise: the detected
+    steps are the larger ones. The population (density, median, log_std) is the one whose
+    detected part, simulated over the same frames and noise by the same rule, matches the
+    measured one (a few fixed-point rounds on the detected fraction and the detected steps'
+    log mean and spread)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if kind != "bias" or frames.shape[0] < 3:
+        raise ValueError("RTS is measured on bias stacks of >= 3 frames")
+    n = frames.shape[0]
+
+    def found_in(stack):
+        values = np.asarray(stack, dtype=np.float64).transpose(1, 2, 3, 0).reshape(-1, n)
+        var = float(np.median(values.var(axis=1, ddof=1)))
+        return (*_two_state(values, flicker_threshold(n) * var), var)
+
+    seen, step, share, median_var = found_in(frames)
+    base = float(np.mean([found_in(s)[0].mean() for s in synthesized])) if synthesized else 0.0
+    found = max(float(seen.mean()) - base, 0.0)
+    step = step[step > 0]
+    if found == 0.0 or step.size < 2:
+        return {"seed": int(seed), "density": 0.0, "high": 0.5, "log_std": 0.0, "k": [float(k)], "median_dn": [0.0]}
+    high = float(np.clip(share.mean(), 0.05, 0.95))
+    sigma = np.sqrt(median_var * (n - 1) / stats.chi2.median(n - 1))
+    threshold = flicker_threshold(n) * median_var
+    logs = np.log(step)
+    target_mean, target_sd = float(logs.mean()), float(max(logs.std(ddof=1), 1e-3))
+    mu, sd, fraction = target_mean, target_sd, 1.0
+    z = np.random.default_rng(seed).standard_normal(SIMULATED)
+    for _ in range(ROUNDS):
+        fraction, sim = _detected(np.exp(mu + sd * z), high, n, sigma, threshold, np.random.default_rng(seed + 1))
+        if sim.size < 2:
+            break
+        mu += target_mean - float(sim.mean())
+        sd = float(np.clip(sd * target_sd / max(float(sim.std(ddof=1)), 1e-3), 0.0, 2.0))
+    return {"seed": int(seed), "density": min(found / max(fraction, 0.05), 0.1), "high": high, "log_std": sd,
+            "k": [float(k)], "median_dn": [float(math.exp(mu))]}
