@@ -307,6 +307,9 @@ HIGH_PASS = 7  # packed pixels: the local mean taken out before lag correlations
 CURVE_LAGS = tuple((dy, dx) for dy in range(3) for dx in range(-2, 3) if dy > 0 or dx > 0)
 
 
+_last_highpass = threading.local()  # the last read-only stack high-passed on this thread
+
+
 def highpass_gain(h: int, w: int) -> float:
     """Fraction of a white noise's variance that ``temporal_highpass`` keeps on h x w channels
     (its row means, column means and local means taken out), to first order."""
@@ -317,12 +320,20 @@ def temporal_highpass(frames):
     """The temporal residual of a stack (N >= 2, 4, h, w), DN: each frame minus the stack mean
     (scaled by sqrt(N / (N - 1)), so its variances are the frames'), less each channel's row
     and column means (row and column noise) and its local mean over HIGH_PASS x HIGH_PASS
-    packed pixels (smooth fields). White noise keeps ``highpass_gain(h, w)`` of its variance."""
+    packed pixels (smooth fields). White noise keeps ``highpass_gain(h, w)`` of its variance.
+    Computed once for the same read-only array in a row (the battery's repaired view)."""
+    cached = getattr(_last_highpass, "source", None) is frames
+    if cached:
+        return _last_highpass.result
     n = frames.shape[0]
     r = (frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1))
     r = r - r.mean(axis=3, keepdims=True)
     r = r - r.mean(axis=2, keepdims=True)
-    return r - ndimage.uniform_filter(r, size=(1, 1, HIGH_PASS, HIGH_PASS), mode="reflect")
+    r = r - ndimage.uniform_filter(r, size=(1, 1, HIGH_PASS, HIGH_PASS), mode="reflect")
+    if isinstance(frames, np.ndarray) and not frames.flags.writeable:  # the battery's repaired view: reused
+        r.flags.writeable = False
+        _last_highpass.source, _last_highpass.result = frames, r
+    return r
 
 
 def temporal_mosaic(frames):
@@ -339,7 +350,7 @@ def temporal_mosaic(frames):
     return raw
 
 
-TILE_LAGS = XTALK_LAGS[:4]  # raw lags at which two pixels may lie in one 2x2 (Bayer) tile
+TILE_LAGS = XTALK_LAGS[:4]  # raw lags at which two pixels may lie in one 2x2 (Bayer) tile: (0,1), (1,0), (1,1), (1,-1)
 
 
 def lag_pairs(raw, dy, dx):
@@ -368,21 +379,27 @@ def lag_covariances(frames, lags=XTALK_LAGS, across_tiles=False):
 def tile_covariance_excess(frames):
     """(mean over TILE_LAGS of the covariance of raw neighbours in one 2x2 tile less that of
     neighbours in adjacent tiles, the variance), DN^2, of the temporal residual (each frame less
-    the stack mean, values beyond 5 robust sigma clipped: flickering pixels). Row, column and
-    smooth noise, crosstalk and black-level errors touch both kinds of pair alike; a
-    shared-pixel readout only the first."""
+    the stack mean; flickering pixels, ``flickering``, left out). Row, column and smooth noise,
+    crosstalk and black-level errors touch both kinds of pair alike; a shared-pixel readout
+    only the first."""
     frames = np.asarray(frames, dtype=np.float64)
     n, _, h, w = frames.shape
     r = (frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1))
-    _, scale = _robust_scale(r.reshape(-1), axis=0)
-    r = np.clip(r, -5.0 * scale, 5.0 * scale)
+    if n >= 3:
+        r = np.where(flickering(frames)[None], 0.0, r)
     raw = np.empty((n, 2 * h, 2 * w))
     for c in range(4):
         raw[:, ROW_SET[c]::2, COLUMN_SET[c]::2] = r[:, c]
+    # products of the pairs at each lag and the pairs (a strided view) whose pixels share a tile
+    pairs = ((raw[:, :, :-1] * raw[:, :, 1:], (slice(None), slice(0, None, 2))),  # (0, 1): x even
+             (raw[:, :-1] * raw[:, 1:], (slice(0, None, 2), slice(None))),  # (1, 0): y even
+             (raw[:, :-1, :-1] * raw[:, 1:, 1:], (slice(0, None, 2), slice(0, None, 2))),  # (1, 1): y, x even
+             (raw[:, :-1, 1:] * raw[:, 1:, :-1], (slice(0, None, 2), slice(0, None, 2))))  # (1, -1): y even, x odd
     diffs = []
-    for dy, dx in TILE_LAGS:
-        prod, within = lag_pairs(raw, dy, dx)
-        diffs.append(prod[:, within].mean() - prod[:, ~within].mean())
+    for prod, (sy, sx) in pairs:
+        inner = prod[:, sy, sx]
+        within = inner.sum() / inner.size
+        diffs.append(within - (prod.sum() - inner.sum()) / (prod.size - inner.size))
     return float(np.mean(diffs)), float(np.mean(raw * raw))
 
 
