@@ -376,12 +376,10 @@ def lag_covariances(frames, lags=XTALK_LAGS, across_tiles=False):
     return float(np.mean(raw * raw)), np.array(out)
 
 
-def tile_covariance_excess(frames):
-    """(mean over TILE_LAGS of the covariance of raw neighbours in one 2x2 tile less that of
-    neighbours in adjacent tiles, the variance), DN^2, of the temporal residual (each frame less
-    the stack mean; flickering pixels, ``flickering``, left out). Row, column and smooth noise,
-    crosstalk and black-level errors touch both kinds of pair alike; a shared-pixel readout
-    only the first."""
+def tile_pair_covariances(frames):
+    """(variance, covariance of the pairs in one 2x2 tile at each of TILE_LAGS, of the pairs
+    in adjacent tiles at each), DN^2, of the temporal residual (each frame less the stack
+    mean; flickering pixels, ``flickering``, left out)."""
     frames = np.asarray(frames, dtype=np.float64)
     n, _, h, w = frames.shape
     r = (frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1))
@@ -395,12 +393,21 @@ def tile_covariance_excess(frames):
              (raw[:, :-1] * raw[:, 1:], (slice(0, None, 2), slice(None))),  # (1, 0): y even
              (raw[:, :-1, :-1] * raw[:, 1:, 1:], (slice(0, None, 2), slice(0, None, 2))),  # (1, 1): y, x even
              (raw[:, :-1, 1:] * raw[:, 1:, :-1], (slice(0, None, 2), slice(0, None, 2))))  # (1, -1): y even, x odd
-    diffs = []
+    within, across = [], []
     for prod, (sy, sx) in pairs:
         inner = prod[:, sy, sx]
-        within = inner.sum() / inner.size
-        diffs.append(within - (prod.sum() - inner.sum()) / (prod.size - inner.size))
-    return float(np.mean(diffs)), float(np.mean(raw * raw))
+        within.append(inner.sum() / inner.size)
+        across.append((prod.sum() - inner.sum()) / (prod.size - inner.size))
+    return float(np.mean(raw * raw)), np.array(within), np.array(across)
+
+
+def tile_covariance_excess(frames):
+    """(mean over TILE_LAGS of the covariance of raw neighbours in one 2x2 tile less that of
+    neighbours in adjacent tiles, the variance), DN^2 (``tile_pair_covariances``). Row,
+    column and smooth noise, crosstalk and black-level errors touch both kinds of pair alike;
+    a shared-pixel readout only the first."""
+    var, within, across = tile_pair_covariances(frames)
+    return float(np.mean(within - across)), var
 
 
 def tile_corr(frames, level_dn=None):
@@ -453,17 +460,55 @@ def flicker_threshold(n: int) -> float:
     return float(sstats.chi2.isf(FLICKER_P, n - 1) / sstats.chi2.median(n - 1))
 
 
+def two_levels(values):
+    """(step, share of high values) of each row of ``values`` (M, N), split at the largest gap
+    between its sorted values."""
+    v = np.sort(values, axis=1)
+    n = v.shape[1]
+    cut = np.argmax(np.diff(v, axis=1), axis=1) + 1  # first index of the high group
+    csum = np.cumsum(v, axis=1)
+    rows = np.arange(v.shape[0])
+    low = csum[rows, cut - 1] / cut
+    high = (csum[:, -1] - csum[rows, cut - 1]) / (n - cut)
+    return high - low, (n - cut) / n
+
+
+def two_state(values, threshold):
+    """Which rows of ``values`` (M, N) show two states: variance (ddof 1) over ``threshold`` and,
+    with N >= 4, at least 2 values on each side of the largest gap (one extreme value of
+    heavy-tailed read noise is not a state); and (step, share of high values) of those."""
+    seen = values.var(axis=1, ddof=1) > threshold
+    step, share = two_levels(values[seen])
+    n = values.shape[1]
+    if n >= 4:
+        ok = (share * n >= 2 - 1e-9) & ((1 - share) * n >= 2 - 1e-9)
+        seen[np.flatnonzero(seen)[~ok]] = False
+        step, share = step[ok], share[ok]
+    return seen, step, share
+
+
 def flickering(frames):
-    """(4, h, w) mask of the pixels that flicker: temporal variance (ddof 1) beyond
-    ``flicker_threshold`` x the stack's median (random telegraph pixels)."""
+    """(4, h, w) mask of the pixels that flicker between two states (random telegraph pixels):
+    temporal variance (ddof 1) beyond ``flicker_threshold`` x the stack's median, and the
+    rule of ``two_state``."""
     frames = np.asarray(frames, dtype=np.float64)
-    var = frames.var(axis=0, ddof=1)
-    return var > flicker_threshold(frames.shape[0]) * max(float(np.median(var)), 1e-12)
+    n = frames.shape[0]
+    values = frames.reshape(n, -1).T
+    var = float(np.median(values.var(axis=1, ddof=1)))
+    return two_state(values, flicker_threshold(n) * max(var, 1e-12))[0].reshape(frames.shape[1:])
 
 
 def flicker_fraction(frames, level_dn=None):
     """Fraction of the pixels that flicker (``flickering``)."""
     return float(flickering(frames).mean())
+
+
+def read_noise_profile(frames):
+    """(20,) white temporal variance (``temporal_variance_cells``, DN^2) averaged per channel
+    (4), per row block and per column block (READ_MAP_BLOCKS each): what ``read_noise_spread``
+    sums up."""
+    cells = temporal_variance_cells(frames)
+    return np.concatenate([cells.mean(axis=(1, 2)), cells.mean(axis=(0, 2)), cells.mean(axis=(0, 1))])
 
 
 def map_effects(cells):

@@ -15,11 +15,11 @@ Profile entry::
 
     RTS: {seed: 41, density: 0.01, high: 0.5, log_std: 0.3, k: [K, ...], median_dn: [...]}
 
-Detected by ``flicker_fraction`` (pixels whose temporal variance in bias frames a white pixel
-exceeds with probability 1e-6) and ``hot_fraction`` (in the stack mean they sit high).
-Estimated by ``estimate``: the flickering pixels of a bias stack with, in 4 or more frames,
-at least 2 frames on each side of the largest gap in their sorted values (one extreme value
-of heavy-tailed read noise is not a state), over the model's; each one's step is the gap
+Detected by ``flicker_fraction`` (pixels of bias frames with two states: a temporal variance
+a white pixel exceeds with probability 1e-6 and, in 4 or more frames, at least 2 frames on
+each side of the largest gap in their sorted values, as one extreme value of heavy-tailed
+read noise is not a state) and ``hot_fraction`` (in the stack mean they sit high).
+Estimated by ``estimate``: the flickering pixels of a bias stack over the model's; each one's step is the gap
 between the means of its frames above and below, its share of high frames the count above;
 the population is the one whose simulated detected part matches those (steps near the read
 noise, and pixels high or low in all but one frame, are seen less often).
@@ -32,7 +32,7 @@ import numpy as np
 from scipy import stats
 
 from ..engine import layout as L
-from ..statistics import flicker_threshold
+from ..statistics import flicker_threshold, two_state
 from .base import DARK, NoiseEffect, pattern_key, register
 from .k_records import _number, check_seed, validate_records, value_at_k
 
@@ -72,41 +72,13 @@ class Telegraph(NoiseEffect):
             raise ValueError(f"effect 'RTS': log_std must be >= 0, got {params.get('log_std')}")
 
 
-def two_levels(values):
-    """(step, share of high values) of each row of ``values`` (M, N), split at the largest gap
-    between its sorted values."""
-    v = np.sort(values, axis=1)
-    n = v.shape[1]
-    cut = np.argmax(np.diff(v, axis=1), axis=1) + 1  # first index of the high group
-    csum = np.cumsum(v, axis=1)
-    rows = np.arange(v.shape[0])
-    low = csum[rows, cut - 1] / cut
-    high = (csum[:, -1] - csum[rows, cut - 1]) / (n - cut)
-    return high - low, (n - cut) / n
-
-
-def _two_state(values, threshold):
-    """Which rows of ``values`` (M, N) show two states: variance (ddof 1) over ``threshold`` and,
-    with N >= 4, at least 2 values on each side of the largest gap (a single extreme value of
-    heavy-tailed read noise is not a state); and (step, share of high values) of those."""
-    seen = values.var(axis=1, ddof=1) > threshold
-    step, share = two_levels(values[seen])
-    n = values.shape[1]
-    if n >= 4:
-        ok = (share * n >= 2 - 1e-9) & ((1 - share) * n >= 2 - 1e-9)
-        idx = np.flatnonzero(seen)
-        seen[idx[~ok]] = False
-        step, share = step[ok], share[ok]
-    return seen, step, share
-
-
 def _detected(steps, share, n, sigma, threshold, rng):
     """(fraction detected, log steps of the detected) of telegraph pixels with ``steps`` (DN)
     in the high state with probability ``share``, over ``n`` frames of white noise ``sigma``,
-    by the rule of ``_two_state``."""
+    by the rule of ``flickering``."""
     states = rng.random((steps.size, n)) < share
     values = steps[:, None] * states + sigma * rng.standard_normal((steps.size, n))
-    seen, step, _ = _two_state(values, threshold)
+    seen, step, _ = two_state(values, threshold)
     return float(seen.mean()), np.log(np.maximum(step, 1e-6))
 
 
@@ -126,7 +98,7 @@ def estimate(frames, synthesized, k: float, seed: int = 41, kind: str = "bias", 
     def found_in(stack):
         values = np.asarray(stack, dtype=np.float64).transpose(1, 2, 3, 0).reshape(-1, n)
         var = float(np.median(values.var(axis=1, ddof=1)))
-        return (*_two_state(values, flicker_threshold(n) * var), var)
+        return (*two_state(values, flicker_threshold(n) * var), var)
 
     seen, step, share, median_var = found_in(frames)
     base = float(np.mean([found_in(s)[0].mean() for s in synthesized])) if synthesized else 0.0

@@ -6,14 +6,15 @@ the radial 2-D power spectrum (``psd2d_lowfreq``), the spectrum of the row or co
 clipping), of the codes one by one (missing codes), of the stack-mean map (dark signal,
 DSNU, PRNU, hot pixels), of the per-pixel temporal std, the sorted line means (defect
 lines), the sorted frame means (black-level error) or the correlation of neighbouring
-pixels' temporal noise at raw lags (crosstalk). ``step_signature`` gives the measured curve and the model's before and after a step
+pixels' temporal noise at raw lags (crosstalk), of pairs in one tile and in adjacent tiles
+(a shared readout), or the white temporal variance per channel and block (read-noise map). ``step_signature`` gives the measured curve and the model's before and after a step
 (mean and spread over its syntheses), on the measured curve's grid.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..statistics import CURVE_LAGS, lag_covariances, repaired, row_tone_spectrum
+from ..statistics import CURVE_LAGS, lag_covariances, read_noise_profile, repaired, row_tone_spectrum, tile_pair_covariances
 
 KIND = {
     "psd2d_lowfreq": "radial_spectrum",
@@ -26,6 +27,7 @@ KIND = {
     "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means",
     "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
     "neighbour_corr": "lag_correlations", "row_tone": "row_tone_spectrum",
+    "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram",
 }  # every other statistic: the histogram of the pixel values
 LABEL = {
     "radial_spectrum": ("radial frequency (cycles/pixel)", "power (DN^2)", True),
@@ -40,6 +42,9 @@ LABEL = {
     "code_histogram": ("code (DN), one bin each, about the median", "fraction of pixels", False),
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
     "row_tone_spectrum": ("frequency (cycles per sensor row)", "temporal sensor-row-mean power (DN^2)", True),
+    "read_noise_profile": ("channel 1-4, then row block 1-8, then column block 1-8", "white temporal variance (DN^2)", False),
+    "tile_correlations": ("raw lag (0,1) (1,0) (1,1) (1,-1): pairs in one tile, then in adjacent tiles",
+                          "correlation of the temporal residual", False),
     "lag_correlations": ("raw lag, in order " + " ".join(f"({dy},{dx})" for dy, dx in CURVE_LAGS),
                          "correlation of the temporal residual", False),
 }
@@ -108,6 +113,12 @@ def curve(kind: str, frames, edges=None):
     if kind == "lag_correlations":
         var, cov = lag_covariances(frames, CURVE_LAGS)
         return np.arange(1, len(CURVE_LAGS) + 1, dtype=np.float64), cov / max(var, 1e-12)
+    if kind == "read_noise_profile":
+        y = read_noise_profile(frames)
+        return np.arange(1, y.size + 1, dtype=np.float64), y
+    if kind == "tile_correlations":
+        var, within, across = tile_pair_covariances(frames)
+        return np.arange(1, 9, dtype=np.float64), np.concatenate([within, across]) / max(var, 1e-12)
     if kind == "frame_means":
         m = frames.mean(axis=(1, 2, 3))
         return np.arange(1, len(m) + 1, dtype=np.float64), np.sort(m - m.mean())
