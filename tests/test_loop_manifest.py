@@ -225,7 +225,9 @@ def check_setting_curves(report, data, dark_added, n_flats=2):
 # sessions 11-20 nonlin, none and none_series 10 of 10 each (none_series was 18 of 20 over 1-20
 # before residuals were confirmed on 24 syntheses). Interference was 4 of 10 (FPN added besides
 # LowFreq) before FPN's shading left out the temporal smooth power a mean of N frames keeps and
-# LowFreq chose its grid by the spectrum. The default run checks session 0 of each.
+# LowFreq chose its grid by the spectrum. With ReadMap, Shared and RTS among the candidates:
+# split amplifiers, shared readout, telegraph, Col, none and none_series 9 or 10 of 10 each
+# (the others passed the same bound one change earlier). The default run checks session 0 of each.
 RATE_CASES = list(CASES)
 
 
@@ -243,6 +245,7 @@ def test_manifest_loop_rates_over_seeds(tmp_path, case):
             passed += 1
         except AssertionError:
             pass
+    print(f"{case}: {passed} of 10 sessions")  # shown with -rA: the count, not only the bound
     assert passed >= 9, f"{case}: {passed} of 10 sessions"
 
 
