@@ -13,6 +13,8 @@ pixel position (``rawaug.rng``), so it is identical on every device and nothing 
 """
 from __future__ import annotations
 
+import math
+
 import torch
 
 from ..relations import KTable
@@ -80,6 +82,16 @@ def merge_records(records: list[dict]) -> dict:
             else:
                 out.setdefault(key, val)
     return out
+
+
+def combine_sigma(records: list[dict], key: str = "sigma_dn") -> dict:
+    """One record per gain from single-K records ``{k: [K], key: [sigma]}`` (one per stack):
+    the stacks at one K averaged in variance."""
+    by_k: dict = {}
+    for r in records:
+        by_k.setdefault(float(r["k"][0]), []).append(r[key][0] ** 2)
+    ks = sorted(by_k)
+    return {"k": ks, key: [float(math.sqrt(sum(v) / len(v))) for v in (by_k[k] for k in ks)]}
 
 
 def check_seed(token: str, params: dict) -> None:

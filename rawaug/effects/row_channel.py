@@ -22,7 +22,7 @@ import numpy as np
 
 from ..engine import layout as L
 from .base import BANDING, NoiseEffect, register
-from .k_records import validate_records, value_at_k
+from .k_records import combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("row_excess",)
 SHARES_ROW_NOISE = True  # calibration gave half of its variance to sigma_r
@@ -78,8 +78,4 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
 
 def combine(records: list[dict]) -> dict:
     """One record per gain: the stacks at one K averaged in variance."""
-    by_k: dict = {}
-    for r in records:
-        by_k.setdefault(float(r["k"][0]), []).append(r["sigma_dn"][0] ** 2)
-    ks = sorted(by_k)
-    return {"k": ks, "sigma_dn": [float(np.sqrt(np.mean(by_k[k]))) for k in ks]}
+    return combine_sigma(records)

@@ -22,7 +22,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import _robust_scale, sensor_row_means
 from .base import BANDING, NoiseEffect, pattern_key, register
-from .k_records import check_seed, validate_records, value_at_k
+from .k_records import check_seed, combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("fixed_row_excess", "row_tone")
 SHARES_ROW_NOISE = True  # calibration gave the fixed rows' variance to sigma_r
@@ -78,8 +78,4 @@ def estimate(frames, synthesized, k: float, seed: int = 31, **_) -> dict:
 
 def combine(records: list[dict]) -> dict:
     """One record per gain: the stacks at one K (bias, darks, flats) averaged in variance."""
-    by_k: dict = {}
-    for r in records:
-        by_k.setdefault(float(r["k"][0]), []).append(r["fixed_dn"][0] ** 2)
-    ks = sorted(by_k)
-    return {"seed": int(records[0]["seed"]), "k": ks, "fixed_dn": [float(np.sqrt(np.mean(by_k[k]))) for k in ks]}
+    return {"seed": int(records[0]["seed"]), **combine_sigma(records, "fixed_dn")}

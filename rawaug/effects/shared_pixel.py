@@ -24,7 +24,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import tile_covariance_excess
 from .base import READ, NoiseEffect, register
-from .k_records import validate_records, value_at_k
+from .k_records import combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("tile_corr",)
 SHARES_READ_NOISE = True  # calibration counted its variance as white read noise
@@ -61,8 +61,4 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
 
 def combine(records: list[dict]) -> dict:
     """One record per gain: the stacks at one K averaged in variance."""
-    by_k: dict = {}
-    for r in records:
-        by_k.setdefault(float(r["k"][0]), []).append(r["sigma_dn"][0] ** 2)
-    ks = sorted(by_k)
-    return {"k": ks, "sigma_dn": [float(np.sqrt(np.mean(by_k[k]))) for k in ks]}
+    return combine_sigma(records)
