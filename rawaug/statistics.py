@@ -487,15 +487,23 @@ def two_state(values, threshold):
     return seen, step, share
 
 
-def flickering(frames):
-    """(4, h, w) mask of the pixels that flicker between two states (random telegraph pixels):
-    temporal variance (ddof 1) beyond ``flicker_threshold`` x the stack's median, and the
-    rule of ``two_state``."""
+def two_state_pixels(frames):
+    """Of a stack (N, 4, h, w): (mask of the pixels that flicker between two states, flat over
+    (4, h, w); their steps (DN); their shares of high frames; the median temporal variance,
+    DN^2). A pixel flickers where its temporal variance (ddof 1) exceeds ``flicker_threshold``
+    x that median and the rule of ``two_state`` holds."""
     frames = np.asarray(frames, dtype=np.float64)
     n = frames.shape[0]
     values = frames.reshape(n, -1).T
-    var = float(np.median(values.var(axis=1, ddof=1)))
-    return two_state(values, flicker_threshold(n) * max(var, 1e-12))[0].reshape(frames.shape[1:])
+    var = max(float(np.median(values.var(axis=1, ddof=1))), 1e-12)
+    return (*two_state(values, flicker_threshold(n) * var), var)
+
+
+def flickering(frames):
+    """(4, h, w) mask of the pixels that flicker between two states (random telegraph pixels),
+    ``two_state_pixels``."""
+    frames = np.asarray(frames)
+    return two_state_pixels(frames)[0].reshape(frames.shape[1:])
 
 
 def flicker_fraction(frames, level_dn=None):

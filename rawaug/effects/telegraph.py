@@ -32,7 +32,7 @@ import numpy as np
 from scipy import stats
 
 from ..engine import layout as L
-from ..statistics import flicker_threshold, two_state
+from ..statistics import flicker_threshold, two_state, two_state_pixels
 from .base import DARK, NoiseEffect, pattern_key, register
 from .k_records import _number, check_seed, validate_records, value_at_k
 
@@ -94,14 +94,8 @@ def estimate(frames, synthesized, k: float, seed: int = 41, kind: str = "bias", 
     if kind != "bias" or frames.shape[0] < 3:
         raise ValueError("RTS is measured on bias stacks of >= 3 frames")
     n = frames.shape[0]
-
-    def found_in(stack):
-        values = np.asarray(stack, dtype=np.float64).transpose(1, 2, 3, 0).reshape(-1, n)
-        var = float(np.median(values.var(axis=1, ddof=1)))
-        return (*two_state(values, flicker_threshold(n) * var), var)
-
-    seen, step, share, median_var = found_in(frames)
-    base = float(np.mean([found_in(s)[0].mean() for s in synthesized])) if synthesized else 0.0
+    seen, step, share, median_var = two_state_pixels(frames)
+    base = float(np.mean([two_state_pixels(s)[0].mean() for s in synthesized])) if synthesized else 0.0
     found = max(float(seen.mean()) - base, 0.0)
     step = step[step > 0]
     if found == 0.0 or step.size < 2:
