@@ -127,15 +127,47 @@ def _nearest_good(bad) -> np.ndarray:
     return np.where(np.abs(idx - left) <= np.abs(right - idx), left, right)
 
 
+def without_stuck(frames):
+    """The frames (N >= 3) with each dead pixel (``stuck_outliers``: stuck far from its channel's
+    noise) replaced in every frame by its nearest live neighbour along the row (same channel),
+    DN: what every statistic but ``stuck_fraction`` looks at, so that a dead pixel counts
+    once, as a stuck pixel, and not also in line means, tails and clips. Fewer frames, or
+    no dead pixel: the frames themselves."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if frames.shape[0] < 3:
+        return frames
+    lo, hi = frames.min(axis=0), frames.max(axis=0)
+    if not (lo == hi).any():  # no pixel stuck at all: the common case, without the medians
+        return frames
+    dead = stuck_outliers(lo, hi, frames[0])
+    if not dead.any():
+        return frames
+    c = frames.copy()
+    w = frames.shape[3]
+    ch, y, x = np.nonzero(dead)
+    src = x.copy()
+    for d in range(1, w):  # nearest live pixel, left first
+        todo = src == x
+        if not todo.any():
+            break
+        for cand in (x - d, x + d):
+            ok = todo & (cand >= 0) & (cand < w)
+            ok[ok] = ~dead[ch[ok], y[ok], cand[ok]]
+            src = np.where(ok & (src == x), cand, src)
+    c[:, ch, y, x] = frames[:, ch, y, src]
+    return c
+
+
 def repaired(frames):
-    """The frames with every defect line (``defect_line_masks``) replaced by its nearest
-    normal line of the same frame and channel, DN: what every statistic but
-    ``defect_lines`` and the shading estimators look at, so that a stuck column is counted
-    once, as a defect, and not also as hot pixels, heavy tails, pixel noise or
-    low-frequency power. Read-only; computed once for the same array in a row."""
+    """The frames with their dead pixels replaced (``without_stuck``), then every defect line
+    (``defect_line_masks``) replaced by its nearest normal line of the same frame and channel,
+    DN: what every statistic but ``defect_lines`` and ``stuck_fraction`` and the shading
+    estimators look at, so that a stuck column is counted once, as a defect, and not also as
+    hot pixels, heavy tails, pixel noise or low-frequency power. Read-only; computed once for
+    the same array in a row."""
     if getattr(_last, "source", None) is frames:
         return _last.result
-    c = np.array(frames, dtype=np.float64)
+    c = np.array(without_stuck(frames), dtype=np.float64)
     rows, _ = _defects(c.mean(axis=3))
     for n, ch in zip(*np.nonzero(rows.any(axis=2))):
         c[n, ch] = c[n, ch][_nearest_good(rows[n, ch])]
@@ -511,6 +543,50 @@ def flicker_fraction(frames, level_dn=None):
     return float(flickering(frames).mean())
 
 
+def stuck_from_range(lo, hi):
+    """Mask of the stuck pixels from each pixel's lowest and highest value over a stack (same
+    shape): equal in every frame. A pixel that stays at the stack's lowest (highest) value is
+    left out where pixels that move also reach it: there it is the clip at black (white), not
+    a stuck pixel."""
+    const = lo == hi
+    moving = ~const
+    if moving.any():
+        at_floor = (lo == lo.min()) & bool(lo[moving].min() == lo.min())
+        at_ceiling = (hi == hi.max()) & bool(hi[moving].max() == hi.max())
+        const &= ~(at_floor | at_ceiling)
+    return const
+
+
+def stuck_pixels(frames):
+    """Of a stack (N >= 2, 4, h, w): (mask over (4 h w) of the pixels that read the same value
+    in every frame, ``stuck_from_range``; their values, DN)."""
+    v = np.asarray(frames, dtype=np.float64).reshape(len(frames), -1)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    stuck = stuck_from_range(lo, hi)
+    return stuck, lo[stuck]
+
+
+STUCK_OUTLIER = 5.0  # robust sigma from the channel median: a stuck pixel the noise estimates leave out
+
+
+def stuck_outliers(lo, hi, frame):
+    """(4, h, w) mask of the stuck pixels (``stuck_from_range`` of the per-pixel lowest and
+    highest values ``lo``, ``hi`` over a stack) lying more than STUCK_OUTLIER robust sigma
+    from their channel's median in ``frame`` (one frame of the stack): dead pixels, left out
+    of noise estimates as EMVA 1288 leaves out defect pixels. Stuck pixels within the noise
+    (read noise well under a DN sticks by chance) stay in."""
+    frame = np.asarray(frame, dtype=np.float64)
+    med, scale = _robust_scale(frame.reshape(4, -1), axis=1)
+    far = np.abs(frame - med[:, :, None]) > STUCK_OUTLIER * scale[:, :, None]
+    return stuck_from_range(np.asarray(lo), np.asarray(hi)).reshape(frame.shape) & far
+
+
+def stuck_fraction(frames, level_dn=None):
+    """Fraction of the pixels stuck at one value in every frame (``stuck_pixels``): near 0 for
+    read noise of a DN or more (its chance over N frames), more with dead pixels."""
+    return float(stuck_pixels(frames)[0].mean())
+
+
 def read_noise_profile(frames):
     """(20,) white temporal variance (``temporal_variance_cells``, DN^2) averaged per channel
     (4), per row block and per column block (READ_MAP_BLOCKS each): what ``read_noise_spread``
@@ -606,6 +682,7 @@ class Statistic:
     fn: Callable
     min_frames: int = 1
     kind: str = "any"  # "any", "bias" or "flat"
+    view: str = "repaired"  # the frames it reads: "repaired" (repaired), "lines" (without_stuck), "raw"
     pixel_fraction: bool = False  # resolution: one pixel of the stack
     mad_of_mean: bool = False  # a robust (MAD) scale of the N-frame mean map: a grid of 1/(2N) DN on whole codes
     line_fraction: bool = False  # resolution: one line of the stack
@@ -650,7 +727,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("row_lowfreq", row_lowfreq),
         Statistic("col_lowfreq", col_lowfreq),
         Statistic("psd2d_lowfreq", psd2d_lowfreq),
-        Statistic("defect_lines", defect_lines, line_fraction=True),
+        Statistic("defect_lines", defect_lines, line_fraction=True, view="lines"),
         Statistic("hot_fraction", hot_fraction, pixel_fraction=True),
         Statistic("missing_codes", missing_codes, base="ADC codes (a comb means digital gain: no effect models it)"),
         Statistic("clip_low", clip_low, pixel_fraction=True),
@@ -663,6 +740,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("read_noise_spread", read_noise_spread, min_frames=2, kind="bias"),
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
         Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),
+        Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
@@ -691,12 +769,20 @@ def frame_statistics(frames, kind: str = "bias", level_dn=None, names=None) -> d
     if kind not in ("bias", "dark", "flat"):
         raise ValueError(f"kind must be 'bias', 'dark' or 'flat', got {kind!r}")
     out = {}
-    view = None
+    views: dict = {"raw": frames}
     for name, stat in STATISTICS.items():
         if names is not None and name not in names:
             continue
         if stat.applies(frames.shape[0], kind):
-            if name != "defect_lines" and view is None:
-                view = repaired(frames)  # a defect line counts once: as a defect line
-            out[name] = stat.fn(frames if name == "defect_lines" else view, level_dn)
+            if stat.view not in views:
+                views[stat.view] = statistic_view(name, frames)
+            out[name] = stat.fn(views[stat.view], level_dn)
     return out
+
+
+def statistic_view(name: str, frames):
+    """The frames statistic ``name`` reads (``Statistic.view``): a defect line counts once, as a
+    defect line, and a dead pixel once, as a stuck pixel."""
+    view = STATISTICS[name].view if name in STATISTICS else "repaired"
+    frames = np.asarray(frames, dtype=np.float64)
+    return frames if view == "raw" else without_stuck(frames) if view == "lines" else repaired(frames)

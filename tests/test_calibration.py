@@ -281,3 +281,25 @@ def test_photon_transfer_of_a_linear_camera_stays_a_line():
     taken = [estimate_gain(_flat_pairs(PROFILE, 2.0, LEVELS, seed=s), read_variance_dn2=4.0).curvature_per_dn != 0.0
              for s in range(12)]
     assert sum(taken) == 0, taken
+
+
+# ----------------------------------------------------------------------------- dead pixels
+def test_dead_pixels_at_code_zero_leave_gain_and_read_noise_as_they_were():
+    # 0.3 % of the pixels read code 0 (-512 DN) in every frame: they would mark ~95 % of the
+    # 32 x 32 tiles black-clipped, and give the read noise tails; both leave them out
+    dead = np.random.default_rng(3).random((4, 64, 64)) < 0.003
+    pairs = _flat_pairs(PROFILE, 2.0, LEVELS[:3], seed=2)
+    with_dead = [(np.where(dead, -512.0, a), np.where(dead, -512.0, b)) for a, b in pairs]
+    clean, hit = estimate_gain(pairs, read_variance_dn2=4.0), estimate_gain(with_dead, read_variance_dn2=4.0)
+    assert hit.n_excluded == clean.n_excluded == 0
+    assert hit.k == pytest.approx(clean.k, rel=0.01), (hit.k, clean.k)
+    bias = [_dn(b) for b in synthesize_iso_set(PROFILE, k=1.0, sigma_tl=2.0, lam=0.05, sigma_r=0.3, shape=(64, 64),
+                                               n_bias=4, flat_levels=(0.03, 0.08), seed=5)[0]]
+    flats = [(a, b) for a, b in pairs]
+    p = calibrate_iso(bias, flats, 100)
+    big = np.zeros((4, 64, 64), bool)
+    big[:, ::8, ::8] = True  # 1.6 %: a test of the exclusion, not of a real sensor
+    q = calibrate_iso([np.where(big, -512.0, b) for b in bias], flats, 100)
+    assert q.extra["dead_pixels"] == int(big.sum()) and p.extra["dead_pixels"] == 0
+    # the fit without them is the fit of their live neighbours: 1.6 % fewer samples of one distribution
+    assert abs(q.lam - p.lam) < 0.03 and q.sigma_tl == pytest.approx(p.sigma_tl, rel=0.03), (p, q)

@@ -7,10 +7,11 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
-from rawaug.statistics import sensor_row_means, temporal_mosaic
+from rawaug.statistics import (repaired, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
+                               without_stuck)
 
 BASE = NoiseProfile.load("SonyA7S2")
 K = 1.0
@@ -413,6 +414,12 @@ def test_effects_replay_bit_exactly():
     ("RTS", {"seed": 1, "density": 0.01, "high": 1.0, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]},
      r"high \(share of frames in the high state\) must be in \(0, 1\), got 1.0"),
     ("RTS", {"seed": 1, "density": 0.5, "high": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]}, "density"),
+    ("Dead", {"seed": 1, "density": 0.2, "levels_dn": [0.0]}, r"density \(fraction of pixels\) must be in \[0, 0.1\], got 0.2"),
+    ("Dead", {"seed": 1, "density": 0.01, "levels_dn": []}, "levels_dn must be a list of 1 to 8 levels"),
+    ("Dead", {"seed": 1, "density": 0.01, "levels_dn": [float("inf")]}, "Dead.levels_dn"),
+    ("Dead", {"density": 0.01, "levels_dn": [0.0]}, "seed"),
+    ("RowDrift", {"k": [1.0], "octave_dn": [[0.0] * 7]}, "octave_dn record 0 must list 8 values"),
+    ("RowDrift", {"k": [1.0], "octave_dn": [[0.0] * 7 + [-1.0]]}, "finite and >= 0"),
     ("ReadMap", {"k": [1.0], "channel_dn": [[0.0] * 3], "row_block_dn": [[0.0] * 8], "col_block_dn": [[0.0] * 8]},
      "channel_dn record 0 must list 4 values"),
     ("ReadMap", {"k": [1.0], "channel_dn": [[0.0] * 4], "row_block_dn": [[-1.0] * 8], "col_block_dn": [[0.0] * 8]},
@@ -509,3 +516,75 @@ def test_telegraph_pixels_jump_between_two_levels_and_are_estimated():
     assert telegraph.estimate(base[0], base[1:], K)["density"] == 0.0  # white noise does not flicker
     with pytest.raises(ValueError, match="bias stacks"):
         telegraph.estimate(f, base, K, kind="dark")
+
+
+DEAD = {"seed": 47, "density": 0.01, "levels_dn": [-40.0, -40.0, -40.0, 300.0]}  # 3/4 stuck low, 1/4 stuck high
+
+
+def test_dead_pixels_are_stuck_at_their_levels_and_estimated():
+    f = synth({"Dead": DEAD}, batch=6, size=64, level_dn=200.0, sigma_g=1.0)
+    stuck, levels = stuck_pixels(f)
+    n = stuck.size
+    # pixels at one value in all 6 frames: the dead ones (shot and read noise of ~14 DN leave no other)
+    assert abs(stuck.mean() - 0.01) < 5 * math.sqrt(0.01 / n), stuck.mean()
+    assert set(np.unique(levels)) == {-40.0, 300.0}
+    assert abs(np.mean(levels == 300.0) - 0.25) < 5 * math.sqrt(0.25 * 0.75 / levels.size)
+    again = stuck_pixels(synth({"Dead": DEAD}, batch=6, size=64, level_dn=200.0, sigma_g=1.0, seed=3))[0]
+    assert np.array_equal(stuck, again)  # a fixed pattern: the same pixels in every call
+    base = [synth({}, batch=6, size=64, level_dn=200.0, seed=s, sigma_g=1.0) for s in range(1, 4)]
+    est = dead_pixels.estimate(f, base, K)
+    assert abs(est["density"] - 0.01) < 5 * math.sqrt(0.01 / n), est
+    assert sorted(set(est["levels_dn"])) == [-40.0, 300.0] and est["levels_dn"].count(300.0) == 2, est
+    with pytest.raises(ValueError, match="shows no dead pixels"):  # live pixels move
+        dead_pixels.estimate(base[0], base[1:], K)
+    with pytest.raises(ValueError, match=">= 3 frames"):
+        dead_pixels.estimate(f[:2], base, K)
+
+
+def test_dead_pixels_count_once_and_clipped_pixels_are_not_dead():
+    f = synth({"Dead": DEAD}, batch=6, size=64, sigma_g=1.0)
+    # every other statistic reads the frames with their dead pixels replaced by live neighbours
+    assert stuck_fraction(f) > 0.005 and stuck_fraction(without_stuck(f)) == 0.0
+    assert tail_mass(f) > 0.005 and tail_mass(repaired(f)) < 1e-3
+    # a bias stack clipped at 0 DN: pixels at the clip in every frame are clipped, not dead
+    clipped = np.maximum(synth({}, batch=6, size=64, sigma_g=1.0), 0.0)
+    assert np.mean(np.all(clipped == 0.0, axis=0)) > 0.01  # (1/2)^6: ~1.6 % of the pixels
+    assert stuck_fraction(clipped) == 0.0
+    # dead pixels at that clip level are not told apart in a bias stack; in a flat they are
+    dead_at_clip = np.maximum(synth({"Dead": {"seed": 5, "density": 0.01, "levels_dn": [0.0]}}, batch=6, size=64,
+                                    level_dn=300.0, sigma_g=1.0), 0.0)
+    assert abs(stuck_fraction(dead_at_clip) - 0.01) < 5 * math.sqrt(0.01 / dead_at_clip[0].size)
+
+
+DRIFT = {"k": [K], "octave_dn": [[0.0, 0.3, 0.5, 0.8, 1.0, 0.0, 0.0, 0.0]]}  # a 1/f-like drift, 1.3 DN rms
+
+
+def test_row_drift_is_shared_by_nearby_rows_and_its_spectrum_estimated():
+    f = synth({"RowDrift": DRIFT}, batch=8, size=64, sigma_g=1.0)
+    rows = sensor_row_means(f)  # (8, 128): per-frame sensor-row offsets plus read noise / 128
+    rows = rows - rows.mean(axis=1, keepdims=True)
+    lag1 = np.mean(rows[:, 1:] * rows[:, :-1]) / np.mean(rows**2)
+    assert lag1 > 0.8, lag1  # neighbouring rows share their offsets (white row noise: ~0 +- 0.03)
+    # variance of one octave's field: nodes of unit std, linear between: 2/3 + 1/(3 s^2) of a_j^2
+    var = sum(a * a * (2 / 3 + 1 / (3 * (2 << j) ** 2)) for j, a in enumerate(DRIFT["octave_dn"][0]))
+    total = np.mean(sensor_row_means(f).var(axis=0, ddof=1))  # about the stack mean: the drift and read noise / 128
+    assert abs(total - var - 1 / 128) < 0.35 * var, (total, var)  # 8 frames of a field with few independent nodes
+    base = [synth({}, batch=8, size=64, seed=s, sigma_g=1.0) for s in range(1, 7)]
+    est = row_drift.estimate(f, base, K)
+    # the octaves overlap in frequency, so the spectrum is what is checked: the estimated
+    # profile's temporal row spectrum against the planted one's, over 6 syntheses each
+    again = [synth({"RowDrift": est}, batch=8, size=64, seed=s, sigma_g=1.0) for s in range(20, 26)]
+    truth = [synth({"RowDrift": DRIFT}, batch=8, size=64, seed=s, sigma_g=1.0) for s in range(30, 36)]
+    power = lambda stacks: np.mean([row_drift.temporal_row_spectrum(s)[:16].sum() for s in stacks])  # noqa: E731
+    assert abs(power(again) / power(truth) - 1) < 0.35, (est, power(again), power(truth))
+    # white stacks: the fit is kept where it beats none at p < 1e-3
+    kept = 0
+    for s in range(40, 60):
+        try:
+            row_drift.estimate(synth({}, batch=8, size=64, seed=s, sigma_g=1.0), base, K)
+            kept += 1
+        except ValueError as e:
+            assert "no row drift" in str(e)
+    assert kept <= 1, kept
+    with pytest.raises(ValueError, match="bias and dark stacks"):
+        row_drift.estimate(f, base, K, level_dn=100.0)

@@ -60,10 +60,12 @@ READMAP = {"ReadMap": {"k": [K], "channel_dn": [[0.0, 0.0, 2.0, 0.0]], "row_bloc
                        "col_block_dn": [[0.0] * 4 + [1.5] * 4]}}  # B's own amplifier; the right half read by a noisier one
 SHARED = {"Shared": {"k": [K], "sigma_dn": [1.2]}}  # a 2x2 shared-pixel readout
 RTS = {"RTS": {"seed": 41, "density": 0.01, "high": 0.5, "log_std": 0.3, "k": [K], "median_dn": [20.0]}}  # telegraph pixels
+DEAD = {"Dead": {"seed": 53, "density": 0.003, "levels_dn": [-60.0, -60.0, 0.0, 400.0]}}  # dead: low, at black, high
+DRIFT = {"RowDrift": {"k": [K], "octave_dn": [[0.0, 0.3, 0.5, 0.8, 1.0, 0.0, 0.0, 0.0]]}}  # 1/f-like row noise
 CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "defect lines": LINES, "mixed": {**COL, **FPN, **HOT},
          "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "fixed rows": ROWFIX,
          "row per channel": ROWCH, "read-noise map": READMAP, "shared pixels": SHARED,
-         "telegraph": RTS}
+         "telegraph": RTS, "dead pixels": DEAD, "row drift": DRIFT}
 
 
 def loop_succeeds(effects, seed):

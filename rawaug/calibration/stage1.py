@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from ..statistics import stuck_outliers
 from .joint import IsoParameters
 
 # Packed channels read out from the same sensor row (see rawaug.bayer).
@@ -132,11 +133,15 @@ def row_corrected(bias_dn: np.ndarray, row_means: np.ndarray | None = None) -> n
     return bias - np.asarray(row_means)[[0, 0, 1, 1]][:, :, None]
 
 
-def read_residual(bias_dn: np.ndarray, row_means: np.ndarray | None = None) -> np.ndarray:
+def read_residual(bias_dn: np.ndarray, row_means: np.ndarray | None = None, exclude=None) -> np.ndarray:
     """The values the read noise is fitted to (DN, 1-D): the row-corrected frame off its
-    defect lines."""
+    defect lines and off ``exclude`` (a (4, h, w) mask: the dead pixels a stack shows,
+    ``rawaug.statistics.stuck_outliers``)."""
     r = row_corrected(bias_dn, row_means)
-    return r[np.isfinite(r)]
+    keep = np.isfinite(r)
+    if exclude is not None:
+        keep &= ~np.asarray(exclude, dtype=bool)
+    return r[keep]
 
 
 # ----------------------------------------------------------------------------- read noise
@@ -183,13 +188,18 @@ def _ppcc(sorted_x, osm, lam):
     return float(np.corrcoef(q, sorted_x)[0, 1])
 
 
+def sample_indices(n: int, max_samples: int | None, seed: int = 0) -> np.ndarray | None:
+    """Indices of up to ``max_samples`` of ``n`` values drawn without replacement (None: all)."""
+    if max_samples is None or n <= max_samples:
+        return None
+    return np.random.default_rng(seed).choice(n, size=int(max_samples), replace=False)
+
+
 def subsample(values: np.ndarray, max_samples: int | None, seed: int = 0) -> np.ndarray:
     """Up to ``max_samples`` values drawn without replacement (all of them when fewer)."""
     flat = np.asarray(values).ravel()
-    if max_samples is None or flat.size <= max_samples:
-        return flat.astype(np.float64)
-    rng = np.random.default_rng(seed)
-    return flat[rng.choice(flat.size, size=int(max_samples), replace=False)].astype(np.float64)
+    idx = sample_indices(flat.size, max_samples, seed)
+    return (flat if idx is None else flat[idx]).astype(np.float64)
 
 
 def estimate_read_noise(residual_dn, *, max_samples: int | None = 200_000, seed: int = 0) -> ReadNoiseEstimate:
@@ -319,10 +329,16 @@ class GainEstimate:
     curvature_per_dn: float = 0.0
 
 
+STUCK_TILE = 0.01  # a tile with more of its pixels equal in both frames at a clip is clipped there
+
+
 def _tile_stats(a, b, tile):
     """Per tile of each channel: mean of the pair, half the variance of the pair difference
-    (the single-frame variance), and the pair's min and max. Flat (channel, mean, var, min,
-    max) arrays over tiles."""
+    (the single-frame variance), the lowest and highest value of the pixels that differ
+    between the two frames, and the lowest and highest value with the fraction of the tile's
+    pixels equal in both frames at them. Flat (channel, mean, var, min, max, (min, fraction),
+    (max, fraction)) arrays over tiles; a pixel equal in both frames may be a dead pixel, which
+    does not make a tile clipped."""
     c, h, w = a.shape
     th, tw = h // tile, w // tile
     if th == 0 or tw == 0:
@@ -332,10 +348,17 @@ def _tile_stats(a, b, tile):
     mean = 0.5 * (a.mean(axis=(2, 4)) + b.mean(axis=(2, 4)))
     diff = a - b
     var = diff.var(axis=(2, 4), ddof=1) / 2.0  # var(a - b) = 2 var(single frame)
-    lo = np.minimum(a.min(axis=(2, 4)), b.min(axis=(2, 4)))
-    hi = np.maximum(a.max(axis=(2, 4)), b.max(axis=(2, 4)))
+    same = diff == 0
+    low, high = np.minimum(a, b), np.maximum(a, b)
+    lo = np.where(same, np.inf, low).min(axis=(2, 4))
+    hi = np.where(same, -np.inf, high).max(axis=(2, 4))
+    lo_same = np.where(same, a, np.inf).min(axis=(2, 4))
+    hi_same = np.where(same, a, -np.inf).max(axis=(2, 4))
+    frac_lo = (same & (a == lo_same[:, :, None, :, None])).mean(axis=(2, 4))
+    frac_hi = (same & (a == hi_same[:, :, None, :, None])).mean(axis=(2, 4))
     chan = np.broadcast_to(np.arange(c)[:, None, None], mean.shape)
-    return chan.ravel(), mean.ravel(), var.ravel(), lo.ravel(), hi.ravel()
+    return (chan.ravel(), mean.ravel(), var.ravel(), lo.ravel(), hi.ravel(), (lo_same.ravel(), frac_lo.ravel()),
+            (hi_same.ravel(), frac_hi.ravel()))
 
 
 def _robust_poly(x, y, n_per_tile, degree=1, iterations=8):
@@ -392,9 +415,10 @@ def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = N
     and half the variance of their difference (the difference cancels fixed patterns such as
     PRNU and vignetting). ``variance = K * mean + read variance``; the line is fitted robustly
     (weighted by the expected standard error of a tile variance, Huber reweighting, 5-sigma
-    rejection). Tiles touching ``saturation_dn`` or ``black_clip_dn`` are excluded; the
-    clipping levels are detected from the data when not given (many pixels sharing the
-    extreme value).
+    rejection). Tiles touching ``saturation_dn`` or ``black_clip_dn`` are excluded (a pixel
+    that differs between the two frames at a clip, or more than STUCK_TILE of the tile held
+    there in both: one dead pixel does not exclude its tile); the clipping levels are
+    detected from the data when not given (many pixels sharing the extreme value).
 
     ``read_variance_dn2`` (from bias frames, optional) decides which pairs are too dark to
     carry shot noise.
@@ -417,17 +441,17 @@ def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = N
             raise ValueError(f"flat pair {i}: frames differ in size: {a.shape} vs {b.shape}")
         sat = saturation_dn if saturation_dn is not None else _clip_level(a, b, high=True)
         low = black_clip_dn if black_clip_dn is not None else _clip_level(a, b, high=False)
-        ch, m, v, lo, hi = _tile_stats(a, b, tile)
+        ch, m, v, lo, hi, (lo_same, frac_lo), (hi_same, frac_hi) = _tile_stats(a, b, tile)
         ok = np.ones(m.size, bool)
-        if sat is not None:
-            ok &= hi < sat
+        if sat is not None:  # a moving pixel at the clip, or more than a few pixels held there
+            ok &= (hi < sat) & ~((hi_same >= sat) & (frac_hi > STUCK_TILE))
         if low is not None:
-            ok &= lo > low
+            ok &= (lo > low) & ~((lo_same <= low) & (frac_lo > STUCK_TILE))
         n_total += m.size
         mean_dn = float(0.5 * (a.mean() + b.mean()))
         pair_means.append(mean_dn)
         if ok.mean() < 0.5:
-            which = "saturated" if sat is not None and np.mean(hi >= sat) >= 0.5 else "black-clipped"
+            which = "saturated" if sat is not None and np.mean(np.maximum(hi, hi_same) >= sat) >= 0.5 else "black-clipped"
             rejected.append(f"pair {i} (mean {mean_dn:.1f} DN) is {which}: {100 * (1 - ok.mean()):.0f}% of tiles clipped")
             continue
         pair_var = float(np.median(v[ok]))
@@ -526,7 +550,7 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         raise ValueError(f"ISO {iso:g}: no bias frames; row and read noise need at least one")
     tell = progress or (lambda _msg: None)
     rows, biases, samples, shapes = [], [], [], []
-    first_bias = None
+    first_bias = lo = hi = None
     per_frame = max(1, (max_samples or 0) // len(bias_frames)) if max_samples else None
     for i, item in enumerate(bias_frames):
         bias = _packed(_load(item, "bias"), f"ISO {iso:g} bias frame {i}")
@@ -536,11 +560,19 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         row = estimate_row_noise(bias)
         rows.append(row)
         biases.append(estimate_color_bias(bias))
-        samples.append(subsample(read_residual(bias, row.row_means), per_frame, seed + i))
+        r = row_corrected(bias, row.row_means).ravel()
+        where = np.flatnonzero(np.isfinite(r))  # off the defect lines
+        idx = sample_indices(where.size, per_frame, seed + i)
+        where = where if idx is None else where[idx]
+        samples.append((where, r[where]))
         if first_bias is None:
-            first_bias = bias
+            first_bias, lo, hi = bias, bias.astype(np.float32), bias.astype(np.float32)
+        else:
+            np.minimum(lo, bias, out=lo, casting="unsafe")
+            np.maximum(hi, bias, out=hi, casting="unsafe")
         tell(f"ISO {iso:g}: bias frame {i + 1}/{len(bias_frames)}")
-    residual = np.concatenate(samples)
+    dead = stuck_outliers(lo, hi, first_bias).ravel() if len(bias_frames) >= 3 else None
+    residual = np.concatenate([v if dead is None else v[~dead[w]] for w, v in samples])
     read = estimate_read_noise(residual, max_samples=max_samples, seed=seed)
     tell(f"ISO {iso:g}: read noise fitted")
     read_var = float(np.median([r.read_variance_dn2 for r in rows]))
@@ -575,6 +607,7 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         "color_bias_per_frame_dn": [b.tolist() for b in biases],
         "banding": banding_ratios(first_bias[1]),
         "n_bias": len(bias_frames),
+        "dead_pixels": int(dead.sum()) if dead is not None else None,  # stuck outliers left out of the read-noise fit
         "n_flat_pairs": len(pairs),
         # Kept for the report's figures, left out of report.json (leading underscore).
         "_residual_sample": subsample(residual, 20_000, seed),

@@ -68,6 +68,10 @@ _READ_MAP, _NB = L.STREAM["read_map"], L.READ_MAP_BLOCKS
 _SH, _SHARED = L.COLUMN["shared_sigma"], L.STREAM["shared"]
 _RTD, _RTM, _RTL, _RTH = L.COLUMN["rts_density"], L.COLUMN["rts_median"], L.COLUMN["rts_log_std"], L.COLUMN["rts_high"]
 _RTS_WHERE, _RTS_SIZE, _RTS_STATE = L.STREAM["rts_where"], L.STREAM["rts_size"], L.STREAM["rts_state"]
+_DD, _DL0, _NDL = L.COLUMN["dead_density"], L.COLUMN["dead_l0"], L.DEAD_LEVELS
+_DEAD_WHERE, _DEAD_LEVEL = L.STREAM["dead_where"], L.STREAM["dead_level"]
+_DR0, _OCT = L.COLUMN["drift_a0"], L.DRIFT_OCTAVES
+_ROW_DRIFT, _ROW_DRIFT_PHASE = L.STREAM["row_drift"], L.STREAM["row_drift_phase"]
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([lag[0] for lag in L.XTALK_LAGS], dtype=np.int64)
 _XT_DX = np.array([lag[1] for lag in L.XTALK_LAGS], dtype=np.int64)
@@ -116,6 +120,25 @@ def banding_at(key, v, b, ry):
         if a != 0.0:
             phase = 2.0 * math.pi * unit(draw(key, b * _TONES + j))
             out += a * math.cos(2.0 * math.pi * v[_BF0 + j] * ry + phase)
+    return out
+
+
+@njit(inline="always")
+def row_drift_at(normal, key, key_phase, v, b, ry):
+    """Row drift (DN) on sensor row ``ry`` of sample b: over octaves j, a_j times the linear
+    interpolation of standard normals on nodes every s = 2^(j + 1) sensor rows (counter
+    ((b * OCTAVES + j) << 24) + node), the grid shifted by a whole number of rows
+    floor(s U(0, 1)) drawn per frame and octave (counter b * OCTAVES + j)."""
+    out = 0.0
+    for j in range(_OCT):
+        a = v[_DR0 + j]
+        if a != 0.0:
+            s = 2 << j
+            t = ry + int(unit(draw(key_phase, b * _OCT + j)) * s)
+            i = t // s
+            f = (t - i * s) / s
+            base = (b * _OCT + j) << 24
+            out += a * (symmetric(normal, draw(key, base + i)) * (1.0 - f) + symmetric(normal, draw(key, base + i + 1)) * f)
     return out
 
 
@@ -185,6 +208,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             line += banding_at(keys[_BAND], v, b, 2 * y + row_set)
         if stages & L.ROW_CHANNEL:
             line += v[_RC] * symmetric(normal, draw(keys[_ROW_CHANNEL], (b * 4 + c) * h + y))
+        if stages & L.ROW_DRIFT:
+            line += row_drift_at(normal, keys[_ROW_DRIFT], keys[_ROW_DRIFT_PHASE], v, b, 2 * y + row_set)
         if stages & L.ROW_FIX:
             line += v[_RF] * symmetric(normal, draw(keys[_ROW_PATTERN], (sensor * 2 + row_set) * h + y))
         if stages & L.LINES:
@@ -280,6 +305,9 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 code = math.floor(s + 0.5)
                 i = int(code - v[_CM_LO])
                 s = code_lut[int(v[_CM_REC]), i] if 0 <= i < int(v[_CM_N]) else code
+            if stages & L.DEAD:  # a dead pixel reads its stuck level, whatever came before
+                if unit(draw(keys[_DEAD_WHERE], p)) < v[_DD]:
+                    s = v[_DL0 + min(int(unit(draw(keys[_DEAD_LEVEL], p)) * _NDL), _NDL - 1)]
             if stages & L.CLIP:
                 s = max(s, v[_CL])
             if stages & L.CLIP_WHITE:

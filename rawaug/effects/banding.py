@@ -84,10 +84,14 @@ def _tone_amplitude(raw, f: float, noise: float) -> float:
     frame (a fixed row pattern), its radius n a / 2 (the tone, its phase new in every frame).
     The circle is fitted by least squares (Kasa); the noise power ``noise`` (DN^2, a
     periodogram value) adds n * noise to the squared radius and is taken off. With two frames
-    the radius is |X_1 - X_2| / sqrt(2); with one, |X_1|."""
+    the radius is |X_1 - X_2| / sqrt(2); with one, |X_1|. At Nyquist (real X_b = n a cos(phase))
+    the squared radius is half the variance of X_b over the frames."""
     n_frames, n = raw.shape
     x = raw @ np.exp(-2j * np.pi * f * np.arange(n))
-    if n_frames >= 3:
+    if n_frames >= 2 and np.abs(x.imag).max() <= 1e-9 * max(float(np.abs(x).max()), 1e-30):
+        # at Nyquist the coefficient is real, a cos(phase) n: the points lie on a line, not a circle
+        r2 = float(np.var(x.real, ddof=1)) / 2.0 - n * noise / 2.0 + n * noise  # var = 2 (n a / 2)^2 + n noise
+    elif n_frames >= 3:
         design = np.stack([2 * x.real, 2 * x.imag, np.ones(n_frames)], axis=1)
         (cx, cy, d), *_ = np.linalg.lstsq(design, np.abs(x) ** 2, rcond=None)
         r2 = d + cx * cx + cy * cy

@@ -25,7 +25,7 @@ import math
 import numpy as np
 from ..engine import layout as L
 from .base import DARK, NoiseEffect, pattern_key, register
-from .k_records import _number, check_seed, validate_records, value_at_k
+from .k_records import _number, check_density, check_seed, validate_records, value_at_k
 
 STATISTICS = ("hot_fraction", "tail_mass")
 THRESHOLD_SIGMA = 8.0
@@ -52,9 +52,7 @@ class HotPixels(NoiseEffect):
     def validate_params(cls, params):
         validate_records(cls.token, params, ("median_dn",), nonnegative=("median_dn",))
         check_seed(cls.token, params)
-        density = _number(params.get("density"), "Hot.density")
-        if not 0.0 <= density <= 0.1:
-            raise ValueError(f"effect 'Hot': density (fraction of pixels) must be in [0, 0.1], got {density}")
+        check_density(cls.token, params)
         if _number(params.get("log_std"), "Hot.log_std") < 0:
             raise ValueError(f"effect 'Hot': log_std must be >= 0, got {params.get('log_std')}")
 

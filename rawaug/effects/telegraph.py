@@ -34,7 +34,7 @@ from scipy import stats
 from ..engine import layout as L
 from ..statistics import flicker_threshold, two_state, two_state_pixels
 from .base import DARK, NoiseEffect, pattern_key, register
-from .k_records import _number, check_seed, validate_records, value_at_k
+from .k_records import _number, check_density, check_seed, validate_records, value_at_k
 
 STATISTICS = ("flicker_fraction", "hot_fraction")  # a pixel high in some frames is also high in the stack mean
 SIMULATED = 20_000  # telegraph pixels simulated per round of the estimate
@@ -62,9 +62,7 @@ class Telegraph(NoiseEffect):
     def validate_params(cls, params):
         validate_records(cls.token, params, ("median_dn",), nonnegative=("median_dn",))
         check_seed(cls.token, params)
-        density = _number(params.get("density"), "RTS.density")
-        if not 0.0 <= density <= 0.1:
-            raise ValueError(f"effect 'RTS': density (fraction of pixels) must be in [0, 0.1], got {density}")
+        check_density(cls.token, params)
         high = _number(params.get("high"), "RTS.high")
         if not 0.0 < high < 1.0:
             raise ValueError(f"effect 'RTS': high (share of frames in the high state) must be in (0, 1), got {high}")

@@ -35,7 +35,11 @@ ROW_CHANNEL = 1 << 24  # row noise of each channel's own: one offset per packed 
 READ_MAP = 1 << 25  # read-noise non-uniformity: extra white read noise per channel, row block and column block
 SHARED = 1 << 26  # shared-pixel readout: read noise shared by the four pixels of a Bayer tile
 RTS = 1 << 27  # random telegraph noise: sparse pixels with a step, in the high state in some frames
+DEAD = 1 << 28  # dead (stuck) pixels: sparse pixels whose output is a fixed level, whatever the signal and noise
+ROW_DRIFT = 1 << 29  # row noise with a low-frequency spectrum: octaves of interpolated random row offsets per frame
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
+DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
+DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
 
 COLUMNS = (
     "k", "ratio",
@@ -68,6 +72,8 @@ COLUMNS = (
     "rmap_oy", "rmap_ox", "rmap_h", "rmap_w",  # its window in packed pixels (rmap_h 0: the input is the sensor)
     "shared_sigma",  # shared-pixel readout: the noise a Bayer tile's four pixels share (DN)
     "rts_density", "rts_median", "rts_log_std", "rts_high",  # telegraph pixels: share, step (DN), share of frames high
+    "dead_density", *(f"dead_l{i}" for i in range(DEAD_LEVELS)),  # dead pixels: share, stuck levels (DN)
+    *(f"drift_a{j}" for j in range(DRIFT_OCTAVES)),  # row drift: std of each octave's nodes (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -80,7 +86,7 @@ STREAMS = (
     "shot", "shot_rest", "shot_coarse", "read", "row", "col", "quant", "ble",
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
     "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map", "shared",
-    "rts_where", "rts_size", "rts_state",
+    "rts_where", "rts_size", "rts_state", "dead_where", "dead_level", "row_drift", "row_drift_phase",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

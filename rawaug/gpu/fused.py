@@ -44,6 +44,10 @@ C_RMOY, C_RMOX, C_RMH, C_RMW = _column("rmap_oy"), _column("rmap_ox"), _column("
 NB = tl.constexpr(L.READ_MAP_BLOCKS)
 C_SH = _column("shared_sigma")
 C_RTD, C_RTM, C_RTL, C_RTH = _column("rts_density"), _column("rts_median"), _column("rts_log_std"), _column("rts_high")
+C_DD, C_DL0 = _column("dead_density"), _column("dead_l0")
+NDL = tl.constexpr(L.DEAD_LEVELS)
+C_DR0 = _column("drift_a0")
+OCT = tl.constexpr(L.DRIFT_OCTAVES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_N = tl.constexpr(len(L.XTALK_LAGS))
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5 = (
@@ -60,6 +64,8 @@ K_LINES_ROW, K_LINES_COL = S["lines_row"], S["lines_col"]
 K_XTALK, K_BAND, K_ROW_PATTERN, K_ROW_CHANNEL = S["xtalk"], S["band"], S["row_pattern"], S["row_channel"]
 K_READ_MAP, K_SHARED = S["read_map"], S["shared"]
 K_RTS_WHERE, K_RTS_SIZE, K_RTS_STATE = S["rts_where"], S["rts_size"], S["rts_state"]
+K_DEAD_WHERE, K_DEAD_LEVEL = S["dead_where"], S["dead_level"]
+K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -106,6 +112,20 @@ def _tone(key, v, j: tl.constexpr, b, ry):
     phase = 6.283185307179586 * unit(draw(key, (b.to(tl.int64) * TONES + j).to(tl.uint64) + tl.zeros_like(ry).to(tl.uint64)))
     arg = 6.283185307179586 * _col(v, C_BF0 + j) * ry.to(tl.float64) + phase.to(tl.float64)
     return _col(v, C_BA0 + j) * tl.cos(arg)
+
+
+@triton.jit
+def _drift_octave(key, key_phase, normal_ptr, v, j: tl.constexpr, b, ry):
+    """As one octave of ``rawaug.cpu.fused.row_drift_at``."""
+    s: tl.constexpr = 2 << j
+    bj = b.to(tl.int64) * OCT + j
+    t = ry.to(tl.int64) + (unit(draw(key_phase, bj.to(tl.uint64) + tl.zeros_like(ry).to(tl.uint64))) * s).to(tl.int64)
+    i = t // s
+    f = (t - i * s).to(tl.float64) / s
+    base = (bj << 24) + i
+    z0 = _normal(draw(key, base.to(tl.uint64)))
+    z1 = _normal(draw(key, (base + 1).to(tl.uint64)))
+    return _col(v, C_DR0 + j) * (z0 * (1.0 - f) + z1 * f)
 
 
 @triton.jit
@@ -252,6 +272,12 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         line += _tone(kb, v, 0, b, ry) + _tone(kb, v, 1, b, ry) + _tone(kb, v, 2, b, ry)
     if FLAGS & 16777216:  # row noise of each channel's own: per packed row and frame
         line += _col(v, C_RC) * _normal(draw(_key(keys_ptr, K_ROW_CHANNEL), ((plane.to(tl.int64)) * H + y).to(tl.uint64)))
+    if FLAGS & 536870912:  # row drift: octaves of interpolated per-frame row offsets
+        ry = 2 * y + row_set
+        kd = _key(keys_ptr, K_ROW_DRIFT)
+        kp = _key(keys_ptr, K_ROW_DRIFT_PHASE)
+        for j in tl.static_range(OCT):
+            line += _drift_octave(kd, kp, normal_ptr, v, j, b, ry)
     if FLAGS & 8388608:  # fixed row pattern: the sensor row's offset, the same in every frame
         line += _col(v, C_RF) * _normal(draw(_key(keys_ptr, K_ROW_PATTERN), ((sensor * 2 + row_set) * H + y).to(tl.uint64)))
     if FLAGS & 262144:  # defect lines: the sensor row's offset
@@ -269,6 +295,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         inside = live & (i >= 0) & (i < _col(v, C_CM_N).to(tl.int64))
         mapped = tl.load(code_ptr + _col(v, C_CM_REC).to(tl.int64) * CODE_N + i, mask=inside, other=0.0)
         s = tl.where(inside, mapped, code)
+    if FLAGS & 268435456:  # dead pixels: the stuck level, whatever came before
+        dead = unit(draw(_key(keys_ptr, K_DEAD_WHERE), p)) < _col(v, C_DD)
+        which = tl.minimum((unit(draw(_key(keys_ptr, K_DEAD_LEVEL), p)) * NDL).to(tl.int64), NDL - 1)
+        s = tl.where(dead, tl.load(v + C_DL0 + which, mask=live, other=0.0), s)
     if FLAGS & 4096:  # black clip
         s = tl.maximum(s, _col(v, C_CL))
     if FLAGS & 8192:  # white clip

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..statistics import CURVE_LAGS, lag_covariances, read_noise_profile, repaired, row_tone_spectrum, tile_pair_covariances
+from ..statistics import (CURVE_LAGS, lag_covariances, read_noise_profile, row_tone_spectrum, statistic_view,
+                          tile_pair_covariances)
 
 KIND = {
     "psd2d_lowfreq": "radial_spectrum",
@@ -28,6 +29,7 @@ KIND = {
     "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
     "neighbour_corr": "lag_correlations", "row_tone": "row_tone_spectrum",
     "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram",
+    "stuck_fraction": "temporal_histogram",
 }  # every other statistic: the histogram of the pixel values
 LABEL = {
     "radial_spectrum": ("radial frequency (cycles/pixel)", "power (DN^2)", True),
@@ -132,8 +134,7 @@ def step_signature(statistic: str, frames, before, after) -> dict:
     and spread of the same curve over the syntheses ``before`` and ``after`` a step
     (each (n_synth, N, 4, h, w)); histograms share bins spanning the measured values."""
     kind = KIND.get(statistic, "pixel_histogram")
-    raw = kind == "line_means"  # defect lines are read as measured, every other curve repaired
-    view = np.asarray(frames, dtype=np.float64) if raw else repaired(np.asarray(frames, dtype=np.float64))
+    view = statistic_view(statistic, frames)  # as the statistic reads them (defect lines, dead pixels)
     edges = None
     if kind == "code_histogram":
         mid = float(np.rint(np.median(view)))
@@ -145,8 +146,7 @@ def step_signature(statistic: str, frames, before, after) -> dict:
     x, measured = curve(kind, view, edges)
     out = {"statistic": statistic, "kind": kind, "x": x.tolist(), "measured": measured.tolist()}
     for name, synth in (("before", before), ("after", after)):
-        ys = np.array([curve(kind, np.asarray(s, dtype=np.float64) if raw else repaired(np.asarray(s, dtype=np.float64)),
-                             edges)[1] for s in synth])
+        ys = np.array([curve(kind, statistic_view(statistic, s), edges)[1] for s in synth])
         out[name] = ys.mean(axis=0).tolist()
         out[name + "_std"] = ys.std(axis=0, ddof=1).tolist() if len(ys) > 1 else [0.0] * len(x)
     out["xlabel"], out["ylabel"], out["log_y"] = LABEL[kind]
