@@ -545,22 +545,25 @@ def flicker_fraction(frames, level_dn=None):
 
 def stuck_from_range(lo, hi):
     """Mask of the stuck pixels from each pixel's lowest and highest value over a stack (same
-    shape): equal in every frame. A pixel that stays at the stack's lowest (highest) value is
-    left out where pixels that move also reach it: there it is the clip at black (white), not
-    a stuck pixel."""
+    shape, (4, h, w)): equal in every frame. A pixel that stays at the stack's lowest (highest)
+    value is left out where pixels that move also reach it: there it is the clip at black
+    (white), not a stuck pixel; so is one on a row or column of its channel stuck for more
+    than half its length: a defect line."""
     const = lo == hi
     moving = ~const
     if moving.any():
         at_floor = (lo == lo.min()) & bool(lo[moving].min() == lo.min())
         at_ceiling = (hi == hi.max()) & bool(hi[moving].max() == hi.max())
         const &= ~(at_floor | at_ceiling)
+    if const.ndim == 3:  # (4, h, w): a row or column stuck for the most part is a defect line (Lines), not dead pixels
+        const &= ~((const.mean(axis=2) > 0.5)[:, :, None] | (const.mean(axis=1) > 0.5)[:, None, :])
     return const
 
 
 def stuck_pixels(frames):
-    """Of a stack (N >= 2, 4, h, w): (mask over (4 h w) of the pixels that read the same value
-    in every frame, ``stuck_from_range``; their values, DN)."""
-    v = np.asarray(frames, dtype=np.float64).reshape(len(frames), -1)
+    """Of a stack (N >= 2, 4, h, w): ((4, h, w) mask of the pixels that read the same value in
+    every frame, ``stuck_from_range``; their values, DN)."""
+    v = np.asarray(frames, dtype=np.float64)
     lo, hi = v.min(axis=0), v.max(axis=0)
     stuck = stuck_from_range(lo, hi)
     return stuck, lo[stuck]

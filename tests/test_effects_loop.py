@@ -10,7 +10,7 @@ from rawaug import NoiseProfile, RawNoiseAugment
 from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
-from rawaug.statistics import (repaired, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
+from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
                                without_stuck)
 
 BASE = NoiseProfile.load("SonyA7S2")
@@ -554,6 +554,10 @@ def test_dead_pixels_count_once_and_clipped_pixels_are_not_dead():
     dead_at_clip = np.maximum(synth({"Dead": {"seed": 5, "density": 0.01, "levels_dn": [0.0]}}, batch=6, size=64,
                                     level_dn=300.0, sigma_g=1.0), 0.0)
     assert abs(stuck_fraction(dead_at_clip) - 0.01) < 5 * math.sqrt(0.01 / dead_at_clip[0].size)
+    # a dead column is a defect line, not 64 dead pixels: the battery counts it once, as a line
+    column = synth({}, batch=6, size=64, sigma_g=1.0)
+    column[:, 1, :, 10] = -500.0
+    assert stuck_fraction(column) == 0.0 and defect_line_fraction(column) > 0.0
 
 
 DRIFT = {"k": [K], "octave_dn": [[0.0, 0.3, 0.5, 0.8, 1.0, 0.0, 0.0, 0.0]]}  # a 1/f-like drift, 1.3 DN rms
