@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects.code_map import estimate
+from rawaug.effects.code_map import combine, estimate
 from rawaug.statistics import MAX_GAP, written_codes
 from rawaug.io import read_frame
 
@@ -81,3 +81,30 @@ def test_a_signal_through_the_stage_keeps_its_level():
     lo, n = m["lo_dn"][0], len(m["map_dn"][0])
     inside = codes[(codes >= lo) & (codes < lo + n)]  # where the comb was measured (not its sparse tail)
     assert inside.size > 10 and np.isin(inside, np.unique(frames)).all()  # the comb, at 20 DN as at 0
+
+
+def _dnl(rng, mean, sd, n=400_000):
+    """An ADC whose codes 4k + 3 are never written: their inputs read as 4k + 2 or 4k + 4."""
+    q = np.floor(rng.normal(mean, sd, n) + 0.5)
+    return np.where(q % 4 == 3, q + np.where(rng.random(n) < 0.5, -1.0, 1.0), q)
+
+
+def test_a_periodic_comb_goes_on_at_every_signal_level():
+    rng = np.random.default_rng(5)
+    dark = estimate(_dnl(rng, 0.0, 8.0).reshape(1, 4, 500, 200), np.rint(rng.normal(0, 8, 400_000)), k=1.0)
+    assert dark["period_dn"] == [4.0]
+    smooth = estimate(np.rint(rng.normal(0, 8, 400_000)).reshape(1, 4, 500, 200), np.rint(rng.normal(0, 8, 400_000)), k=1.0)
+    assert smooth["period_dn"] == [0.0]  # no comb, no period
+    base = NoiseProfile.load("SonyA7S2")
+    profile = base.with_effect("CodeMap", dark)
+    aug = RawNoiseAugment(profile, model="G", ratio=1.0, fixed={"k": 1.0, "sigma_g": 4.0}, include_profile_effects=True,
+                          generator=torch.Generator().manual_seed(0), rank_seeding=False)
+    for level in (-300.0, 3000.0):  # far outside the 0 +- 40 DN the map was measured on
+        codes = np.rint(aug(torch.full((1, 4, 64, 64), level / base.span_dn)).double().numpy() * base.span_dn)
+        assert not np.any(codes % 4 == 3) and abs(codes.mean() - level) < 0.5, level  # without the period: a quarter
+    # a flat stack's map joined to the bias stack's: the comb fills the codes between their ranges
+    flat = estimate(_dnl(rng, 1500.0, 40.0).reshape(1, 4, 500, 200), np.rint(rng.normal(1500, 40, 400_000)), k=1.0)
+    joined = combine([dark, flat])
+    lut = np.asarray(joined["map_dn"][0])
+    r = joined["lo_dn"][0] + np.arange(lut.size)
+    assert joined["period_dn"] == [4.0] and np.all(lut[r % 4 == 3] != r[r % 4 == 3]) and np.abs(lut - r).max() == 1

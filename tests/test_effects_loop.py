@@ -419,6 +419,8 @@ def test_effects_replay_bit_exactly():
     ("Dead", {"seed": 1, "density": 0.01, "levels_dn": [float("inf")]}, "Dead.levels_dn"),
     ("Dead", {"density": 0.01, "levels_dn": [0.0]}, "seed"),
     ("RowDrift", {"k": [1.0], "octave_dn": [[0.0] * 7]}, "octave_dn record 0 must list 8 values"),
+    ("CodeMap", {"k": [1.0], "lo_dn": [0.0], "map_dn": [[0.0, 2.0, 2.0]], "period_dn": [4]}, r"period_dn\[0\] must be 0"),
+    ("CodeMap", {"k": [1.0], "lo_dn": [0.0], "map_dn": [[0.0, 2.0, 2.0]], "period_dn": [1.5]}, "whole DN"),
     ("RowDrift", {"k": [1.0], "octave_dn": [[0.0] * 7 + [-1.0]]}, "finite and >= 0"),
     ("ReadMap", {"k": [1.0], "channel_dn": [[0.0] * 3], "row_block_dn": [[0.0] * 8], "col_block_dn": [[0.0] * 8]},
      "channel_dn record 0 must list 4 values"),

@@ -40,7 +40,8 @@ LOOP_EFFECTS = {
     "RTS": {"seed": 43, "density": 0.05, "high": 0.3, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [15.0, 30.0]},
     "Dead": {"seed": 47, "density": 0.02, "levels_dn": [-3.0, 0.0, 2.5, 40.0, 400.0]},
     "RowDrift": {"k": [1.0, 3.0], "octave_dn": [[0.0, 0.4, 0.0, 0.9, 1.3, 0.5, 0.2, 0.1], [0.2] * 8]},
-    "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]]},
+    "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]],
+                "period_dn": [3]},  # its shifts (0, -1, 0) go on beyond the map: every code of the input's range
     "ReadDist": {"k": [1.0, 3.0], "quantiles_dn": (np.linspace(-6, 6, 257)[None, None] ** 3 / 20
                                                   * np.array([1.0, 2.0])[:, None, None] * np.ones((1, 4, 1))).tolist()},
 }

@@ -33,6 +33,7 @@ _DARK_E, _DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
 _DSNU_PATTERN = L.STREAM["dsnu_pattern"]
 _LF, _LF_GH, _LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
 _CM_REC, _CM_LO, _CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
+_CM_P = L.COLUMN["codemap_period"]
 _RQ_REC, _RQ_SCALE = L.COLUMN["readq_record"], L.COLUMN["readq_scale"]
 _LRD, _LCD, _LM, _LLS, _LNEG = (L.COLUMN["lines_row_density"], L.COLUMN["lines_col_density"], L.COLUMN["lines_median"],
                                 L.COLUMN["lines_log_std"], L.COLUMN["lines_negative"])
@@ -304,7 +305,14 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.CODE_MAP:
                 code = math.floor(s + 0.5)
                 i = int(code - v[_CM_LO])
-                s = code_lut[int(v[_CM_REC]), i] if 0 <= i < int(v[_CM_N]) else code
+                period = int(v[_CM_P])
+                if 0 <= i < int(v[_CM_N]):
+                    s = code_lut[int(v[_CM_REC]), i]
+                elif period > 0:  # a periodic comb goes on beyond the measured range: the first period's shifts
+                    j = i % period
+                    s = code + code_lut[int(v[_CM_REC]), j] - (v[_CM_LO] + j)
+                else:
+                    s = code
             if stages & L.DEAD:  # a dead pixel reads its stuck level, whatever came before
                 if unit(draw(keys[_DEAD_WHERE], p)) < v[_DD]:
                     s = v[_DL0 + min(int(unit(draw(keys[_DEAD_LEVEL], p)) * _NDL), _NDL - 1)]

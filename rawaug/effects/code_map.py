@@ -9,17 +9,21 @@ reproduced by measurement.
 
 Stage (DN, after every offset): ``s -> map[round(s) - lo]``: ``s`` is rounded to a whole
 DN and, inside the mapped range ``[lo_dn, lo_dn + n)``, replaced by the code the camera
-writes for it; outside it is left rounded.
+writes for it; outside it is left rounded, or, with a period ``p``, shifted as the code
+``p``-periodically equal to it in the map's first period is (a comb over the whole range).
 
-Profile entry (per-K records)::  ``CodeMap: {k: [K, ...], lo_dn: [...], map_dn: [[c, ...], ...]}``
-(``map_dn[i]``: the code written for ``lo_dn + i``, DN relative to black, non-decreasing).
+Profile entry (per-K records)::  ``CodeMap: {k: [K, ...], lo_dn: [...], map_dn: [[c, ...], ...], period_dn: [...]}``
+(``map_dn[i]``: the code written for ``lo_dn + i``, DN relative to black, non-decreasing;
+``period_dn``, optional: 0, or the period of a comb that repeats beyond the mapped range).
 
 Estimated by ``estimate`` as the ADC's transfer, not the noise's shape: every code the
 camera writes maps to itself, so a signal keeps its DN (the map is measured on dark frames
 but applied at every signal level); each missing code (none written, while the written codes
 on both sides of its gap, at most ``MAX_GAP`` long, hold >= ``MIN_COUNT`` pixels each) goes
 to one of those two neighbours, the one histogram matching of the current model against the
-frames points to.
+frames points to. Where the map's shifts repeat with a period (a digital gain, an ADC's
+differential non-linearity; ``periodic_comb``), the period is stored and the comb is applied
+at every signal level, not only over the codes the frames held.
 A first version matched the whole histogram: fitted on a real dark frame it mapped 1..107 DN
 onto 4..18 DN and wiped out the signal of the dark scenes it was trained on.
 """
@@ -29,7 +33,7 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import written_codes  # the rule for a missing code (MIN_COUNT, MAX_GAP there)
+from ..statistics import MAX_GAP, written_codes  # the rule for a missing code (MIN_COUNT, MAX_GAP there)
 from .base import CLIP, NoiseEffect, register
 from .k_records import record_index, validate_records, value_at_k
 
@@ -42,13 +46,14 @@ class CodeMap(NoiseEffect):
     token = "CodeMap"
     order = CLIP - 5
     flag = L.CODE_MAP
-    columns = ("codemap_record", "codemap_lo", "codemap_n")
+    columns = ("codemap_record", "codemap_lo", "codemap_n", "codemap_period")
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        lengths = {"k": p["k"], "n": [float(len(m)) for m in p["map_dn"]]}
+        lengths = {"k": p["k"], "n": [float(len(m)) for m in p["map_dn"]],
+                   "period": [float(x) for x in p.get("period_dn", [0.0] * len(p["k"]))]}
         return {"codemap_record": record_index(p, ctx.k).to(torch.float64), "codemap_lo": value_at_k(p, "lo_dn", ctx.k),
-                "codemap_n": value_at_k(lengths, "n", ctx.k)}
+                "codemap_n": value_at_k(lengths, "n", ctx.k), "codemap_period": value_at_k(lengths, "period", ctx.k)}
 
     def tables(self):
         p = self.profile.effects[self.token]
@@ -68,6 +73,13 @@ class CodeMap(NoiseEffect):
                 raise ValueError(f"effect 'CodeMap': map_dn[{i}] must be 1 to 65536 non-decreasing whole DN, got {codes!r:.80}")
             if params["lo_dn"][i] != np.rint(params["lo_dn"][i]):
                 raise ValueError(f"effect 'CodeMap': lo_dn must be whole DN, got {params['lo_dn'][i]}")
+        periods = params.get("period_dn", [0] * len(params["k"]))
+        if not isinstance(periods, (list, tuple)) or len(periods) != len(params["k"]):
+            raise ValueError(f"effect 'CodeMap': period_dn must list one period per k, got {periods!r:.80}")
+        for i, (per, codes) in enumerate(zip(periods, params["map_dn"])):
+            if isinstance(per, bool) or not isinstance(per, (int, float)) or per != int(per) or not 0 <= per <= len(codes):
+                raise ValueError(f"effect 'CodeMap': period_dn[{i}] must be 0 (none) or a whole DN up to the map's "
+                                 f"length {len(codes)}, got {per!r}")
 
 
 def estimate(frames, synthesized, k: float, **_) -> dict:
@@ -95,17 +107,59 @@ def estimate(frames, synthesized, k: float, **_) -> dict:
         r, codes = r[first : last + 1], codes[first : last + 1]
     else:
         r, codes = r[:1], codes[:1]
-    return {"k": [float(k)], "lo_dn": [float(r[0])], "map_dn": [[float(c) for c in codes]]}
+    period, template = periodic_comb(r, codes)
+    if period:  # the comb's period in front: the kernel repeats the map's first period beyond its range
+        r = np.concatenate([r[0] - period + np.arange(period), r])
+        codes = np.concatenate([r[:period] + template, codes])
+    return {"k": [float(k)], "lo_dn": [float(r[0])], "map_dn": [[float(c) for c in codes]], "period_dn": [float(period)]}
+
+
+MIN_PERIODS = 3  # a comb is periodic where its pattern repeats this many times over the measured range
+PERIODIC = 0.98  # ... at this share of its codes or more (a sparse tail's gaps do not count as missing)
+
+
+def periodic_comb(r, codes):
+    """(period, shifts of one period) of a code map ``codes`` over codes ``r``: where the moved
+    (missing) codes repeat with a period p up to MAX_GAP + 1 over PERIODIC of the range, which
+    spans MIN_PERIODS periods or more, p and each phase's most common shift (phase j: the
+    codes r[0] + j + n p); else (0, None). A digital gain or an ADC's differential
+    non-linearity makes such a comb over the whole code range, not only where the frames had
+    pixels."""
+    r = np.asarray(r, dtype=np.float64)
+    shift = np.asarray(codes, dtype=np.float64) - r
+    moved = shift != 0
+    if not moved.any():
+        return 0, None
+    for p in range(2, MAX_GAP + 2):
+        if moved.size >= MIN_PERIODS * p and np.mean(moved[p:] == moved[:-p]) >= PERIODIC:
+            template = []
+            for j in range(p):
+                values, counts = np.unique(shift[j::p], return_counts=True)
+                template.append(values[np.argmax(counts)])
+            return p, np.asarray(template)
+    return 0, None
+    for p in range(2, MAX_GAP + 2):
+        if moved.size >= MIN_PERIODS * p and np.mean(moved[p:] == moved[:-p]) >= PERIODIC:
+            template = []
+            for j in range(p):
+                values, counts = np.unique(shift[j::p], return_counts=True)
+                template.append(values[np.argmax(counts)])
+            return p, r + np.asarray(template)[np.arange(r.size) % p]
+    return 0, codes
+    for p in range(2, MAX_GAP + 2):
+        if shift.size >= MIN_PERIODS * p and np.array_equal(shift[p:], shift[:-p]):
+            return p
+    return 0
 
 
 def combine(records: list[dict]) -> dict:
     """One map per gain: the maps of the stacks at one K (bias, dark, flats cover different
     code ranges) joined over their union; where two overlap the first stack's holds, and
-    codes between them map to themselves."""
+    codes between them map to themselves, or, where all share one periodic comb, follow it."""
     by_k: dict = {}
     for r in records:
         by_k.setdefault(r["k"][0], []).append(r)
-    ks, los, maps = sorted(by_k), [], []
+    ks, los, maps, periods = sorted(by_k), [], [], []
     for k in ks:
         parts = by_k[k]
         lo = min(p["lo_dn"][0] for p in parts)
@@ -118,6 +172,27 @@ def combine(records: list[dict]) -> dict:
             free = ~filled[start : start + m.size]
             joined[start : start + m.size][free] = m[free]
             filled[start : start + m.size] = True
+        period = _common_period(parts)
+        if period:  # one periodic comb: its pattern fills the codes between the stacks' ranges too
+            first = parts[0]
+            shift = np.asarray(first["map_dn"][0][:period]) - (first["lo_dn"][0] + np.arange(period))
+            codes = np.arange(lo, hi + 1.0)
+            joined = codes + shift[((codes - first["lo_dn"][0]) % period).astype(np.int64)]
         los.append(float(lo))
         maps.append([float(c) for c in np.maximum.accumulate(joined)])  # non-decreasing where ranges meet
-    return {"k": ks, "lo_dn": los, "map_dn": maps}
+        periods.append(float(period))
+    return {"k": ks, "lo_dn": los, "map_dn": maps, "period_dn": periods}
+
+
+def _common_period(parts) -> int:
+    """The period all of one gain's maps share, with the same missing codes (0 if any is not
+    periodic or they disagree; which neighbour a missing code goes to may differ)."""
+    periods = {int(p.get("period_dn", [0])[0]) for p in parts}
+    if len(periods) != 1 or 0 in periods:
+        return 0
+    period = periods.pop()
+    pattern = set()
+    for p in parts:
+        lo, m = p["lo_dn"][0], np.asarray(p["map_dn"][0][:period])
+        pattern.add(tuple(np.roll(m != lo + np.arange(period), int(lo % period)).tolist()))
+    return period if len(pattern) == 1 else 0

@@ -74,6 +74,7 @@ COLUMNS = (
     "rts_density", "rts_median", "rts_log_std", "rts_high",  # telegraph pixels: share, step (DN), share of frames high
     "dead_density", *(f"dead_l{i}" for i in range(DEAD_LEVELS)),  # dead pixels: share, stuck levels (DN)
     *(f"drift_a{j}" for j in range(DRIFT_OCTAVES)),  # row drift: std of each octave's nodes (DN)
+    "codemap_period",  # code map: the period (DN) its first codes repeat with beyond its range (0: none)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

@@ -24,6 +24,7 @@ C_K, C_RATIO, C_PRNU = _column("k"), _column("ratio"), _column("prnu_sigma")
 C_DARK_E, C_DSNU = _column("dark_e"), _column("dsnu")
 C_LF, C_LF_GH, C_LF_GW = _column("lowfreq_sigma"), _column("lowfreq_gh"), _column("lowfreq_gw")
 C_CM_REC, C_CM_LO, C_CM_N = _column("codemap_record"), _column("codemap_lo"), _column("codemap_n")
+C_CM_P = _column("codemap_period")
 C_RQ_REC, C_RQ_SCALE = _column("readq_record"), _column("readq_scale")
 C_LRD, C_LCD, C_LM, C_LLS, C_LNEG = (_column("lines_row_density"), _column("lines_col_density"), _column("lines_median"),
                                      _column("lines_log_std"), _column("lines_negative"))
@@ -294,7 +295,12 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         i = (code - _col(v, C_CM_LO)).to(tl.int64)
         inside = live & (i >= 0) & (i < _col(v, C_CM_N).to(tl.int64))
         mapped = tl.load(code_ptr + _col(v, C_CM_REC).to(tl.int64) * CODE_N + i, mask=inside, other=0.0)
-        s = tl.where(inside, mapped, code)
+        period = _col(v, C_CM_P).to(tl.int64)
+        periodic = live & ~inside & ((tl.zeros_like(i) + period) > 0)  # a periodic comb goes on beyond the measured range
+        j = ((i % tl.maximum(period, 1)) + tl.maximum(period, 1)) % tl.maximum(period, 1)
+        shift = tl.load(code_ptr + _col(v, C_CM_REC).to(tl.int64) * CODE_N + j, mask=periodic, other=0.0) \
+            - (_col(v, C_CM_LO) + j.to(tl.float64))
+        s = tl.where(inside, mapped, tl.where(periodic, code + shift, code))
     if FLAGS & 268435456:  # dead pixels: the stuck level, whatever came before
         dead = unit(draw(_key(keys_ptr, K_DEAD_WHERE), p)) < _col(v, C_DD)
         which = tl.minimum((unit(draw(_key(keys_ptr, K_DEAD_LEVEL), p)) * NDL).to(tl.int64), NDL - 1)
