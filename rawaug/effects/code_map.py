@@ -138,18 +138,6 @@ def periodic_comb(r, codes):
                 template.append(values[np.argmax(counts)])
             return p, np.asarray(template)
     return 0, None
-    for p in range(2, MAX_GAP + 2):
-        if moved.size >= MIN_PERIODS * p and np.mean(moved[p:] == moved[:-p]) >= PERIODIC:
-            template = []
-            for j in range(p):
-                values, counts = np.unique(shift[j::p], return_counts=True)
-                template.append(values[np.argmax(counts)])
-            return p, r + np.asarray(template)[np.arange(r.size) % p]
-    return 0, codes
-    for p in range(2, MAX_GAP + 2):
-        if shift.size >= MIN_PERIODS * p and np.array_equal(shift[p:], shift[:-p]):
-            return p
-    return 0
 
 
 def combine(records: list[dict]) -> dict:
