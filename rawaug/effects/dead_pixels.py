@@ -95,7 +95,6 @@ def estimate(frames, synthesized, k: float, seed: int = 47, **_) -> dict:
 def combine(records) -> dict:
     """One entry from the records of the stacks that saw dead pixels (a bias stack that clips
     where they are stuck sees none): the median density, the levels pooled."""
-    seen = records
-    levels = np.concatenate([r["levels_dn"] for r in seen])
-    return {"seed": int(seen[0]["seed"]), "density": float(np.median([r["density"] for r in seen])),
+    levels = np.concatenate([r["levels_dn"] for r in records])
+    return {"seed": int(records[0]["seed"]), "density": float(np.median([r["density"] for r in records])),
             "levels_dn": octiles(levels)}
