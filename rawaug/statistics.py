@@ -561,11 +561,12 @@ def stuck_from_range(lo, hi):
 
 
 def stuck_pixels(frames):
-    """Of a stack (N >= 2, 4, h, w): ((4, h, w) mask of the pixels that read the same value in
-    every frame, ``stuck_from_range``; their values, DN)."""
+    """Of a stack (N >= 2, 4, h, w): ((4, h, w) mask of the dead pixels, ``stuck_outliers``: the
+    same value in every frame, far from the channel's noise; their values, DN). A pixel stuck
+    within the noise is left out: coarse codes (a digital gain) make that happen by chance."""
     v = np.asarray(frames, dtype=np.float64)
     lo, hi = v.min(axis=0), v.max(axis=0)
-    stuck = stuck_from_range(lo, hi)
+    stuck = stuck_outliers(lo, hi, v[0]) if (lo == hi).any() else np.zeros(lo.shape, dtype=bool)
     return stuck, lo[stuck]
 
 
@@ -585,8 +586,8 @@ def stuck_outliers(lo, hi, frame):
 
 
 def stuck_fraction(frames, level_dn=None):
-    """Fraction of the pixels stuck at one value in every frame (``stuck_pixels``): near 0 for
-    read noise of a DN or more (its chance over N frames), more with dead pixels."""
+    """Fraction of the pixels stuck at one value in every frame, far from the noise
+    (``stuck_pixels``): 0 without dead pixels."""
     return float(stuck_pixels(frames)[0].mean())
 
 

@@ -14,11 +14,12 @@ Profile entry::
 
     Dead: {seed: 47, density: 0.002, levels_dn: [-40.0, ...]}   # 1 to 8 levels
 
-Detected by ``stuck_fraction`` (pixels with the same value in every frame of a stack, but
-for those at a clip that moving pixels reach too) and ``hot_fraction`` (a pixel stuck high
+Detected by ``stuck_fraction`` (pixels with the same value in every frame of a stack, more
+than 5 robust sigma from their channel's median, but for those at a clip that moving pixels
+reach too; a pixel stuck within the noise is chance where codes are coarse) and ``hot_fraction`` (a pixel stuck high
 sits high in the stack mean). Estimated by ``estimate``: the stuck pixels of a stack over
 the model's; their levels as 8 octile medians. Every kind of stack shows them (a flat best:
-a pixel stuck at the black clip is left out of a bias stack that clips there).
+a pixel stuck at the black clip, or at black itself, is left out of a bias stack).
 """
 from __future__ import annotations
 
