@@ -623,31 +623,64 @@ def sensor_row_means(frames):
     return out
 
 
+def sensor_col_means(frames):
+    """(N, 2w) mean of each sensor column (its two packed channels, all rows), DN."""
+    n, _, _, w = frames.shape
+    out = np.empty((n, 2 * w))
+    for col_set in (0, 1):
+        out[:, col_set::2] = frames[:, [c for c in range(4) if COLUMN_SET[c] == col_set]].mean(axis=(1, 2))
+    return out
+
+
 def frame_row_means(frames):
     """Sensor-row means (``sensor_row_means``) of each frame less that frame's mean: (N, 2h) DN."""
     m = sensor_row_means(frames)
     return m - m.mean(axis=1, keepdims=True)
 
 
-def row_tone_spectrum(frames):
-    """(frequency in cycles per sensor row, mean periodogram over frames in DN^2) of each
-    frame's sensor-row means, above the low band (1 / (2 x 16) cycles per row: smooth fields
-    are the low-frequency statistics' concern). Per frame, not about the stack mean: a tone of
-    random phase has the same power in every frame, while its residual about the mean of a
-    few frames does not."""
-    m = frame_row_means(np.asarray(frames, dtype=np.float64))
+def frame_col_means(frames):
+    """Sensor-column means (``sensor_col_means``) of each frame less that frame's mean: (N, 2w) DN."""
+    m = sensor_col_means(frames)
+    return m - m.mean(axis=1, keepdims=True)
+
+
+def line_tone_spectrum(m):
+    """(frequency in cycles per sensor line, mean periodogram over frames in DN^2) of each
+    frame's sensor-line means ``m`` (N, n), above the low band (1 / (2 x 16) cycles per line:
+    smooth fields are the low-frequency statistics' concern). Per frame, not about the stack
+    mean: a tone of random phase has the same power in every frame, while its residual about
+    the mean of a few frames does not."""
     p = (np.abs(np.fft.rfft(m, axis=1)) ** 2 / m.shape[1]).mean(axis=0)
     f = np.fft.rfftfreq(m.shape[1])
     keep = f >= 0.5 / _LOW_BAND
     return f[keep], p[keep]
 
 
+def row_tone_spectrum(frames):
+    """``line_tone_spectrum`` of each frame's sensor-row means: tones along the sensor rows."""
+    return line_tone_spectrum(frame_row_means(np.asarray(frames, dtype=np.float64)))
+
+
+def col_tone_spectrum(frames):
+    """``line_tone_spectrum`` of each frame's sensor-column means: tones along the sensor columns."""
+    return line_tone_spectrum(frame_col_means(np.asarray(frames, dtype=np.float64)))
+
+
+def _peak_over_median(p):
+    return float(p.max() - np.median(p))
+
+
 def row_tone(frames, level_dn=None):
     """Power of the largest bin of the sensor-row means' periodogram (``row_tone_spectrum``)
     above its median bin, above the low band (DN^2): for white row noise a few times the
     median, for a tone of amplitude a over n sensor rows about n a^2 / 4 (periodic banding)."""
-    _, p = row_tone_spectrum(frames)
-    return float(p.max() - np.median(p))
+    return _peak_over_median(row_tone_spectrum(frames)[1])
+
+
+def col_tone(frames, level_dn=None):
+    """``row_tone`` along the other axis: the largest bin of the sensor-column means'
+    periodogram (``col_tone_spectrum``) above its median bin (DN^2): vertical banding."""
+    return _peak_over_median(col_tone_spectrum(frames)[1])
 
 
 def pixel_fixed_std(frames, level_dn=None):
@@ -746,6 +779,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
         Statistic("row_tone", row_tone, kind="bias"),
+        Statistic("col_tone", col_tone, kind="bias"),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),

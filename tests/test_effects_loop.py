@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_noise, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_noise, dark_hot_pixels, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
-from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
+from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
                                without_stuck)
 
 BASE = NoiseProfile.load("SonyA7S2")
@@ -185,6 +185,48 @@ def test_hot_pixels_density_and_estimate():
     assert abs(math.log(est["median_dn"][0] / 80.0)) < 0.1
 
 
+DARK_HOT = {"seed": 61, "density": 2e-3, "median_e_per_s": 40.0, "log_std": 0.3}
+
+
+def test_dark_hot_pixels_grow_with_exposure_and_carry_their_shot_noise():
+    n = 4 * 128 * 128
+    bias = synth({"DarkHot": DARK_HOT}, batch=4, size=128, model="G+P*", exposure_s=0.0)
+    assert not hot_pixels.detect(bias)[0].any()  # no dark electrons without an exposure
+    stacks = {t: synth({"DarkHot": DARK_HOT}, batch=16, size=128, model="G+P*", exposure_s=t) for t in (2.0, 8.0)}
+    masks = {t: hot_pixels.detect(f)[0].reshape(4, 128, 128) for t, f in stacks.items()}
+    hot = masks[2.0]
+    m = int(hot.sum())
+    assert abs(m - 2e-3 * n) < 5 * math.sqrt(2e-3 * n), m  # binomial count of the seeded positions
+    assert np.array_equal(masks[8.0], hot)  # the same pixels at every exposure
+    excess = {t: f.mean(axis=0)[hot] - np.median(f.mean(axis=0)) for t, f in stacks.items()}  # DN = electrons (K = 1)
+    # linear in exposure: the summed excess of m pixels, Poisson counts of ~80 e- each in 16 frames
+    assert abs(excess[8.0].sum() / excess[2.0].sum() - 4.0) < 0.1
+    # their electrons' median 40 e-/s, log-normal spread 0.3: the mean log of m pixels within 5 standard errors
+    assert abs(np.log(excess[2.0] / 2.0).mean() - math.log(40.0)) < 5 * 0.3 / math.sqrt(m)
+    # shot noise: temporal variance less the read noise's (1 DN^2) over the mean excess is K = 1; each pixel's
+    # variance of 16 frames has a relative sd sqrt(2 / 15), their mean over m pixels sqrt(2 / 15 / m)
+    ratio = float(np.mean((stacks[8.0].var(axis=0, ddof=1)[hot] - 1.0) / excess[8.0]))
+    assert abs(ratio - 1.0) < 5 * math.sqrt(2 / 15 / m), ratio
+
+
+def test_dark_hot_pixels_estimate_round_trip_and_none_in_white_dark_stacks():
+    n = 4 * 128 * 128
+    dark = {"model": "G+P*", "sigma_g": 2.0, "exposure_s": 4.0}
+    meas = synth({"DarkHot": DARK_HOT}, batch=6, size=128, **dark)
+    base = [synth({}, batch=6, size=128, seed=s, **dark) for s in range(1, 5)]
+    est = dark_hot_pixels.estimate(meas, base, K, exposure_s=4.0, kind="dark")
+    assert abs(est["density"] - 2e-3) < 5 * math.sqrt(2e-3 / n), est
+    m = 2e-3 * n
+    assert abs(math.log(est["median_e_per_s"] / 40.0)) < 5 * 0.3 / math.sqrt(m), est
+    assert abs(est["log_std"] - 0.3) < 0.1, est  # plus the shot noise of 160 e-: ~0.08 in log
+    # white dark stacks: 8 robust sigma above the median is out of reach of read and shot noise
+    white = [dark_hot_pixels.estimate(synth({}, batch=6, size=128, seed=s, **dark), base, K, exposure_s=4.0, kind="dark")
+             for s in range(20, 30)]
+    assert all(w["density"] == 0.0 for w in white), white
+    with pytest.raises(ValueError, match="dark stacks"):
+        dark_hot_pixels.estimate(meas, base, K, exposure_s=None, kind="bias")
+
+
 def test_defect_lines_estimate_round_trip():
     # 2 frames of 4 x 512 x 512 packed: 1024 sensor rows and columns; offsets 40 DN (+-0.3 in
     # log), far above the 8-sigma detection threshold of a line mean (~0.35 DN here)
@@ -321,13 +363,19 @@ def test_temporal_mosaic_puts_each_channel_at_its_sensor_position():
 
 
 BAND = {"k": [K], "freq_per_row": [[0.0713, 0.23]], "amplitude_dn": [[1.2, 0.6]]}
+COLBAND = {"k": [K], "freq_per_col": [[0.0713, 0.23]], "amplitude_dn": [[1.2, 0.6]]}
+# token, its record, its frequency key, the sensor-line means it lies on, the channel pair on one sensor line, its module
+TONE_AXES = {"rows": ("Band", BAND, "freq_per_row", sensor_row_means, (0, 1), banding),
+             "columns": ("ColBand", COLBAND, "freq_per_col", sensor_col_means, (0, 3), column_banding)}
 
 
-def test_banding_tones_have_their_amplitude_and_a_uniform_phase_per_frame():
-    f = synth({"Band": BAND}, batch=64, size=32, sigma_g=0.01)
-    m = sensor_row_means(f)  # (64 frames, 64 sensor rows)
+@pytest.mark.parametrize("axis", list(TONE_AXES))
+def test_banding_tones_have_their_amplitude_and_a_uniform_phase_per_frame(axis):
+    token, record, key, line_means, pair, _ = TONE_AXES[axis]
+    f = synth({token: record}, batch=64, size=32, sigma_g=0.01)
+    m = line_means(f)  # (64 frames, 64 sensor lines)
     y = np.arange(m.shape[1])
-    for freq, amp in zip(BAND["freq_per_row"][0], BAND["amplitude_dn"][0]):
+    for freq, amp in zip(record[key][0], record["amplitude_dn"][0]):
         basis = np.stack([np.cos(2 * np.pi * freq * y), np.sin(2 * np.pi * freq * y)], axis=1)
         coef, *_ = np.linalg.lstsq(basis, (m - m.mean(axis=1, keepdims=True)).T, rcond=None)
         # the other tone leaks into the fit by at most ~1 / (pi x 64 x 0.16) of its amplitude
@@ -335,23 +383,39 @@ def test_banding_tones_have_their_amplitude_and_a_uniform_phase_per_frame():
         phase = (np.arctan2(-coef[1], coef[0]) / (2 * np.pi)) % 1.0
         ks = np.abs(np.sort(phase) - (np.arange(1, 65) - 0.5) / 64).max()  # Kolmogorov-Smirnov distance to U(0, 1)
         assert ks < 1.95 / np.sqrt(64), ks  # 0.1 % critical value
-    # both channels of a sensor row carry the same offset
-    assert np.allclose(f[:, 0].mean(axis=2), f[:, 1].mean(axis=2), atol=0.02)
+    # both channels of a sensor line carry the same offset
+    along = 2 if axis == "rows" else 1  # average along the line: each line's offset
+    assert np.allclose(f[:, pair[0]].mean(axis=along), f[:, pair[1]].mean(axis=along), atol=0.02)
+    # the other axis's line means carry none of it: within 5 sd of the read noise's
+    other = sensor_col_means(f) if axis == "rows" else sensor_row_means(f)
+    resid = other - other.mean(axis=1, keepdims=True)
+    assert resid.std() < 5 * 0.01 / np.sqrt(2 * 32), resid.std()
 
 
-def test_banding_estimate_finds_the_tones_and_nothing_in_white_row_noise():
+@pytest.mark.parametrize("axis", list(TONE_AXES))
+def test_banding_estimate_finds_the_tones_and_nothing_in_white_line_noise(axis):
+    token, record, key, _, _, module = TONE_AXES[axis]
     row = {"sigma_g": 2.0, "model": "G+R", "sigma_r": 0.5}  # one camera: its row noise fixed, as the loop's syntheses have it
-    meas = synth({"Band": BAND}, batch=8, size=64, **row)
+    meas = synth({token: record}, batch=8, size=64, **row)
     base = [synth({}, batch=8, size=64, seed=s, **row) for s in range(1, 6)]
-    est = banding.estimate(meas, base, K)
-    order = np.argsort(est["freq_per_row"][0])
-    assert np.allclose(np.array(est["freq_per_row"][0])[order], BAND["freq_per_row"][0], atol=0.1 / 128), est
-    assert np.allclose(np.array(est["amplitude_dn"][0])[order], BAND["amplitude_dn"][0], rtol=0.15), est
+    est = module.estimate(meas, base, K)
+    order = np.argsort(est[key][0])
+    assert np.allclose(np.array(est[key][0])[order], record[key][0], atol=0.1 / 128), est
+    assert np.allclose(np.array(est["amplitude_dn"][0])[order], record["amplitude_dn"][0], rtol=0.15), est
     # family-wise 1e-3 per stack: 10 white stacks find a tone with probability ~1 %
-    found = [banding.estimate(synth({}, batch=8, size=64, seed=s, **row), base, K)["freq_per_row"][0] for s in range(20, 30)]
+    found = [module.estimate(synth({}, batch=8, size=64, seed=s, **row), base, K)[key][0] for s in range(20, 30)]
     assert sum(bool(t) for t in found) <= 1, found
     with pytest.raises(ValueError, match="bias and dark"):
-        banding.estimate(meas, base, K, level_dn=100.0)
+        module.estimate(meas, base, K, level_dn=100.0)
+
+
+def test_column_banding_records_combine_per_gain():
+    a = {"k": [1.0], "freq_per_col": [[0.1, 0.3]], "amplitude_dn": [[1.0, 0.5]]}
+    b = {"k": [1.0], "freq_per_col": [[0.1002]], "amplitude_dn": [[2.0]]}  # the same tone in a dark stack of the same gain
+    c = {"k": [3.0], "freq_per_col": [[0.2]], "amplitude_dn": [[0.7]]}
+    out = column_banding.combine([a, b, c])
+    assert out["k"] == [1.0, 3.0] and out["freq_per_col"] == [[0.1, 0.3], [0.2]]
+    assert np.allclose(out["amplitude_dn"][0], [math.sqrt(2.5), 0.5]) and out["amplitude_dn"][1] == [0.7]
 
 
 def test_fixed_row_pattern_is_shared_by_a_sensor_row_and_estimated():
@@ -418,6 +482,10 @@ def test_effects_replay_bit_exactly():
     ("Dead", {"seed": 1, "density": 0.01, "levels_dn": []}, "levels_dn must be a list of 1 to 8 levels"),
     ("Dead", {"seed": 1, "density": 0.01, "levels_dn": [float("inf")]}, "Dead.levels_dn"),
     ("Dead", {"density": 0.01, "levels_dn": [0.0]}, "seed"),
+    ("DarkHot", {"seed": 1, "density": 0.2, "median_e_per_s": 1.0, "log_std": 0.0}, r"density \(fraction of pixels\) must be in \[0, 0.1\], got 0.2"),
+    ("DarkHot", {"seed": 1, "density": 0.01, "median_e_per_s": -1.0, "log_std": 0.0}, "median_e_per_s must be >= 0, got -1.0"),
+    ("DarkHot", {"seed": 1, "density": 0.01, "median_e_per_s": float("nan"), "log_std": 0.0}, "DarkHot.median_e_per_s must be finite"),
+    ("DarkHot", {"density": 0.01, "median_e_per_s": 1.0, "log_std": 0.0}, "seed"),
     ("RowDrift", {"k": [1.0], "octave_dn": [[0.0] * 7]}, "octave_dn record 0 must list 8 values"),
     ("CodeMap", {"k": [1.0], "lo_dn": [0.0], "map_dn": [[0.0, 2.0, 2.0]], "period_dn": [4]}, r"period_dn\[0\] must be 0"),
     ("CodeMap", {"k": [1.0], "lo_dn": [0.0], "map_dn": [[0.0, 2.0, 2.0]], "period_dn": [1.5]}, "whole DN"),
@@ -428,6 +496,9 @@ def test_effects_replay_bit_exactly():
      "finite and >= 0"),
     ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2]], "amplitude_dn": [[1.0]]}, "equal lists"),
     ("Band", {"k": [1.0], "freq_per_row": [[0.1, 0.2, 0.3, 0.4]], "amplitude_dn": [[1.0] * 4]}, "at most 3 tones"),
+    ("ColBand", {"k": [1.0], "freq_per_col": [[0.0]], "amplitude_dn": [[1.0]]}, r"freq_per_col \(cycles per sensor column\) must be in \(0, 0.5\], got 0.0"),
+    ("ColBand", {"k": [1.0], "freq_per_col": [[0.1]], "amplitude_dn": [[-1.0]]}, "amplitude_dn must be >= 0, got -1.0"),
+    ("ColBand", {"k": [1.0], "freq_per_row": [[0.1]], "amplitude_dn": [[1.0]]}, "freq_per_col"),
     ("Xtalk", {"k": [1.0], "lag_0_1_dn": [1.0], "lag_3_0_dn": [1.0]}, r"unknown keys \['lag_3_0_dn'\]"),
     ("Xtalk", {"k": [1.0], "lag_0_1_dn": [float("nan")]}, "finite"),
 ])

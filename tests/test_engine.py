@@ -18,6 +18,7 @@ LOOP_EFFECTS = {
     "FPN": {"seed": 11, "k": [1.0, 3.0], "sigma_dn": [0.4, 0.6], "shading_dn": [[[0.0, 1.0], [2.0, -1.0]], [[1.0, 0.5], [0.0, 3.0]]],
             "frame_h": 48, "frame_w": 64},  # larger than the test inputs: a window per sample
     "Hot": {"seed": 13, "density": 0.01, "log_std": 0.5, "k": [1.0], "median_dn": [50.0]},
+    "DarkHot": {"seed": 61, "density": 0.03, "median_e_per_s": 5.0, "log_std": 0.5},  # before the Poisson draw
     "Clip": {"floor_dn": -3.0},
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
     "PRNU": {"seed": 17, "sigma": 0.02},
@@ -32,6 +33,7 @@ LOOP_EFFECTS = {
     "RowFix": {"seed": 31, "k": [1.0, 3.0], "fixed_dn": [0.8, 1.4]},
     "RowCh": {"k": [1.0, 3.0], "sigma_dn": [0.7, 1.3]},
     "Band": {"k": [1.0, 3.0], "freq_per_row": [[0.0713, 0.31], [0.45]], "amplitude_dn": [[1.2, 0.4], [0.9]]},
+    "ColBand": {"k": [1.0, 3.0], "freq_per_col": [[0.093], [0.5, 0.21]], "amplitude_dn": [[1.1], [0.7, 0.3]]},  # Nyquist too
     "Xtalk": {"k": [1.0, 3.0], "lag_0_1_dn": [0.5, -0.8], "lag_1_-1_dn": [0.3, 0.0], "lag_2_0_dn": [0.6, 0.4]},
     "ReadMap": {"k": [1.0, 3.0], "channel_dn": [[0.0, 2.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0]],
                 "row_block_dn": [[0.0] * 4 + [1.5] * 4, [0.3] * 8], "col_block_dn": [[0.0, 0.7] * 4, [0.0] * 7 + [2.0]],

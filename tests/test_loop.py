@@ -54,6 +54,7 @@ def two_level_read_noise():
 
 XTALK = {"Xtalk": {"k": [K], "lag_0_1_dn": [1.2], "lag_1_-1_dn": [-0.8]}}  # a shared readout, opposite coupling on a diagonal
 BAND = {"Band": {"k": [K], "freq_per_row": [[0.137]], "amplitude_dn": [[1.0]]}}  # interference during readout
+COLBAND = {"ColBand": {"k": [K], "freq_per_col": [[0.181]], "amplitude_dn": [[1.0]]}}  # ... along a serially read row
 ROWFIX = {"RowFix": {"seed": 37, "k": [K], "fixed_dn": [1.2]}}  # row drivers' offsets
 ROWCH = {"RowCh": {"k": [K], "sigma_dn": [1.2]}}  # two ADC banks, a row offset each
 READMAP = {"ReadMap": {"k": [K], "channel_dn": [[0.0, 0.0, 2.0, 0.0]], "row_block_dn": [[0.0] * 8],
@@ -63,7 +64,8 @@ RTS = {"RTS": {"seed": 41, "density": 0.01, "high": 0.5, "log_std": 0.3, "k": [K
 DEAD = {"Dead": {"seed": 53, "density": 0.003, "levels_dn": [-60.0, -60.0, 0.0, 400.0]}}  # dead: low, at black, high
 DRIFT = {"RowDrift": {"k": [K], "octave_dn": [[0.0, 0.3, 0.5, 0.8, 1.0, 0.0, 0.0, 0.0]]}}  # 1/f-like row noise
 CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "defect lines": LINES, "mixed": {**COL, **FPN, **HOT},
-         "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "fixed rows": ROWFIX,
+         "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "column banding": COLBAND,
+         "fixed rows": ROWFIX,
          "row per channel": ROWCH, "read-noise map": READMAP, "shared pixels": SHARED,
          "telegraph": RTS, "dead pixels": DEAD, "row drift": DRIFT}
 
@@ -123,6 +125,33 @@ def test_loop_finds_dark_current_in_dark_frames_only_where_there_is_some(effects
         rec = result.profile.effects["Dark"]
         # rate: mean excess of 6 x 4 x 96 x 96 pixels, ~1 % spread; DSNU from a 221k-pixel map
         assert abs(rec["rate_e_per_s"][0] - 4.0) < 0.2 and abs(rec["dsnu"][0] - 0.3) < 0.05, rec
+
+
+DARK_HOT = {"DarkHot": {"seed": 63, "density": 2e-3, "median_e_per_s": 10.0, "log_std": 0.4}}
+
+
+def dark_hot_named(seed):
+    """Bias and dark (5 s) stacks of a camera with hot pixels of dark current: DarkHot named
+    (not Hot: the bias frames have none), nothing left, its population within bounds."""
+    stacks = [measured_stack(DARK_HOT, seed=seed, n=6, size=96, label="bias"),
+              measured_stack(DARK_HOT, seed=seed + 1, n=6, size=96, label="dark 5 s", exposure_s=5.0)]
+    result = run_frame_loop(stacks, BASE, n_synth=8, seed=1)
+    if result.added != ["DarkHot"] or result.unexplained():
+        return False
+    rec = result.profile.effects["DarkHot"]
+    n = 4 * 96 * 96  # pixels; ~74 hot ones: density within 5 binomial sd, the median's log within 5 standard errors
+    return abs(rec["density"] - 2e-3) < 5 * (2e-3 / n) ** 0.5 and abs(np.log(rec["median_e_per_s"] / 10.0)) < 5 * 0.4 / 74**0.5
+
+
+def test_loop_names_hot_pixels_of_dark_current_from_dark_frames():
+    assert dark_hot_named(seed=300)
+
+
+@pytest.mark.slow
+def test_dark_hot_pixels_rate_over_seeds():
+    successes = sum(dark_hot_named(seed) for seed in range(300, 340, 2))
+    print(f"DarkHot: {successes} of 20 seeds")
+    assert successes >= 19, f"DarkHot: {successes} of 20 seeds"
 
 
 def test_the_written_profile_carries_offsets_fitted_with_a_clip():

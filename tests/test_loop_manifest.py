@@ -66,6 +66,22 @@ def interference_tone(dn, rng, **_):
     return dn + rows[:, :, None]
 
 
+def leaky_photodiodes(dn, rng, kind="bias", exposure=0.0, k=1.0, **_):
+    """Hot pixels of dark current (made outside rawaug): 0.3 % of the pixels (fixed) collect
+    30 e-/s more, Poisson, so they grow with exposure and bias frames show none."""
+    where = np.random.default_rng(17).random(dn.shape) < 0.003
+    return dn + where * k * rng.poisson(30.0 * exposure, dn.shape)
+
+
+def column_interference_tone(dn, rng, **_):
+    """Vertical banding from interference during a serial row readout (made outside rawaug):
+    1.0 DN at 0.147 cycles per sensor column, a phase of its own in every frame."""
+    w = dn.shape[2]
+    tone = 1.0 * np.cos(2 * np.pi * 0.147 * np.arange(2 * w) + rng.uniform(0, 2 * np.pi))
+    cols = np.stack([tone[0::2], tone[1::2], tone[1::2], tone[0::2]])  # R, G2 on even sensor columns; G1, B on odd
+    return dn + cols[:, None, :]
+
+
 def row_drivers(dn, rng, **_):
     """A fixed row pattern (made outside rawaug): 1.5 DN per sensor row, the same in every frame."""
     rows = np.random.default_rng(7).normal(0.0, 1.5, (2, dn.shape[1], 1))
@@ -109,6 +125,8 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "nonlin": (None, None, soft_knee, ["NonLin"]),
          "crosstalk": (None, None, coupled_readout, ["Xtalk"]),
          "banding": (None, None, interference_tone, ["Band"]),
+         "column banding": (None, None, column_interference_tone, ["ColBand"]),
+         "dark hot pixels": (None, None, leaky_photodiodes, ["DarkHot"]),
          "fixed rows": (None, None, row_drivers, ["RowFix"]),
          "row per channel": (None, None, adc_banks, ["RowCh"]),
          "split amplifiers": (None, None, split_amplifiers, ["ReadMap"]),
@@ -130,7 +148,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
-SLOW_CASES = {"crosstalk", "banding", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph"}
+SLOW_CASES = {"crosstalk", "banding", "column banding", "dark hot pixels", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

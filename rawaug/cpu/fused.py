@@ -60,6 +60,10 @@ _QUANT = L.STREAM["quant"]
 _XT0 = L.COLUMN["xt_0"]
 _BF0, _BA0 = L.COLUMN["band_f0"], L.COLUMN["band_a0"]
 _BAND = L.STREAM["band"]
+_CBF0, _CBA0 = L.COLUMN["cband_f0"], L.COLUMN["cband_a0"]
+_DHD, _DHE, _DHL = L.COLUMN["dhot_density"], L.COLUMN["dhot_e"], L.COLUMN["dhot_log_std"]
+_DHOT_WHERE, _DHOT_SIZE = L.STREAM["dhot_where"], L.STREAM["dhot_size"]
+_COL_BAND = L.STREAM["col_band"]
 _RF, _ROW_PATTERN = L.COLUMN["rowfix_sigma"], L.STREAM["row_pattern"]
 _RC, _ROW_CHANNEL = L.COLUMN["rowch_sigma"], L.STREAM["row_channel"]
 _TONES = L.BAND_TONES
@@ -112,15 +116,16 @@ def lowfreq_at(normal, key, b, y, x, h, w, gh, gw):
 
 
 @njit(inline="always")
-def banding_at(key, v, b, ry):
-    """Banding (DN) on sensor row ``ry`` of sample b: sum of a_j cos(2 pi f_j ry + phi_j), the
+def banding_at(key, v, b, line, f0, a0):
+    """Banding (DN) on sensor line ``line`` (a row, or a column) of sample b: sum of
+    a_j cos(2 pi f_j line + phi_j), f_j and a_j in columns ``f0 + j`` and ``a0 + j``, the
     phase phi_j = 2 pi U(0, 1) drawn per frame and tone (counter b * BAND_TONES + j)."""
     out = 0.0
     for j in range(_TONES):
-        a = v[_BA0 + j]
+        a = v[a0 + j]
         if a != 0.0:
             phase = 2.0 * math.pi * unit(draw(key, b * _TONES + j))
-            out += a * math.cos(2.0 * math.pi * v[_BF0 + j] * ry + phase)
+            out += a * math.cos(2.0 * math.pi * v[f0 + j] * line + phase)
     return out
 
 
@@ -206,7 +211,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             line += v[_BS] * symmetric(normal, draw(keys[_BLE], b * 5))
             line += v[_BC] * symmetric(normal, draw(keys[_BLE], b * 5 + 1 + c))
         if stages & L.BAND:
-            line += banding_at(keys[_BAND], v, b, 2 * y + row_set)
+            line += banding_at(keys[_BAND], v, b, 2 * y + row_set, _BF0, _BA0)
         if stages & L.ROW_CHANNEL:
             line += v[_RC] * symmetric(normal, draw(keys[_ROW_CHANNEL], (b * 4 + c) * h + y))
         if stages & L.ROW_DRIFT:
@@ -250,6 +255,9 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += k * v[_DARK_E] * max(1.0 + v[_DSNU] * symmetric(normal, draw(keys[_DSNU_PATTERN], p)), 0.0)
             if stages & L.GLOW:
                 s += k * v[_GLS] * shading_at(grids, glrec, gly0, x + glox, glh, glw, glgh, glgw)
+            if stages & L.DARK_HOT:  # a hot pixel's dark electrons: the median this exposure times its log-normal factor
+                if unit(draw(keys[_DHOT_WHERE], p)) < v[_DHD]:
+                    s += k * v[_DHE] * math.exp(v[_DHL] * symmetric(normal, draw(keys[_DHOT_SIZE], p)))
             if stages & L.SHOT_POISSON:  # exact Poisson: tables and PTRS of rawaug.cpu.poisson, inlined (a call with the table tuples per element costs ~100 ns)
                 lam = s / k
                 if not math.isfinite(lam):
@@ -295,6 +303,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.COL:
                 s += v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))
+            if stages & L.COL_BAND:  # tones along the sensor columns, a phase per frame and tone
+                s += banding_at(keys[_COL_BAND], v, b, 2 * x + col_set, _CBF0, _CBA0)
             if stages & L.LINES:
                 s += defect_line_at(normal, keys[_LINES_COL], (sensor * 2 + col_set) * w + x, v[_LCD], v[_LM], v[_LLS], v[_LNEG])
             if stages & L.QUANT:

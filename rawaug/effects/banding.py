@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage, stats
 
 from ..engine import layout as L
-from ..statistics import frame_row_means, row_tone_spectrum
+from ..statistics import frame_row_means, line_tone_spectrum
 from .base import BANDING, NoiseEffect, register
 from .k_records import _number, record_index, validate_records
 
@@ -44,31 +44,43 @@ class Banding(NoiseEffect):
     columns = tuple(f"band_f{j}" for j in range(L.BAND_TONES)) + tuple(f"band_a{j}" for j in range(L.BAND_TONES))
 
     def draw(self, ctx):
-        p = self.profile.effects[self.token]
-        idx = record_index(p, ctx.k)
-        out = {}
-        for name, key in (("f", "freq_per_row"), ("a", "amplitude_dn")):
-            table = np.zeros((len(p["k"]), L.BAND_TONES))
-            for r, values in enumerate(p[key]):
-                table[r, : len(values)] = values
-            for j in range(L.BAND_TONES):
-                out[f"band_{name}{j}"] = ctx.k.new_tensor(table[:, j])[idx]
-        return out
+        return draw_tones(self.profile.effects[self.token], ctx, "freq_per_row", "band")
 
     @classmethod
     def validate_params(cls, params):
-        validate_records(cls.token, params, ("freq_per_row", "amplitude_dn"))
-        for r, (fs, amps) in enumerate(zip(params["freq_per_row"], params["amplitude_dn"])):
-            if not isinstance(fs, (list, tuple)) or not isinstance(amps, (list, tuple)) or len(fs) != len(amps):
-                raise ValueError(f"effect 'Band': record {r} needs equal lists freq_per_row and amplitude_dn, got {fs!r} / {amps!r}")
-            if len(fs) > L.BAND_TONES:
-                raise ValueError(f"effect 'Band': at most {L.BAND_TONES} tones per record, got {len(fs)}")
-            for f in fs:
-                if not 0.0 < _number(f, "Band.freq_per_row[]") <= 0.5:
-                    raise ValueError(f"effect 'Band': freq_per_row (cycles per sensor row) must be in (0, 0.5], got {f}")
-            for a in amps:
-                if _number(a, "Band.amplitude_dn[]") < 0:
-                    raise ValueError(f"effect 'Band': amplitude_dn must be >= 0, got {a}")
+        validate_tones(cls.token, params, "freq_per_row", "sensor row")
+
+
+def draw_tones(p, ctx, freq_key: str, prefix: str) -> dict:
+    """Per-sample columns ``{prefix}_f{j}`` and ``{prefix}_a{j}`` (j < BAND_TONES) of a tone
+    record ``p`` (frequencies under ``freq_key``, amplitudes under ``amplitude_dn``), at the
+    record nearest each drawn K; missing tones have amplitude 0."""
+    idx = record_index(p, ctx.k)
+    out = {}
+    for name, key in (("f", freq_key), ("a", "amplitude_dn")):
+        table = np.zeros((len(p["k"]), L.BAND_TONES))
+        for r, values in enumerate(p[key]):
+            table[r, : len(values)] = values
+        for j in range(L.BAND_TONES):
+            out[f"{prefix}_{name}{j}"] = ctx.k.new_tensor(table[:, j])[idx]
+    return out
+
+
+def validate_tones(token: str, params, freq_key: str, line: str) -> None:
+    """Check a tone record: per K equal lists of frequencies (cycles per ``line``, in (0, 0.5])
+    and amplitudes (DN, >= 0), at most BAND_TONES each."""
+    validate_records(token, params, (freq_key, "amplitude_dn"))
+    for r, (fs, amps) in enumerate(zip(params[freq_key], params["amplitude_dn"])):
+        if not isinstance(fs, (list, tuple)) or not isinstance(amps, (list, tuple)) or len(fs) != len(amps):
+            raise ValueError(f"effect {token!r}: record {r} needs equal lists {freq_key} and amplitude_dn, got {fs!r} / {amps!r}")
+        if len(fs) > L.BAND_TONES:
+            raise ValueError(f"effect {token!r}: at most {L.BAND_TONES} tones per record, got {len(fs)}")
+        for f in fs:
+            if not 0.0 < _number(f, f"{token}.{freq_key}[]") <= 0.5:
+                raise ValueError(f"effect {token!r}: {freq_key} (cycles per {line}) must be in (0, 0.5], got {f}")
+        for a in amps:
+            if _number(a, f"{token}.amplitude_dn[]") < 0:
+                raise ValueError(f"effect {token!r}: amplitude_dn must be >= 0, got {a}")
 
 
 def _power_at(m, f):
@@ -79,7 +91,7 @@ def _power_at(m, f):
 
 
 def _tone_amplitude(raw, f: float, noise: float) -> float:
-    """Amplitude (DN) of a tone at ``f`` in the frames' sensor-row means ``raw`` (N, n): each
+    """Amplitude (DN) of a tone at ``f`` in the frames' sensor-line means ``raw`` (N, n): each
     frame's Fourier coefficient X_b lies on a circle, its centre what is the same in every
     frame (a fixed row pattern), its radius n a / 2 (the tone, its phase new in every frame).
     The circle is fitted by least squares (Kasa); the noise power ``noise`` (DN^2, a
@@ -103,18 +115,15 @@ def _tone_amplitude(raw, f: float, noise: float) -> float:
     return 2.0 * np.sqrt(r2) / n if r2 > 0 else 0.0
 
 
-def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
-    """Band record at gain ``k`` from a bias or dark stack (N, 4, h, w) in DN. Tones are taken
-    one at a time, strongest first, each removed from every frame's row means (least squares)
-    before the next is looked for, so a tone's leakage is not taken for another."""
-    frames = np.asarray(frames, dtype=np.float64)
-    if level_dn is not None or not synthesized:
-        raise ValueError("Band is measured on bias and dark stacks, against syntheses")
-    f, _ = row_tone_spectrum(frames)
+def line_tones(m, m_model) -> tuple[list[float], list[float]]:
+    """(frequencies in cycles per sensor line, amplitudes in DN) of the tones in each frame's
+    sensor-line means ``m`` (N, n; rows or columns) that the model's (``m_model``: one such
+    array per synthesis) lacks. Tones are taken one at a time, strongest first, each removed
+    from every frame's line means (least squares) before the next is looked for, so a tone's
+    leakage is not taken for another."""
+    f, _ = line_tone_spectrum(m)
     # the model's spectrum, smoothed over SMOOTH bins (it has no tone: its shape is smooth)
-    model = ndimage.median_filter(np.mean([row_tone_spectrum(s)[1] for s in synthesized], axis=0), size=SMOOTH, mode="nearest")
-    m = frame_row_means(frames)
-    m_model = [frame_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized]
+    model = ndimage.median_filter(np.mean([line_tone_spectrum(mm)[1] for mm in m_model], axis=0), size=SMOOTH, mode="nearest")
     n_frames, n = m.shape
     # a bin's power over N frames has 2 N degrees of freedom; the model's, over its syntheses'
     # frames and SMOOTH bins, many more: their ratio is F-distributed
@@ -134,16 +143,30 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
         if amplitude <= 0:
             break
         tones.append(best)
-        amps.append(amplitude)
+        amps.append(float(amplitude))
         basis = np.stack([np.cos(2 * np.pi * best * y), np.sin(2 * np.pi * best * y)], axis=1)
         coef, *_ = np.linalg.lstsq(basis, m.T, rcond=None)
         m = m - (basis @ coef).T
-    return {"k": [float(k)], "freq_per_row": [tones], "amplitude_dn": [[float(a) for a in amps]]}
+    return tones, amps
+
+
+def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
+    """Band record at gain ``k`` from a bias or dark stack (N, 4, h, w) in DN: the tones of its
+    sensor-row means (``line_tones``)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if level_dn is not None or not synthesized:
+        raise ValueError("Band is measured on bias and dark stacks, against syntheses")
+    tones, amps = line_tones(frame_row_means(frames), [frame_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
+    return {"k": [float(k)], "freq_per_row": [tones], "amplitude_dn": [amps]}
 
 
 def combine(records: list[dict]) -> dict:
+    return combine_tones(records, "freq_per_row")
+
+
+def combine_tones(records: list[dict], freq_key: str) -> dict:
     """One record per gain: the tones of the first stack at that K (bias before dark), each
-    amplitude the rms over the stacks at that K that found it (within 1/200 cycle per row)."""
+    amplitude the rms over the stacks at that K that found it (within 1/200 cycle per line)."""
     by_k: dict = {}
     for r in records:
         by_k.setdefault(float(r["k"][0]), []).append(r)
@@ -151,10 +174,10 @@ def combine(records: list[dict]) -> dict:
     freqs, amps = [], []
     for k in ks:
         first = by_k[k][0]
-        freqs.append(list(first["freq_per_row"][0]))
+        freqs.append(list(first[freq_key][0]))
         row = []
-        for f in first["freq_per_row"][0]:
-            found = [a for r in by_k[k] for g, a in zip(r["freq_per_row"][0], r["amplitude_dn"][0]) if abs(g - f) < 0.005]
+        for f in first[freq_key][0]:
+            found = [a for r in by_k[k] for g, a in zip(r[freq_key][0], r["amplitude_dn"][0]) if abs(g - f) < 0.005]
             row.append(float(np.sqrt(np.mean(np.square(found)))))
         amps.append(row)
-    return {"k": ks, "freq_per_row": freqs, "amplitude_dn": amps}
+    return {"k": ks, freq_key: freqs, "amplitude_dn": amps}

@@ -37,6 +37,8 @@ SHARED = 1 << 26  # shared-pixel readout: read noise shared by the four pixels o
 RTS = 1 << 27  # random telegraph noise: sparse pixels with a step, in the high state in some frames
 DEAD = 1 << 28  # dead (stuck) pixels: sparse pixels whose output is a fixed level, whatever the signal and noise
 ROW_DRIFT = 1 << 29  # row noise with a low-frequency spectrum: octaves of interpolated random row offsets per frame
+COL_BAND = 1 << 30  # column banding: tones along the sensor columns, a random phase in every frame
+DARK_HOT = 1 << 31  # hot pixels of dark current: sparse pixels with a high dark-current rate, before shot noise
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -75,6 +77,8 @@ COLUMNS = (
     "dead_density", *(f"dead_l{i}" for i in range(DEAD_LEVELS)),  # dead pixels: share, stuck levels (DN)
     *(f"drift_a{j}" for j in range(DRIFT_OCTAVES)),  # row drift: std of each octave's nodes (DN)
     "codemap_period",  # code map: the period (DN) its first codes repeat with beyond its range (0: none)
+    "cband_f0", "cband_f1", "cband_f2", "cband_a0", "cband_a1", "cband_a2",  # column banding: cycles per sensor column, amplitude (DN)
+    "dhot_density", "dhot_e", "dhot_log_std",  # hot pixels of dark current: share, median electrons this exposure, log-normal spread
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -88,6 +92,7 @@ STREAMS = (
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
     "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map", "shared",
     "rts_where", "rts_size", "rts_state", "dead_where", "dead_level", "row_drift", "row_drift_phase",
+    "col_band", "dhot_where", "dhot_size",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)
@@ -96,7 +101,7 @@ N_STREAMS = len(STREAMS)
 # neighbours, both diagonals (a 2x2 shared-pixel readout) and the next pixel of the same
 # colour along each axis.
 XTALK_LAGS = ((0, 1), (1, 0), (1, 1), (1, -1), (0, 2), (2, 0))
-BAND_TONES = 3  # banding tones a profile may hold
+BAND_TONES = 3  # banding tones a profile may hold (along the rows; as many along the columns)
 XTALK_PAD = 2  # raw pixels of margin in the draw index, so that a lag's neighbour index is never negative
 
 # Packed (R, G1, B, G2): which of a 2x2 tile's sensor rows / columns a channel lies on.

@@ -38,6 +38,8 @@ C_GLH, C_GLW, C_GLGH, C_GLGW = _column("glow_h"), _column("glow_w"), _column("gl
 C_NL = _column("nl_c")
 C_XT0 = _column("xt_0")
 C_BF0, C_BA0 = _column("band_f0"), _column("band_a0")
+C_CBF0, C_CBA0 = _column("cband_f0"), _column("cband_a0")
+C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_log_std")
 C_RF, C_RC = _column("rowfix_sigma"), _column("rowch_sigma")
 TONES = tl.constexpr(L.BAND_TONES)
 C_RMC0, C_RMY0, C_RMX0 = _column("rmap_c0"), _column("rmap_y0"), _column("rmap_x0")
@@ -67,6 +69,8 @@ K_READ_MAP, K_SHARED = S["read_map"], S["shared"]
 K_RTS_WHERE, K_RTS_SIZE, K_RTS_STATE = S["rts_where"], S["rts_size"], S["rts_state"]
 K_DEAD_WHERE, K_DEAD_LEVEL = S["dead_where"], S["dead_level"]
 K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
+K_COL_BAND = S["col_band"]
+K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -108,11 +112,12 @@ def _shading(grids_ptr, GH, GW, record, y, x, h, w, gh, gw, live):
 
 
 @triton.jit
-def _tone(key, v, j: tl.constexpr, b, ry):
-    """As one tone of ``rawaug.cpu.fused.banding_at``: a_j cos(2 pi f_j ry + phi_j)."""
-    phase = 6.283185307179586 * unit(draw(key, (b.to(tl.int64) * TONES + j).to(tl.uint64) + tl.zeros_like(ry).to(tl.uint64)))
-    arg = 6.283185307179586 * _col(v, C_BF0 + j) * ry.to(tl.float64) + phase.to(tl.float64)
-    return _col(v, C_BA0 + j) * tl.cos(arg)
+def _tone(key, v, j: tl.constexpr, b, line, F0: tl.constexpr, A0: tl.constexpr):
+    """As one tone of ``rawaug.cpu.fused.banding_at``: a_j cos(2 pi f_j line + phi_j), f_j and
+    a_j in columns F0 + j and A0 + j."""
+    phase = 6.283185307179586 * unit(draw(key, (b.to(tl.int64) * TONES + j).to(tl.uint64) + tl.zeros_like(line).to(tl.uint64)))
+    arg = 6.283185307179586 * _col(v, F0 + j) * line.to(tl.float64) + phase.to(tl.float64)
+    return _col(v, A0 + j) * tl.cos(arg)
 
 
 @triton.jit
@@ -185,6 +190,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += k * _col(v, C_GLS) * _shading(grids_ptr, GH.to(tl.int64), GW.to(tl.int64), _col(v, C_GLR).to(tl.int64),
                                           y.to(tl.float64) + _col(v, C_GLOY), x.to(tl.float64) + _col(v, C_GLOX), gh_, gw_,
                                           _col(v, C_GLGH).to(tl.int64), _col(v, C_GLGW).to(tl.int64), live)
+    if FLAGS & 2147483648:  # hot pixels of dark current: their electrons, before shot noise (the CPU's normal table)
+        dhot = unit(draw(_key(keys_ptr, K_DHOT_WHERE), p)) < _col(v, C_DHD)
+        dark = k * _col(v, C_DHE) * tl.exp(_col(v, C_DHL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DHOT_SIZE), p)))
+        s += tl.where(dhot, dark, 0.0)
     if FLAGS & 2:  # P*
         lam = s / k
         counted = k * poisson_count(lam, _key(keys_ptr, K_SHOT), _key(keys_ptr, K_SHOT_REST), _key(keys_ptr, K_SHOT_COARSE), g,
@@ -248,6 +257,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 256:  # column noise: per frame and fixed
         s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
+    if FLAGS & 1073741824:  # column banding: tones along the sensor columns, a phase per frame and tone
+        rx = 2 * x + col_set
+        kc = _key(keys_ptr, K_COL_BAND)
+        s += _tone(kc, v, 0, b, rx, C_CBF0, C_CBA0) + _tone(kc, v, 1, b, rx, C_CBF0, C_CBA0) + _tone(kc, v, 2, b, rx, C_CBF0, C_CBA0)
     if FLAGS & 262144:  # defect lines: the sensor column's offset here, the row's below
         s += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64),
                           _col(v, C_LCD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
@@ -270,7 +283,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 4194304:  # banding: tones along the sensor rows, a phase per frame and tone
         ry = 2 * y + row_set
         kb = _key(keys_ptr, K_BAND)
-        line += _tone(kb, v, 0, b, ry) + _tone(kb, v, 1, b, ry) + _tone(kb, v, 2, b, ry)
+        line += _tone(kb, v, 0, b, ry, C_BF0, C_BA0) + _tone(kb, v, 1, b, ry, C_BF0, C_BA0) + _tone(kb, v, 2, b, ry, C_BF0, C_BA0)
     if FLAGS & 16777216:  # row noise of each channel's own: per packed row and frame
         line += _col(v, C_RC) * _normal(draw(_key(keys_ptr, K_ROW_CHANNEL), ((plane.to(tl.int64)) * H + y).to(tl.uint64)))
     if FLAGS & 536870912:  # row drift: octaves of interpolated per-frame row offsets

@@ -7,15 +7,17 @@ clipping), of the codes one by one (missing codes), of the stack-mean map (dark 
 DSNU, PRNU, hot pixels), of the per-pixel temporal std, the sorted line means (defect
 lines), the sorted frame means (black-level error) or the correlation of neighbouring
 pixels' temporal noise at raw lags (crosstalk), of pairs in one tile and in adjacent tiles
-(a shared readout), or the white temporal variance per channel and block (read-noise map). ``step_signature`` gives the measured curve and the model's before and after a step
+(a shared readout), the periodogram of the sensor-row or -column means (banding), or the
+white temporal variance per channel and block (read-noise map). ``step_signature`` gives the
+measured curve and the model's before and after a step
 (mean and spread over its syntheses), on the measured curve's grid.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..statistics import (CURVE_LAGS, lag_covariances, read_noise_profile, row_tone_spectrum, statistic_view,
-                          tile_pair_covariances)
+from ..statistics import (CURVE_LAGS, col_tone_spectrum, lag_covariances, read_noise_profile, row_tone_spectrum,
+                          statistic_view, tile_pair_covariances)
 
 KIND = {
     "psd2d_lowfreq": "radial_spectrum",
@@ -28,6 +30,7 @@ KIND = {
     "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means",
     "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
     "neighbour_corr": "lag_correlations", "row_tone": "row_tone_spectrum",
+    "col_tone": "col_tone_spectrum",
     "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram",
     "stuck_fraction": "temporal_histogram",
 }  # every other statistic: the histogram of the pixel values
@@ -44,6 +47,7 @@ LABEL = {
     "code_histogram": ("code (DN), one bin each, about the median", "fraction of pixels", False),
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
     "row_tone_spectrum": ("frequency (cycles per sensor row)", "temporal sensor-row-mean power (DN^2)", True),
+    "col_tone_spectrum": ("frequency (cycles per sensor column)", "temporal sensor-column-mean power (DN^2)", True),
     "read_noise_profile": ("channel 1-4, then row block 1-8, then column block 1-8", "white temporal variance (DN^2)", False),
     "tile_correlations": ("raw lag (0,1) (1,0) (1,1) (1,-1): pairs in one tile, then in adjacent tiles",
                           "correlation of the temporal residual", False),
@@ -112,6 +116,8 @@ def curve(kind: str, frames, edges=None):
         return np.arange(1, lines.size + 1, dtype=np.float64), np.sort(lines - np.median(lines))
     if kind == "row_tone_spectrum":
         return row_tone_spectrum(frames)
+    if kind == "col_tone_spectrum":
+        return col_tone_spectrum(frames)
     if kind == "lag_correlations":
         var, cov = lag_covariances(frames, CURVE_LAGS)
         return np.arange(1, len(CURVE_LAGS) + 1, dtype=np.float64), cov / max(var, 1e-12)
@@ -150,7 +156,7 @@ def step_signature(statistic: str, frames, before, after) -> dict:
         out[name] = ys.mean(axis=0).tolist()
         out[name + "_std"] = ys.std(axis=0, ddof=1).tolist() if len(ys) > 1 else [0.0] * len(x)
     out["xlabel"], out["ylabel"], out["log_y"] = LABEL[kind]
-    out["log_x"] = kind.endswith("spectrum") and kind != "row_tone_spectrum"
+    out["log_x"] = kind.endswith("spectrum") and not kind.endswith("tone_spectrum")
     out["distance_before"], out["distance_after"] = distance(out, "before"), distance(out, "after")
     return out
 

@@ -1,0 +1,98 @@
+"""Hot pixels of dark current (DarkHot): a sparse set of pixels with a dark-current rate far
+above the rest, growing with exposure, with its shot noise.
+
+Physics: a crystal defect or a metal impurity in a photodiode raises its leakage current by
+orders of magnitude (EMVA 1288 shows them as the long tail of the DSNU histogram). Such a
+pixel collects ``rate * t`` electrons in the dark: invisible in bias frames, bright in long
+exposures, and Poisson like every other electron. ``Hot`` is a fixed offset in DN, the same at
+every exposure; ``Dark`` is the Gaussian spread of the other pixels' rates.
+
+Stage (DN, before shot noise): ``s -> s + K * t * median_e_per_s * exp(log_std * z)`` at the
+pixels where a seeded U(0, 1) pattern falls below ``density``, ``z`` a seeded standard normal
+(both keyed by the pixel position); ``t`` is the synthesis setting ``fixed={"exposure_s": t}``
+(default 0: none).
+
+Profile entry (electrons do not depend on the gain: one population)::
+
+    DarkHot: {seed: 59, density: 0.003, median_e_per_s: 40.0, log_std: 0.5}
+
+Detected on dark stacks by ``hot_fraction`` and ``tail_mass`` (with ``Hot``, which the loop
+tries beside it: the bias frames tell them apart). Estimated by ``estimate``: the pixels of a
+dark stack's mean 8 robust sigma above the median (``hot_pixels.detect``) in excess of the
+model's, their excess over the median in electrons per second, on the frames as measured
+(the repair of defect lines would move a column that one bright hot pixel lifts). Hot pixels
+dimmer than that threshold are not seen: density and median are those of the detectable
+population.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ..engine import layout as L
+from .base import PHOTON, NoiseEffect, pattern_key, register
+from .hot_pixels import detect
+from .k_records import _number, check_density, check_seed
+
+STATISTICS = ("hot_fraction", "tail_mass")
+RAW_FRAMES = True  # estimated from the frames as measured: a column holding a bright hot pixel can read as a defect line, whose repair moves hot pixels
+
+
+@register
+class DarkHotPixels(NoiseEffect):
+    token = "DarkHot"
+    order = PHOTON + 6  # with the dark current, before shot noise
+    flag = L.DARK_HOT
+    columns = ("dhot_density", "dhot_e", "dhot_log_std")
+
+    def draw(self, ctx):
+        p = self.profile.effects[self.token]
+        exposure = torch.as_tensor(ctx.fixed.get("exposure_s", 0.0), dtype=torch.float64, device=ctx.device).expand(ctx.batch)
+        n = ctx.k.shape[0]
+        return {"dhot_density": ctx.k.new_full((n,), float(p["density"])), "dhot_e": float(p["median_e_per_s"]) * exposure,
+                "dhot_log_std": ctx.k.new_full((n,), float(p["log_std"]))}
+
+    def pattern_streams(self):
+        seed = self.profile.effects[self.token]["seed"]
+        return {"dhot_where": pattern_key(seed, self.token, "where"), "dhot_size": pattern_key(seed, self.token, "size")}
+
+    @classmethod
+    def validate_params(cls, params):
+        if not isinstance(params, dict):
+            raise ValueError(f"effect {cls.token!r} parameters must be a mapping, got {params!r}")
+        check_seed(cls.token, params)
+        check_density(cls.token, params)
+        for key in ("median_e_per_s", "log_std"):
+            if _number(params.get(key), f"{cls.token}.{key}") < 0:
+                raise ValueError(f"effect {cls.token!r}: {key} must be >= 0, got {params.get(key)}")
+
+
+def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, seed: int = 59, **_) -> dict:
+    """DarkHot population from a dark stack (N, 4, h, w) in DN of ``exposure_s`` seconds at
+    gain ``k`` (DN per electron), against stacks of the same shape synthesized by the model."""
+    if kind != "dark" or not exposure_s:
+        raise ValueError("DarkHot is measured on dark stacks with their exposure_s")
+    frames = np.asarray(frames, dtype=np.float64)
+    hot, amp = detect(frames)
+    base = float(np.mean([detect(s)[0].mean() for s in synthesized])) if synthesized else 0.0
+    density = max(float(hot.mean()) - base, 0.0)
+    rate = amp[amp > 0] / (float(k) * float(exposure_s))  # electrons per second above the median pixel
+    if density == 0.0 or rate.size == 0:
+        return {"seed": int(seed), "density": 0.0, "median_e_per_s": 0.0, "log_std": 0.0}
+    logs = np.log(rate)
+    return {"seed": int(seed), "density": min(density, 0.1), "median_e_per_s": float(math.exp(logs.mean())),
+            "log_std": float(logs.std(ddof=1)) if rate.size > 1 else 0.0}
+
+
+def combine(records: list[dict]) -> dict:
+    """One population from the dark stacks (every ISO and exposure: the same pixels in
+    electrons): density averaged, the median's log averaged, the log spreads averaged in
+    variance; stacks that found none count for the density only."""
+    found = [r for r in records if r["density"] > 0]
+    if not found:
+        return dict(records[0])
+    return {"seed": records[0]["seed"], "density": float(np.mean([r["density"] for r in records])),
+            "median_e_per_s": float(math.exp(np.mean([math.log(r["median_e_per_s"]) for r in found]))),
+            "log_std": float(math.sqrt(np.mean([r["log_std"] ** 2 for r in found])))}
