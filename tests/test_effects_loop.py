@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_noise, dark_hot_pixels, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, dark_hot_pixels, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -225,6 +225,37 @@ def test_dark_hot_pixels_estimate_round_trip_and_none_in_white_dark_stacks():
     assert all(w["density"] == 0.0 for w in white), white
     with pytest.raises(ValueError, match="dark stacks"):
         dark_hot_pixels.estimate(meas, base, K, exposure_s=None, kind="bias")
+
+
+COLGAIN = {"seed": 67, "sigma": 0.005}
+
+
+def test_column_gain_scales_the_signal_per_sensor_column_and_leaves_bias_frames_alone():
+    level = 2000.0
+    assert np.array_equal(synth({"ColGain": COLGAIN}, batch=2, model="G+P*"), synth({}, batch=2, model="G+P*"))  # no signal
+    f = synth({"ColGain": COLGAIN}, batch=8, size=128, level_dn=level, model="G+P*")
+    cols = f.mean(axis=(0, 2)) / level - 1.0  # (4, w) relative column means
+    # the two channels of a sensor column share its gain: R with G2, G1 with B (shot noise ~5e-4 per column mean)
+    assert np.corrcoef(cols[0], cols[3])[0, 1] > 0.9 and np.corrcoef(cols[1], cols[2])[0, 1] > 0.9
+    assert abs(np.corrcoef(cols[0], cols[1])[0, 1]) < 5 / math.sqrt(128)
+    # 2 x 128 independent column gains: the std of a std of n normals is ~1 / sqrt(2 n)
+    spread = math.sqrt(float(np.mean(cols**2)) - 1.0 / (level * 8 * 128))  # less the shot noise of a column mean
+    assert abs(spread / 0.005 - 1.0) < 5 / math.sqrt(2 * 256), spread
+
+
+def test_column_gain_estimate_round_trip_and_white_flats_get_almost_none():
+    level = 2000.0
+    flat = {"model": "G+P*", "level_dn": level}
+    meas = synth({"ColGain": COLGAIN}, batch=8, size=128, **flat)
+    base = [synth({}, batch=8, size=128, seed=s, **flat) for s in range(1, 5)]
+    est = column_gain.estimate(meas, base, K, level_dn=level)
+    # a robust variance of 127 column differences per channel, two independent patterns: ~10 % in sigma
+    assert abs(est["sigma"] / 0.005 - 1.0) < 0.3, est
+    # white flats: the excess is chance, of the order of the shot noise a column mean keeps (~5e-4)
+    white = [column_gain.estimate(synth({}, batch=8, size=128, seed=s, **flat), base, K, level_dn=level)["sigma"] for s in range(20, 30)]
+    assert max(white) < 0.001, white
+    with pytest.raises(ValueError, match="flat stack"):
+        column_gain.estimate(meas, base, K)
 
 
 def test_defect_lines_estimate_round_trip():
@@ -486,6 +517,8 @@ def test_effects_replay_bit_exactly():
     ("DarkHot", {"seed": 1, "density": 0.01, "median_e_per_s": -1.0, "log_std": 0.0}, "median_e_per_s must be >= 0, got -1.0"),
     ("DarkHot", {"seed": 1, "density": 0.01, "median_e_per_s": float("nan"), "log_std": 0.0}, "DarkHot.median_e_per_s must be finite"),
     ("DarkHot", {"density": 0.01, "median_e_per_s": 1.0, "log_std": 0.0}, "seed"),
+    ("ColGain", {"seed": 1, "sigma": 0.6}, r"sigma \(fraction of the signal\) must be in \[0, 0.5\), got 0.6"),
+    ("ColGain", {"sigma": 0.01}, "seed"),
     ("RowDrift", {"k": [1.0], "octave_dn": [[0.0] * 7]}, "octave_dn record 0 must list 8 values"),
     ("CodeMap", {"k": [1.0], "lo_dn": [0.0], "map_dn": [[0.0, 2.0, 2.0]], "period_dn": [4]}, r"period_dn\[0\] must be 0"),
     ("CodeMap", {"k": [1.0], "lo_dn": [0.0], "map_dn": [[0.0, 2.0, 2.0]], "period_dn": [1.5]}, "whole DN"),

@@ -73,6 +73,13 @@ def leaky_photodiodes(dn, rng, kind="bias", exposure=0.0, k=1.0, **_):
     return dn + where * k * rng.poisson(30.0 * exposure, dn.shape)
 
 
+def column_amplifier_gains(dn, rng, **_):
+    """Column gain non-uniformity (made outside rawaug): each sensor column's gain off by
+    0.6 % rms, the same in every frame: flats show it in proportion to the signal."""
+    g = 1.0 + np.random.default_rng(19).normal(0.0, 0.006, 2 * dn.shape[2])
+    return dn * np.stack([g[0::2], g[1::2], g[1::2], g[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
 def column_interference_tone(dn, rng, **_):
     """Vertical banding from interference during a serial row readout (made outside rawaug):
     1.0 DN at 0.147 cycles per sensor column, a phase of its own in every frame."""
@@ -127,6 +134,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "banding": (None, None, interference_tone, ["Band"]),
          "column banding": (None, None, column_interference_tone, ["ColBand"]),
          "dark hot pixels": (None, None, leaky_photodiodes, ["DarkHot"]),
+         "column gain": (None, None, column_amplifier_gains, ["ColGain"]),
          "fixed rows": (None, None, row_drivers, ["RowFix"]),
          "row per channel": (None, None, adc_banks, ["RowCh"]),
          "split amplifiers": (None, None, split_amplifiers, ["ReadMap"]),
@@ -148,7 +156,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
-SLOW_CASES = {"crosstalk", "banding", "column banding", "dark hot pixels", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph"}
+SLOW_CASES = {"crosstalk", "banding", "column banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

@@ -63,6 +63,7 @@ _BAND = L.STREAM["band"]
 _CBF0, _CBA0 = L.COLUMN["cband_f0"], L.COLUMN["cband_a0"]
 _DHD, _DHE, _DHL = L.COLUMN["dhot_density"], L.COLUMN["dhot_e"], L.COLUMN["dhot_log_std"]
 _DHOT_WHERE, _DHOT_SIZE = L.STREAM["dhot_where"], L.STREAM["dhot_size"]
+_CGS, _COLGAIN_PATTERN = L.COLUMN["colgain_sigma"], L.STREAM["colgain_pattern"]
 _COL_BAND = L.STREAM["col_band"]
 _RF, _ROW_PATTERN = L.COLUMN["rowfix_sigma"], L.STREAM["row_pattern"]
 _RC, _ROW_CHANNEL = L.COLUMN["rowch_sigma"], L.STREAM["row_channel"]
@@ -280,6 +281,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
             if stages & L.NONLIN:  # the photo signal compressed: s (1 - c s) above 0 DN
                 s -= v[_NL] * s * max(s, 0.0)
+            if stages & L.COL_GAIN:  # the sensor column's amplifier gain on the photo signal and its shot noise
+                s *= 1.0 + v[_CGS] * symmetric(normal, draw(keys[_COLGAIN_PATTERN], (sensor * 2 + col_set) * w + x))
             if stages & L.FPN:
                 s += v[_FS] * symmetric(normal, draw(keys[_FPN_PATTERN], p)) + shading_at(grids, record, fy0, x + fox, fh, fw, fgh, fgw)
             if stages & L.HOT:

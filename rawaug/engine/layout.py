@@ -39,6 +39,7 @@ DEAD = 1 << 28  # dead (stuck) pixels: sparse pixels whose output is a fixed lev
 ROW_DRIFT = 1 << 29  # row noise with a low-frequency spectrum: octaves of interpolated random row offsets per frame
 COL_BAND = 1 << 30  # column banding: tones along the sensor columns, a random phase in every frame
 DARK_HOT = 1 << 31  # hot pixels of dark current: sparse pixels with a high dark-current rate, before shot noise
+COL_GAIN = 1 << 32  # column gain non-uniformity: each sensor column's amplifier multiplies the photo signal by its own gain
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -79,6 +80,7 @@ COLUMNS = (
     "codemap_period",  # code map: the period (DN) its first codes repeat with beyond its range (0: none)
     "cband_f0", "cband_f1", "cband_f2", "cband_a0", "cband_a1", "cband_a2",  # column banding: cycles per sensor column, amplitude (DN)
     "dhot_density", "dhot_e", "dhot_log_std",  # hot pixels of dark current: share, median electrons this exposure, log-normal spread
+    "colgain_sigma",  # column gain non-uniformity: std of the sensor columns' relative gains
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -92,7 +94,7 @@ STREAMS = (
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
     "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map", "shared",
     "rts_where", "rts_size", "rts_state", "dead_where", "dead_level", "row_drift", "row_drift_phase",
-    "col_band", "dhot_where", "dhot_size",
+    "col_band", "dhot_where", "dhot_size", "colgain_pattern",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -40,6 +40,7 @@ C_XT0 = _column("xt_0")
 C_BF0, C_BA0 = _column("band_f0"), _column("band_a0")
 C_CBF0, C_CBA0 = _column("cband_f0"), _column("cband_a0")
 C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_log_std")
+C_CGS = _column("colgain_sigma")
 C_RF, C_RC = _column("rowfix_sigma"), _column("rowch_sigma")
 TONES = tl.constexpr(L.BAND_TONES)
 C_RMC0, C_RMY0, C_RMX0 = _column("rmap_c0"), _column("rmap_y0"), _column("rmap_x0")
@@ -71,6 +72,7 @@ K_DEAD_WHERE, K_DEAD_LEVEL = S["dead_where"], S["dead_level"]
 K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
+K_COLGAIN = S["colgain_pattern"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -204,6 +206,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += tl.sqrt(k * tl.maximum(s, 0.0)) * _normal(draw(_key(keys_ptr, K_SHOT), g))
     if FLAGS & 1048576:  # gain non-linearity: the photo signal compressed, s (1 - c s) above 0 DN
         s -= _col(v, C_NL) * s * tl.maximum(s, 0.0)
+    if FLAGS & 4294967296:  # column gain: the sensor column's amplifier gain on the photo signal and its shot noise
+        s *= 1.0 + _col(v, C_CGS) * _normal(draw(_key(keys_ptr, K_COLGAIN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
     if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading, a window (fpn_oy, fpn_ox) of fpn_h x fpn_w
         fh = _col(v, C_FH)
         fw = _col(v, C_FW)
