@@ -683,6 +683,47 @@ def col_tone(frames, level_dn=None):
     return _peak_over_median(col_tone_spectrum(frames)[1])
 
 
+def frame_mosaic(frames):
+    """Each frame of a stack (N, 4, h, w) as its raw mosaic (N, 2h, 2w), less each channel's
+    mean (DN), the channels at their sensor positions (``ROW_SET`` / ``COLUMN_SET``)."""
+    c = _centered(np.asarray(frames, dtype=np.float64))
+    n, _, h, w = c.shape
+    raw = np.empty((n, 2 * h, 2 * w))
+    for ch in range(4):
+        raw[:, ROW_SET[ch]::2, COLUMN_SET[ch]::2] = c[:, ch]
+    return raw
+
+
+def diagonal_bins(shape):
+    """(fy, fx, mask) of the ``rfft2`` bins of a raw mosaic of ``shape`` (2h, 2w), in cycles per
+    sensor row and column, that ``diag_tone`` reads: off both axes (tones along one axis, row
+    and column noise: the 1-D statistics' concern), off both Nyquist lines (where per-channel
+    line offsets of a Bayer mosaic lie) and outside the low-frequency disk."""
+    fy = np.fft.fftfreq(shape[0])[:, None]
+    fx = np.fft.rfftfreq(shape[1])[None, :]
+    mask = (fy != 0) & (fx != 0) & (fy != -0.5) & (fx != 0.5) & (np.hypot(fy, fx) >= 0.5 / _LOW_BAND)
+    fy, fx = np.broadcast_arrays(fy, fx)
+    return fy, fx, mask
+
+
+def diag_tone_spectrum(frames):
+    """(fy, fx, mean periodogram over frames in DN^2) of each frame's raw mosaic
+    (``frame_mosaic``) at the bins ``diagonal_bins`` keeps. Per frame: a tone of random phase
+    has the same power in every frame."""
+    raw = frame_mosaic(frames)
+    p = (np.abs(np.fft.rfft2(raw, axes=(1, 2))) ** 2).mean(axis=0) / (raw.shape[1] * raw.shape[2])
+    fy, fx, mask = diagonal_bins(raw.shape[1:])
+    return fy[mask], fx[mask], p[mask]
+
+
+def diag_tone(frames, level_dn=None):
+    """Power of the largest bin of the raw mosaics' 2-D periodogram off both axes
+    (``diag_tone_spectrum``) above its median bin (DN^2): a few times the median for white
+    noise, about n a^2 / 4 over n pixels for a tone of amplitude a whose phase advances from
+    row to row (diagonal stripes of a serial readout)."""
+    return _peak_over_median(diag_tone_spectrum(frames)[2])
+
+
 def pixel_fixed_std(frames, level_dn=None):
     """Pixel-to-pixel std of the stack-mean map from neighbouring-pixel differences along
     rows (robust: 1.4826 MAD / sqrt(2)), per channel, rms (DN). Smooth patterns (vignetting,
@@ -780,6 +821,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("col_tone", col_tone, kind="bias"),
+        Statistic("diag_tone", diag_tone, kind="bias"),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),

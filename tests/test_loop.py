@@ -55,6 +55,7 @@ def two_level_read_noise():
 XTALK = {"Xtalk": {"k": [K], "lag_0_1_dn": [1.2], "lag_1_-1_dn": [-0.8]}}  # a shared readout, opposite coupling on a diagonal
 BAND = {"Band": {"k": [K], "freq_per_row": [[0.137]], "amplitude_dn": [[1.0]]}}  # interference during readout
 COLBAND = {"ColBand": {"k": [K], "freq_per_col": [[0.181]], "amplitude_dn": [[1.0]]}}  # ... along a serially read row
+DIAGBAND = {"DiagBand": {"k": [K], "freq_per_col": [[0.137]], "freq_per_row": [[0.291]], "amplitude_dn": [[1.0]]}}  # ... not line-locked
 ROWFIX = {"RowFix": {"seed": 37, "k": [K], "fixed_dn": [1.2]}}  # row drivers' offsets
 ROWCH = {"RowCh": {"k": [K], "sigma_dn": [1.2]}}  # two ADC banks, a row offset each
 READMAP = {"ReadMap": {"k": [K], "channel_dn": [[0.0, 0.0, 2.0, 0.0]], "row_block_dn": [[0.0] * 8],
@@ -64,7 +65,7 @@ RTS = {"RTS": {"seed": 41, "density": 0.01, "high": 0.5, "log_std": 0.3, "k": [K
 DEAD = {"Dead": {"seed": 53, "density": 0.003, "levels_dn": [-60.0, -60.0, 0.0, 400.0]}}  # dead: low, at black, high
 DRIFT = {"RowDrift": {"k": [K], "octave_dn": [[0.0, 0.3, 0.5, 0.8, 1.0, 0.0, 0.0, 0.0]]}}  # 1/f-like row noise
 CASES = {"Col": COL, "FPN": FPN, "Hot": HOT, "BLE": BLE, "Clip": CLIP, "defect lines": LINES, "mixed": {**COL, **FPN, **HOT},
-         "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "column banding": COLBAND,
+         "two-level read": two_level_read_noise(), "crosstalk": XTALK, "banding": BAND, "column banding": COLBAND, "diagonal banding": DIAGBAND,
          "fixed rows": ROWFIX,
          "row per channel": ROWCH, "read-noise map": READMAP, "shared pixels": SHARED,
          "telegraph": RTS, "dead pixels": DEAD, "row drift": DRIFT}

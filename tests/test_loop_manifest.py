@@ -80,6 +80,16 @@ def column_amplifier_gains(dn, rng, **_):
     return dn * np.stack([g[0::2], g[1::2], g[1::2], g[0::2]])[:, None, :]  # R, G2 on even sensor columns
 
 
+def herringbone(dn, rng, **_):
+    """Diagonal banding from interference during a serial readout, not locked to the line rate
+    (made outside rawaug): 1.0 DN at 0.173 cycles per sensor column whose phase advances 0.311
+    cycles per sensor row, a phase of its own in every frame."""
+    _, h, w = dn.shape
+    y, x = np.arange(2 * h)[:, None], np.arange(2 * w)[None, :]
+    t = 1.0 * np.cos(2 * np.pi * (0.173 * x + 0.311 * y) + rng.uniform(0, 2 * np.pi))
+    return dn + np.stack([t[0::2, 0::2], t[0::2, 1::2], t[1::2, 1::2], t[1::2, 0::2]])  # R, G1, B, G2 (RGGB)
+
+
 def column_interference_tone(dn, rng, **_):
     """Vertical banding from interference during a serial row readout (made outside rawaug):
     1.0 DN at 0.147 cycles per sensor column, a phase of its own in every frame."""
@@ -135,6 +145,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "column banding": (None, None, column_interference_tone, ["ColBand"]),
          "dark hot pixels": (None, None, leaky_photodiodes, ["DarkHot"]),
          "column gain": (None, None, column_amplifier_gains, ["ColGain"]),
+         "diagonal banding": (None, None, herringbone, ["DiagBand"]),
          "fixed rows": (None, None, row_drivers, ["RowFix"]),
          "row per channel": (None, None, adc_banks, ["RowCh"]),
          "split amplifiers": (None, None, split_amplifiers, ["ReadMap"]),
@@ -156,7 +167,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
-SLOW_CASES = {"crosstalk", "banding", "column banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph"}
+SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

@@ -64,6 +64,8 @@ _CBF0, _CBA0 = L.COLUMN["cband_f0"], L.COLUMN["cband_a0"]
 _DHD, _DHE, _DHL = L.COLUMN["dhot_density"], L.COLUMN["dhot_e"], L.COLUMN["dhot_log_std"]
 _DHOT_WHERE, _DHOT_SIZE = L.STREAM["dhot_where"], L.STREAM["dhot_size"]
 _CGS, _COLGAIN_PATTERN = L.COLUMN["colgain_sigma"], L.STREAM["colgain_pattern"]
+_DBX0, _DBY0, _DBA0 = L.COLUMN["dband_fx0"], L.COLUMN["dband_fy0"], L.COLUMN["dband_a0"]
+_DIAG_BAND = L.STREAM["diag_band"]
 _COL_BAND = L.STREAM["col_band"]
 _RF, _ROW_PATTERN = L.COLUMN["rowfix_sigma"], L.STREAM["row_pattern"]
 _RC, _ROW_CHANNEL = L.COLUMN["rowch_sigma"], L.STREAM["row_channel"]
@@ -127,6 +129,19 @@ def banding_at(key, v, b, line, f0, a0):
         if a != 0.0:
             phase = 2.0 * math.pi * unit(draw(key, b * _TONES + j))
             out += a * math.cos(2.0 * math.pi * v[f0 + j] * line + phase)
+    return out
+
+
+@njit(inline="always")
+def diagonal_banding_at(key, v, b, ry, rx):
+    """Diagonal banding (DN) at raw pixel (ry, rx) of sample b: sum of
+    a_j cos(2 pi (fx_j rx + fy_j ry) + phi_j), the phase drawn as ``banding_at``'s."""
+    out = 0.0
+    for j in range(_TONES):
+        a = v[_DBA0 + j]
+        if a != 0.0:
+            phase = 2.0 * math.pi * unit(draw(key, b * _TONES + j))
+            out += a * math.cos(2.0 * math.pi * (v[_DBX0 + j] * rx + v[_DBY0 + j] * ry) + phase)
     return out
 
 
@@ -308,6 +323,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))
             if stages & L.COL_BAND:  # tones along the sensor columns, a phase per frame and tone
                 s += banding_at(keys[_COL_BAND], v, b, 2 * x + col_set, _CBF0, _CBA0)
+            if stages & L.DIAG_BAND:  # tones along both axes, a phase per frame and tone
+                s += diagonal_banding_at(keys[_DIAG_BAND], v, b, 2 * y + row_set, 2 * x + col_set)
             if stages & L.LINES:
                 s += defect_line_at(normal, keys[_LINES_COL], (sensor * 2 + col_set) * w + x, v[_LCD], v[_LM], v[_LLS], v[_LNEG])
             if stages & L.QUANT:

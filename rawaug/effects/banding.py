@@ -91,15 +91,21 @@ def _power_at(m, f):
 
 
 def _tone_amplitude(raw, f: float, noise: float) -> float:
-    """Amplitude (DN) of a tone at ``f`` in the frames' sensor-line means ``raw`` (N, n): each
-    frame's Fourier coefficient X_b lies on a circle, its centre what is the same in every
-    frame (a fixed row pattern), its radius n a / 2 (the tone, its phase new in every frame).
-    The circle is fitted by least squares (Kasa); the noise power ``noise`` (DN^2, a
-    periodogram value) adds n * noise to the squared radius and is taken off. With two frames
-    the radius is |X_1 - X_2| / sqrt(2); with one, |X_1|. At Nyquist (real X_b = n a cos(phase))
-    the squared radius is half the variance of X_b over the frames."""
-    n_frames, n = raw.shape
-    x = raw @ np.exp(-2j * np.pi * f * np.arange(n))
+    """Amplitude (DN) of a tone at ``f`` in the frames' sensor-line means ``raw`` (N, n): the
+    circle (``circle_amplitude``) of each frame's Fourier coefficient there."""
+    return circle_amplitude(raw @ np.exp(-2j * np.pi * f * np.arange(raw.shape[1])), raw.shape[1], noise)
+
+
+def circle_amplitude(x, n: int, noise: float) -> float:
+    """Amplitude (DN) of a tone from each frame's Fourier coefficient ``x`` (N,) over ``n``
+    values: the coefficients lie on a circle, its centre what is the same in every frame (a
+    fixed pattern), its radius n a / 2 (the tone, its phase new in every frame). The circle is
+    fitted by least squares (Kasa); the noise power ``noise`` (DN^2, a periodogram value) adds
+    n * noise to the squared radius and is taken off. With two frames the radius is
+    |X_1 - X_2| / sqrt(2); with one, |X_1|. At Nyquist (real X_b = n a cos(phase)) the squared
+    radius is half the variance of X_b over the frames."""
+    x = np.asarray(x)
+    n_frames = x.shape[0]
     if n_frames >= 2 and np.abs(x.imag).max() <= 1e-9 * max(float(np.abs(x).max()), 1e-30):
         # at Nyquist the coefficient is real, a cos(phase) n: the points lie on a line, not a circle
         r2 = float(np.var(x.real, ddof=1)) / 2.0 - n * noise / 2.0 + n * noise  # var = 2 (n a / 2)^2 + n noise

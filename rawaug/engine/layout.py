@@ -40,6 +40,7 @@ ROW_DRIFT = 1 << 29  # row noise with a low-frequency spectrum: octaves of inter
 COL_BAND = 1 << 30  # column banding: tones along the sensor columns, a random phase in every frame
 DARK_HOT = 1 << 31  # hot pixels of dark current: sparse pixels with a high dark-current rate, before shot noise
 COL_GAIN = 1 << 32  # column gain non-uniformity: each sensor column's amplifier multiplies the photo signal by its own gain
+DIAG_BAND = 1 << 33  # diagonal banding: tones along both sensor axes (a serial readout's interference), a phase per frame
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -81,6 +82,8 @@ COLUMNS = (
     "cband_f0", "cband_f1", "cband_f2", "cband_a0", "cband_a1", "cband_a2",  # column banding: cycles per sensor column, amplitude (DN)
     "dhot_density", "dhot_e", "dhot_log_std",  # hot pixels of dark current: share, median electrons this exposure, log-normal spread
     "colgain_sigma",  # column gain non-uniformity: std of the sensor columns' relative gains
+    "dband_fx0", "dband_fx1", "dband_fx2", "dband_fy0", "dband_fy1", "dband_fy2",  # diagonal banding: cycles per sensor column, per sensor row
+    "dband_a0", "dband_a1", "dband_a2",  # ... amplitude (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -94,7 +97,7 @@ STREAMS = (
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
     "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map", "shared",
     "rts_where", "rts_size", "rts_state", "dead_where", "dead_level", "row_drift", "row_drift_phase",
-    "col_band", "dhot_where", "dhot_size", "colgain_pattern",
+    "col_band", "dhot_where", "dhot_size", "colgain_pattern", "diag_band",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

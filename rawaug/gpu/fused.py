@@ -41,6 +41,7 @@ C_BF0, C_BA0 = _column("band_f0"), _column("band_a0")
 C_CBF0, C_CBA0 = _column("cband_f0"), _column("cband_a0")
 C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_log_std")
 C_CGS = _column("colgain_sigma")
+C_DBX0, C_DBY0, C_DBA0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0")
 C_RF, C_RC = _column("rowfix_sigma"), _column("rowch_sigma")
 TONES = tl.constexpr(L.BAND_TONES)
 C_RMC0, C_RMY0, C_RMX0 = _column("rmap_c0"), _column("rmap_y0"), _column("rmap_x0")
@@ -73,6 +74,7 @@ K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
+K_DIAG_BAND = S["diag_band"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -120,6 +122,14 @@ def _tone(key, v, j: tl.constexpr, b, line, F0: tl.constexpr, A0: tl.constexpr):
     phase = 6.283185307179586 * unit(draw(key, (b.to(tl.int64) * TONES + j).to(tl.uint64) + tl.zeros_like(line).to(tl.uint64)))
     arg = 6.283185307179586 * _col(v, F0 + j) * line.to(tl.float64) + phase.to(tl.float64)
     return _col(v, A0 + j) * tl.cos(arg)
+
+
+@triton.jit
+def _diag_tone(key, v, j: tl.constexpr, b, ry, rx):
+    """As one tone of ``rawaug.cpu.fused.diagonal_banding_at``: a_j cos(2 pi (fx_j rx + fy_j ry) + phi_j)."""
+    phase = 6.283185307179586 * unit(draw(key, (b.to(tl.int64) * TONES + j).to(tl.uint64) + tl.zeros_like(rx).to(tl.uint64)))
+    arg = 6.283185307179586 * (_col(v, C_DBX0 + j) * rx.to(tl.float64) + _col(v, C_DBY0 + j) * ry.to(tl.float64)) + phase.to(tl.float64)
+    return _col(v, C_DBA0 + j) * tl.cos(arg)
 
 
 @triton.jit
@@ -265,6 +275,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         rx = 2 * x + col_set
         kc = _key(keys_ptr, K_COL_BAND)
         s += _tone(kc, v, 0, b, rx, C_CBF0, C_CBA0) + _tone(kc, v, 1, b, rx, C_CBF0, C_CBA0) + _tone(kc, v, 2, b, rx, C_CBF0, C_CBA0)
+    if FLAGS & 8589934592:  # diagonal banding: tones along both axes, a phase per frame and tone
+        ry = 2 * y + row_set
+        rx = 2 * x + col_set
+        kd = _key(keys_ptr, K_DIAG_BAND)
+        s += _diag_tone(kd, v, 0, b, ry, rx) + _diag_tone(kd, v, 1, b, ry, rx) + _diag_tone(kd, v, 2, b, ry, rx)
     if FLAGS & 262144:  # defect lines: the sensor column's offset here, the row's below
         s += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64),
                           _col(v, C_LCD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))

@@ -7,7 +7,8 @@ clipping), of the codes one by one (missing codes), of the stack-mean map (dark 
 DSNU, PRNU, hot pixels), of the per-pixel temporal std, the sorted line means (defect
 lines), the sorted frame means (black-level error) or the correlation of neighbouring
 pixels' temporal noise at raw lags (crosstalk), of pairs in one tile and in adjacent tiles
-(a shared readout), the periodogram of the sensor-row or -column means (banding), or the
+(a shared readout), the periodogram of the sensor-row or -column means (banding) or the
+largest bins of the 2-D periodogram (diagonal banding), or the
 white temporal variance per channel and block (read-noise map). ``step_signature`` gives the
 measured curve and the model's before and after a step
 (mean and spread over its syntheses), on the measured curve's grid.
@@ -16,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..statistics import (CURVE_LAGS, col_tone_spectrum, lag_covariances, read_noise_profile, row_tone_spectrum,
-                          statistic_view, tile_pair_covariances)
+from ..statistics import (CURVE_LAGS, col_tone_spectrum, diag_tone_spectrum, lag_covariances, read_noise_profile,
+                          row_tone_spectrum, statistic_view, tile_pair_covariances)
 
 KIND = {
     "psd2d_lowfreq": "radial_spectrum",
@@ -30,7 +31,7 @@ KIND = {
     "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means",
     "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
     "neighbour_corr": "lag_correlations", "row_tone": "row_tone_spectrum",
-    "col_tone": "col_tone_spectrum",
+    "col_tone": "col_tone_spectrum", "diag_tone": "diag_tone_bins",
     "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram",
     "stuck_fraction": "temporal_histogram",
 }  # every other statistic: the histogram of the pixel values
@@ -48,6 +49,7 @@ LABEL = {
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
     "row_tone_spectrum": ("frequency (cycles per sensor row)", "temporal sensor-row-mean power (DN^2)", True),
     "col_tone_spectrum": ("frequency (cycles per sensor column)", "temporal sensor-column-mean power (DN^2)", True),
+    "diag_tone_bins": ("bin of the 2-D periodogram off both axes, largest first", "power (DN^2)", True),
     "read_noise_profile": ("channel 1-4, then row block 1-8, then column block 1-8", "white temporal variance (DN^2)", False),
     "tile_correlations": ("raw lag (0,1) (1,0) (1,1) (1,-1): pairs in one tile, then in adjacent tiles",
                           "correlation of the temporal residual", False),
@@ -55,6 +57,7 @@ LABEL = {
                          "correlation of the temporal residual", False),
 }
 CODES = 24  # code_histogram: codes either side of the median
+DIAG_BINS = 64  # diag_tone_bins: the largest bins of the 2-D periodogram
 BINS = 48
 
 
@@ -118,6 +121,9 @@ def curve(kind: str, frames, edges=None):
         return row_tone_spectrum(frames)
     if kind == "col_tone_spectrum":
         return col_tone_spectrum(frames)
+    if kind == "diag_tone_bins":  # a 2-D tone stands out of the largest bins
+        p = np.sort(diag_tone_spectrum(frames)[2])[::-1][:DIAG_BINS]
+        return np.arange(1, p.size + 1, dtype=np.float64), p
     if kind == "lag_correlations":
         var, cov = lag_covariances(frames, CURVE_LAGS)
         return np.arange(1, len(CURVE_LAGS) + 1, dtype=np.float64), cov / max(var, 1e-12)

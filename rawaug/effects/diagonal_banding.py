@@ -1,0 +1,156 @@
+"""Diagonal banding (DiagBand): tones along both sensor axes, new in phase in every frame.
+
+Physics: where pixels are read out serially in time (a CCD's output register, a sensor with
+few output amplifiers), interference during readout (a switching regulator, a clock) of
+frequency f reaches pixel (X, Y) at time X tau + Y T (pixel time tau, line time T): a 2-D
+tone of ``f tau`` cycles per sensor column whose phase advances ``f T`` cycles per sensor row,
+seen as diagonal stripes ("herringbone"), with a phase of its own in every frame. ``Band``
+(a column-parallel readout: ``f tau`` vanishes) and ``ColBand`` (a tone locked to the line
+rate: ``f T`` whole) are its cases along one axis.
+
+Synthesis: ``sum_j a_j cos(2 pi (fx_j X + fy_j Y) + phi_j)`` on raw pixel (X, Y), ``phi_j``
+uniform per frame and tone; at most ``rawaug.engine.layout.BAND_TONES``.
+
+Profile entry (per-K records; ``freq_per_col`` in [0, 0.5], ``freq_per_row`` in [-0.5, 0.5])::
+
+    DiagBand: {k: [K, ...], freq_per_col: [[fx1, ...], ...], freq_per_row: [[fy1, ...], ...],
+               amplitude_dn: [[a1, ...], ...]}
+
+Detected by ``diag_tone`` (the largest bin of the raw mosaics' 2-D periodogram off both axes
+above its median bin). Estimated by ``estimate``: ``Band``'s search in two dimensions: bins
+above the model's (its spectrum median-smoothed over SMOOTH x SMOOTH bins) by more than
+chance allows (F-test, family-wise p 1e-3), each refined to the frequency pair that
+maximizes the frames' power (21 x 21 grids of +-1, +-0.1 and +-0.01 bin in turn: the peak
+bin's power, which ``diag_tone`` reads, depends on where a tone lies between bins), its amplitude from the circle of the frames'
+Fourier coefficients (``banding.circle_amplitude``), removed before the next. Judged with the
+read noise re-fitted (calibration had counted the tone's power as read noise).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage, stats
+
+from ..engine import layout as L
+from ..statistics import diagonal_bins, frame_mosaic
+from .banding import FAMILY_P, circle_amplitude
+from .base import BANDING, NoiseEffect, register
+from .k_records import _number, record_index, validate_records
+
+STATISTICS = ("diag_tone",)
+SHARES_READ_NOISE = True  # calibration counted the tone's power as white read noise
+SMOOTH = 5  # bins along each axis of the model's spectrum in its running median
+ZOOM = (1.0, 0.1, 0.01)  # half-widths (bins) of the 21 x 21 grids a tone's frequency is refined on, in turn
+KEYS = ("freq_per_col", "freq_per_row", "amplitude_dn")
+
+
+@register
+class DiagonalBanding(NoiseEffect):
+    token = "DiagBand"
+    order = BANDING
+    flag = L.DIAG_BAND
+    columns = tuple(f"dband_{name}{j}" for name in ("fx", "fy", "a") for j in range(L.BAND_TONES))
+
+    def draw(self, ctx):
+        p = self.profile.effects[self.token]
+        idx = record_index(p, ctx.k)
+        out = {}
+        for name, key in zip(("fx", "fy", "a"), KEYS):
+            table = np.zeros((len(p["k"]), L.BAND_TONES))
+            for r, values in enumerate(p[key]):
+                table[r, : len(values)] = values
+            for j in range(L.BAND_TONES):
+                out[f"dband_{name}{j}"] = ctx.k.new_tensor(table[:, j])[idx]
+        return out
+
+    @classmethod
+    def validate_params(cls, params):
+        validate_records(cls.token, params, KEYS)
+        for r, lists in enumerate(zip(*(params[key] for key in KEYS))):
+            if not all(isinstance(v, (list, tuple)) for v in lists) or len({len(v) for v in lists}) != 1:
+                raise ValueError(f"effect {cls.token!r}: record {r} needs equal lists {', '.join(KEYS)}, got {lists!r}")
+            if len(lists[0]) > L.BAND_TONES:
+                raise ValueError(f"effect {cls.token!r}: at most {L.BAND_TONES} tones per record, got {len(lists[0])}")
+            for fx, fy, a in zip(*lists):
+                fx, fy = _number(fx, f"{cls.token}.freq_per_col[]"), _number(fy, f"{cls.token}.freq_per_row[]")
+                if not (0.0 <= fx <= 0.5 and -0.5 <= fy <= 0.5) or fx == fy == 0.0:
+                    raise ValueError(f"effect {cls.token!r}: a tone needs freq_per_col in [0, 0.5] and freq_per_row in "
+                                     f"[-0.5, 0.5] (cycles per sensor column, row), not both 0, got ({fx}, {fy})")
+                if _number(a, f"{cls.token}.amplitude_dn[]") < 0:
+                    raise ValueError(f"effect {cls.token!r}: amplitude_dn must be >= 0, got {a}")
+
+
+def _coefficients(raw, fy, fx):
+    """Each frame's Fourier coefficients of the raw mosaics ``raw`` (N, H, W) on the grid of
+    ``fy`` (m,) x ``fx`` (p,) (cycles per sensor row, column): (N, m, p) complex."""
+    ex = np.exp(-2j * np.pi * np.outer(np.arange(raw.shape[2]), fx))  # (W, p)
+    ey = np.exp(-2j * np.pi * np.outer(fy, np.arange(raw.shape[1])))  # (m, H)
+    return np.einsum("my,nyp->nmp", ey, raw @ ex)
+
+
+def _power(raw, fy, fx):
+    """Mean periodogram over frames (DN^2) on the grid ``fy`` x ``fx``."""
+    return (np.abs(_coefficients(raw, fy, fx)) ** 2).mean(axis=0) / (raw.shape[1] * raw.shape[2])
+
+
+def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
+    """DiagBand record at gain ``k`` from a bias or dark stack (N, 4, h, w) in DN: the tones of
+    its raw mosaics off both axes that the model's syntheses lack."""
+    if level_dn is not None or not synthesized:
+        raise ValueError("DiagBand is measured on bias and dark stacks, against syntheses")
+    raw = frame_mosaic(frames)
+    models = [frame_mosaic(s) for s in synthesized]
+    n_frames, hh, ww = raw.shape
+    fy, fx, mask = diagonal_bins((hh, ww))
+
+    def periodogram(r):
+        return (np.abs(np.fft.rfft2(r, axes=(1, 2))) ** 2).mean(axis=0) / (hh * ww)
+
+    # the model's spectrum, smoothed (it has no tone: its shape is smooth)
+    model = ndimage.median_filter(np.mean([periodogram(m) for m in models], axis=0), size=SMOOTH, mode="nearest")
+    threshold = stats.f.isf(FAMILY_P / int(mask.sum()), 2 * n_frames, 2 * sum(len(m) for m in models) * SMOOTH * SMOOTH)
+    yy, xx = np.arange(hh)[:, None], np.arange(ww)[None, :]
+    tones, amps = [], []
+    while len(tones) < L.BAND_TONES:
+        ratio = np.where(mask, periodogram(raw) / np.maximum(model, 1e-30), 0.0)
+        i = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        if ratio[i] <= threshold:
+            break
+        best_y, best_x = float(fy[i]), float(fx[i])
+        for span in ZOOM:  # the peak bin's power depends on where the tone lies between bins: refine it closely
+            gy = best_y + span * np.linspace(-1, 1, 21) / hh
+            gx = np.clip(best_x + span * np.linspace(-1, 1, 21) / ww, 0.0, 0.5)
+            j = np.unravel_index(int(np.argmax(_power(raw, gy, gx))), (gy.size, gx.size))
+            best_y, best_x = float(gy[j[0]]), float(gx[j[1]])
+        noise = float(np.mean([_power(m, [best_y], [best_x])[0, 0] for m in models]))  # the model's power there, DN^2
+        amplitude = circle_amplitude(_coefficients(raw, [best_y], [best_x])[:, 0, 0], hh * ww, noise)
+        if amplitude <= 0:
+            break
+        tones.append((best_x, best_y))
+        amps.append(float(amplitude))
+        arg = 2 * np.pi * (best_x * xx + best_y * yy)
+        basis = np.stack([np.cos(arg).ravel(), np.sin(arg).ravel()], axis=1)
+        coef, *_ = np.linalg.lstsq(basis, raw.reshape(n_frames, -1).T, rcond=None)
+        raw = raw - (basis @ coef).T.reshape(raw.shape)
+    return {"k": [float(k)], "freq_per_col": [[t[0] for t in tones]], "freq_per_row": [[t[1] for t in tones]],
+            "amplitude_dn": [amps]}
+
+
+def combine(records: list[dict]) -> dict:
+    """One record per gain: the tones of the first stack at that K (bias before dark), each
+    amplitude the rms over the stacks at that K that found it (within 1/200 cycle on both axes)."""
+    by_k: dict = {}
+    for r in records:
+        by_k.setdefault(float(r["k"][0]), []).append(r)
+    ks = sorted(by_k)
+    out = {"k": ks, "freq_per_col": [], "freq_per_row": [], "amplitude_dn": []}
+    for k in ks:
+        first = by_k[k][0]
+        out["freq_per_col"].append(list(first["freq_per_col"][0]))
+        out["freq_per_row"].append(list(first["freq_per_row"][0]))
+        row = []
+        for fx, fy in zip(first["freq_per_col"][0], first["freq_per_row"][0]):
+            found = [a for r in by_k[k] for gx, gy, a in zip(r["freq_per_col"][0], r["freq_per_row"][0], r["amplitude_dn"][0])
+                     if abs(gx - fx) < 0.005 and abs(gy - fy) < 0.005]
+            row.append(float(np.sqrt(np.mean(np.square(found)))))
+        out["amplitude_dn"].append(row)
+    return out
