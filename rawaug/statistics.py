@@ -694,34 +694,66 @@ def frame_mosaic(frames):
     return raw
 
 
+AXIS_CLEAR = 2  # bins: the Hann window's main lobe spreads a tone over 2 bins either side
+
+
 def diagonal_bins(shape):
     """(fy, fx, mask) of the ``rfft2`` bins of a raw mosaic of ``shape`` (2h, 2w), in cycles per
-    sensor row and column, that ``diag_tone`` reads: off both axes (tones along one axis, row
-    and column noise: the 1-D statistics' concern), off both Nyquist lines (where per-channel
-    line offsets of a Bayer mosaic lie) and outside the low-frequency disk."""
+    sensor row and column, that ``diag_tone`` reads: AXIS_CLEAR bins or more off both axes
+    (tones along one axis, row and column noise: the 1-D statistics' concern) and off both
+    Nyquist lines (where per-channel line offsets of a Bayer mosaic lie), outside the
+    low-frequency disk."""
     fy = np.fft.fftfreq(shape[0])[:, None]
     fx = np.fft.rfftfreq(shape[1])[None, :]
-    mask = (fy != 0) & (fx != 0) & (fy != -0.5) & (fx != 0.5) & (np.hypot(fy, fx) >= 0.5 / _LOW_BAND)
+    dy, dx = AXIS_CLEAR / shape[0] - 1e-12, AXIS_CLEAR / shape[1] - 1e-12
+    mask = ((np.abs(fy) >= dy) & (np.abs(fy) <= 0.5 - dy) & (fx >= dx) & (fx <= 0.5 - dx)
+            & (np.hypot(fy, fx) >= 0.5 / _LOW_BAND))
     fy, fx = np.broadcast_arrays(fy, fx)
     return fy, fx, mask
 
 
+def hann_2d(shape):
+    """(H, W) separable Hann window: a smooth field's power leaks into far bins of a windowed
+    periodogram as 1 / d^6 (d bins away), not 1 / d^2."""
+    return np.outer(np.hanning(shape[0]), np.hanning(shape[1]))
+
+
+def windowed_periodogram(raw):
+    """Mean over frames of the ``rfft2`` periodogram of raw mosaics (N, H, W) under
+    ``hann_2d``, DN^2: |X|^2 / sum(w^2), so white noise of variance s^2 reads s^2 in every bin
+    and a tone of amplitude a reads about a^2 sum(w)^2 / (4 sum(w^2))."""
+    w = hann_2d(raw.shape[1:])
+    return (np.abs(np.fft.rfft2(raw * w, axes=(1, 2))) ** 2).mean(axis=0) / float(np.sum(w * w))
+
+
+LOCAL = 9  # bins along each axis of the neighbourhood a tone must stand out of (a smooth excess moves its median too)
+
+
+def local_median(p):
+    """Median of a 2-D periodogram over LOCAL x LOCAL bins around each bin (edges mirrored)."""
+    return ndimage.median_filter(p, size=LOCAL, mode="mirror")
+
+
 def diag_tone_spectrum(frames):
-    """(fy, fx, mean periodogram over frames in DN^2) of each frame's raw mosaic
-    (``frame_mosaic``) at the bins ``diagonal_bins`` keeps. Per frame: a tone of random phase
-    has the same power in every frame."""
+    """(fy, fx, mean windowed periodogram over frames in DN^2 (``windowed_periodogram``), its
+    ``local_median``) of each frame's raw mosaic (``frame_mosaic``) at the bins
+    ``diagonal_bins`` keeps. Per frame: a tone of random phase has the same power in every
+    frame. Windowed and against the local median: the leakage and the broad spectrum of strong
+    smooth fields (a glow, low-frequency interference) are not taken for a tone."""
     raw = frame_mosaic(frames)
-    p = (np.abs(np.fft.rfft2(raw, axes=(1, 2))) ** 2).mean(axis=0) / (raw.shape[1] * raw.shape[2])
+    p = windowed_periodogram(raw)
     fy, fx, mask = diagonal_bins(raw.shape[1:])
-    return fy[mask], fx[mask], p[mask]
+    return fy[mask], fx[mask], p[mask], local_median(p)[mask]
 
 
 def diag_tone(frames, level_dn=None):
-    """Power of the largest bin of the raw mosaics' 2-D periodogram off both axes
-    (``diag_tone_spectrum``) above its median bin (DN^2): a few times the median for white
-    noise, about n a^2 / 4 over n pixels for a tone of amplitude a whose phase advances from
-    row to row (diagonal stripes of a serial readout)."""
-    return _peak_over_median(diag_tone_spectrum(frames)[2])
+    """Power of the bin of the raw mosaics' windowed 2-D periodogram off both axes
+    (``diag_tone_spectrum``) that stands most above its neighbourhood's median (DN^2): a few
+    times the median for white noise, about n a^2 / 10 over n pixels (the Hann window's gains)
+    for a tone of amplitude a whose phase advances from row to row (diagonal stripes of a
+    serial readout); a smooth excess moves the median with it."""
+    _, _, p, local = diag_tone_spectrum(frames)
+    return float((p - local).max())
 
 
 def pixel_fixed_std(frames, level_dn=None):

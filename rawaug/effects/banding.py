@@ -15,7 +15,9 @@ Profile entry (per-K records)::
 
 Detected by ``row_tone`` (power of the largest bin of the frames' sensor-row-mean periodogram
 above its median bin, above the low band). Estimated by ``estimate``: bins of that periodogram
-above the model's by more than chance allows (F-test, family-wise p 1e-3), each refined to the
+above the model's and above the running median of their 9 neighbours (a tone is narrow; a
+smooth field's leakage is not) by more than chance allows (F-tests, family-wise p 1e-3), each
+refined (above the low band) to the
 frequency that maximizes the frames' power (grid of 1/40 bin), its amplitude from a circle
 fitted to the frames' Fourier coefficients there (radius: the tone; centre: a fixed part).
 Judged with the row noise re-fitted (the tone's power had gone into it).
@@ -34,6 +36,7 @@ STATISTICS = ("row_tone",)
 SHARES_ROW_NOISE = True  # the tone's power is row noise calibration counted as white
 FAMILY_P = 1e-3  # a bin counts as a tone when its power above the model's has this chance over all bins
 SMOOTH = 9  # bins of the model's spectrum in its running median
+LOCAL = 9  # bins of the measured spectrum's running median a tone must stand out of
 
 
 @register
@@ -96,12 +99,13 @@ def _tone_amplitude(raw, f: float, noise: float) -> float:
     return circle_amplitude(raw @ np.exp(-2j * np.pi * f * np.arange(raw.shape[1])), raw.shape[1], noise)
 
 
-def circle_amplitude(x, n: int, noise: float) -> float:
+def circle_amplitude(x, n: float, noise: float, coherent: float | None = None) -> float:
     """Amplitude (DN) of a tone from each frame's Fourier coefficient ``x`` (N,) over ``n``
     values: the coefficients lie on a circle, its centre what is the same in every frame (a
     fixed pattern), its radius n a / 2 (the tone, its phase new in every frame). The circle is
     fitted by least squares (Kasa); the noise power ``noise`` (DN^2, a periodogram value) adds
-    n * noise to the squared radius and is taken off. With two frames the radius is
+    n * noise to the squared radius and is taken off. Under a window w, ``n`` is sum(w^2) (the
+    noise's gain) and ``coherent`` sum(w) (the tone's; default n). With two frames the radius is
     |X_1 - X_2| / sqrt(2); with one, |X_1|. At Nyquist (real X_b = n a cos(phase)) the squared
     radius is half the variance of X_b over the frames."""
     x = np.asarray(x)
@@ -118,7 +122,7 @@ def circle_amplitude(x, n: int, noise: float) -> float:
     else:
         r2 = float(np.abs(x[0]) ** 2)  # one frame: a fixed part cannot be told apart
     r2 -= n * noise
-    return 2.0 * np.sqrt(r2) / n if r2 > 0 else 0.0
+    return 2.0 * np.sqrt(r2) / (n if coherent is None else coherent) if r2 > 0 else 0.0
 
 
 def line_tones(m, m_model) -> tuple[list[float], list[float]]:
@@ -132,17 +136,22 @@ def line_tones(m, m_model) -> tuple[list[float], list[float]]:
     model = ndimage.median_filter(np.mean([line_tone_spectrum(mm)[1] for mm in m_model], axis=0), size=SMOOTH, mode="nearest")
     n_frames, n = m.shape
     # a bin's power over N frames has 2 N degrees of freedom; the model's, over its syntheses'
-    # frames and SMOOTH bins, many more: their ratio is F-distributed
+    # frames and SMOOTH bins, many more: their ratio is F-distributed. A tone is narrow: the bin
+    # must also stand out of the running median of its LOCAL neighbours (about LOCAL N degrees
+    # of freedom), which a smooth field's leakage or a broad excess moves with it
     threshold = stats.f.isf(FAMILY_P / len(f), 2 * n_frames, 2 * sum(len(mm) for mm in m_model) * SMOOTH)
+    narrow = stats.f.isf(FAMILY_P / len(f), 2 * n_frames, n_frames * LOCAL)
     step = 1.0 / n
     y = np.arange(n)
     tones, amps = [], []
     while len(tones) < L.BAND_TONES:
         measured = _power_at(m, f)
-        i = int(np.argmax(measured / np.maximum(model, 1e-30)))
-        if measured[i] / max(model[i], 1e-30) <= threshold:
+        local = ndimage.median_filter(measured, size=LOCAL, mode="mirror")
+        over = np.where(measured > narrow * local, measured / np.maximum(model, 1e-30), 0.0)
+        i = int(np.argmax(over))
+        if over[i] <= threshold:
             break
-        grid = np.clip(f[i] + step * np.linspace(-1, 1, 81), step, 0.5)
+        grid = np.clip(f[i] + step * np.linspace(-1, 1, 81), f[0], 0.5)  # not into the low band
         best = float(grid[int(np.argmax(_power_at(m, grid)))])
         noise = float(np.mean([_power_at(mm, [best])[0] for mm in m_model]))  # the model's power there, DN^2
         amplitude = _tone_amplitude(m, best, noise)

@@ -17,12 +17,12 @@ Profile entry (electrons do not depend on the gain: one population)::
     DarkHot: {seed: 59, density: 0.003, median_e_per_s: 40.0, log_std: 0.5}
 
 Detected on dark stacks by ``hot_fraction`` and ``tail_mass`` (with ``Hot``, which the loop
-tries beside it: the bias frames tell them apart). Estimated by ``estimate``: the pixels of a
-dark stack's mean 8 robust sigma above the median (``hot_pixels.detect``) in excess of the
-model's, their excess over the median in electrons per second, on the frames as measured
-(the repair of defect lines would move a column that one bright hot pixel lifts). Hot pixels
-dimmer than that threshold are not seen: density and median are those of the detectable
-population.
+tries beside it: the bias frames tell them apart). Estimated by ``estimate``: the isolated
+pixels of a dark stack's mean 8 robust sigma above the median of their 5 x 5 neighbourhood
+(``isolated_hot``: a glow's smooth corner is no hot pixel) in excess of the model's, their
+excess in electrons per second, on the frames as measured (the repair of defect lines would
+move a column that one bright hot pixel lifts). Hot pixels dimmer than that threshold are not
+seen: density and median are those of the detectable population.
 """
 from __future__ import annotations
 
@@ -30,10 +30,11 @@ import math
 
 import numpy as np
 import torch
+from scipy import ndimage
 
 from ..engine import layout as L
 from .base import PHOTON, NoiseEffect, pattern_key, register
-from .hot_pixels import detect
+from .hot_pixels import THRESHOLD_SIGMA
 from .k_records import _number, check_density, check_seed
 
 STATISTICS = ("hot_fraction", "tail_mass")
@@ -69,16 +70,34 @@ class DarkHotPixels(NoiseEffect):
                 raise ValueError(f"effect {cls.token!r}: {key} must be >= 0, got {params.get(key)}")
 
 
+def isolated_hot(frames):
+    """(4, h, w) mask of a stack's (N, 4, h, w; DN) isolated hot pixels and their excess (DN):
+    pixels of the stack mean more than THRESHOLD_SIGMA robust sigma above the median of their
+    5 x 5 neighbourhood (same channel), none of whose 8 neighbours is so. Hot pixels are point
+    defects: a smooth field (a glow's corner, its shot noise) is neither above its local median
+    nor made of isolated pixels."""
+    m = np.asarray(frames, dtype=np.float64).mean(axis=0)
+    r = m - ndimage.median_filter(m, size=(1, 5, 5), mode="mirror")
+    flat = r.reshape(4, -1)
+    med = np.median(flat, axis=1)[:, None, None]
+    mad = 1.482602218505602 * np.median(np.abs(flat - med[:, :, 0]), axis=1)[:, None, None]
+    high = (r - med) > THRESHOLD_SIGMA * np.where(mad > 0, mad, r.std(axis=(1, 2), keepdims=True) + 1e-12)
+    ring = np.ones((1, 3, 3))
+    ring[0, 1, 1] = 0.0
+    hot = high & (ndimage.convolve(high.astype(np.float64), ring, mode="constant") == 0)
+    return hot, (r - med)[hot]
+
+
 def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, seed: int = 59, **_) -> dict:
     """DarkHot population from a dark stack (N, 4, h, w) in DN of ``exposure_s`` seconds at
     gain ``k`` (DN per electron), against stacks of the same shape synthesized by the model."""
     if kind != "dark" or not exposure_s:
         raise ValueError("DarkHot is measured on dark stacks with their exposure_s")
     frames = np.asarray(frames, dtype=np.float64)
-    hot, amp = detect(frames)
-    base = float(np.mean([detect(s)[0].mean() for s in synthesized])) if synthesized else 0.0
+    hot, amp = isolated_hot(frames)
+    base = float(np.mean([isolated_hot(s)[0].mean() for s in synthesized])) if synthesized else 0.0
     density = max(float(hot.mean()) - base, 0.0)
-    rate = amp[amp > 0] / (float(k) * float(exposure_s))  # electrons per second above the median pixel
+    rate = amp[amp > 0] / (float(k) * float(exposure_s))  # electrons per second above the neighbourhood
     if density == 0.0 or rate.size == 0:
         return {"seed": int(seed), "density": 0.0, "median_e_per_s": 0.0, "log_std": 0.0}
     logs = np.log(rate)

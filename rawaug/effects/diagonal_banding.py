@@ -16,10 +16,11 @@ Profile entry (per-K records; ``freq_per_col`` in [0, 0.5], ``freq_per_row`` in 
     DiagBand: {k: [K, ...], freq_per_col: [[fx1, ...], ...], freq_per_row: [[fy1, ...], ...],
                amplitude_dn: [[a1, ...], ...]}
 
-Detected by ``diag_tone`` (the largest bin of the raw mosaics' 2-D periodogram off both axes
-above its median bin). Estimated by ``estimate``: ``Band``'s search in two dimensions: bins
-above the model's (its spectrum median-smoothed over SMOOTH x SMOOTH bins) by more than
-chance allows (F-test, family-wise p 1e-3), each refined to the frequency pair that
+Detected by ``diag_tone`` (the largest bin of the raw mosaics' Hann-windowed 2-D periodogram
+off both axes above its median bin: a smooth field's leakage is not a tone). Estimated by
+``estimate``: ``Band``'s search in two dimensions, on the windowed mosaics: bins
+above the median of their 9 x 9 neighbours by more than chance allows (F-test, family-wise
+p 1e-3: a tone is narrow, a smooth field's excess is not), each refined to the frequency pair that
 maximizes the frames' power (21 x 21 grids of +-1, +-0.1 and +-0.01 bin in turn: the peak
 bin's power, which ``diag_tone`` reads, depends on where a tone lies between bins), its amplitude from the circle of the frames'
 Fourier coefficients (``banding.circle_amplitude``), removed before the next. Judged with the
@@ -28,17 +29,16 @@ read noise re-fitted (calibration had counted the tone's power as read noise).
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage, stats
+from scipy import stats
 
 from ..engine import layout as L
-from ..statistics import diagonal_bins, frame_mosaic
+from ..statistics import LOCAL, diagonal_bins, frame_mosaic, hann_2d, local_median, windowed_periodogram
 from .banding import FAMILY_P, circle_amplitude
 from .base import BANDING, NoiseEffect, register
 from .k_records import _number, record_index, validate_records
 
 STATISTICS = ("diag_tone",)
 SHARES_READ_NOISE = True  # calibration counted the tone's power as white read noise
-SMOOTH = 5  # bins along each axis of the model's spectrum in its running median
 ZOOM = (1.0, 0.1, 0.01)  # half-widths (bins) of the 21 x 21 grids a tone's frequency is refined on, in turn
 KEYS = ("freq_per_col", "freq_per_row", "amplitude_dn")
 
@@ -80,38 +80,38 @@ class DiagonalBanding(NoiseEffect):
 
 
 def _coefficients(raw, fy, fx):
-    """Each frame's Fourier coefficients of the raw mosaics ``raw`` (N, H, W) on the grid of
-    ``fy`` (m,) x ``fx`` (p,) (cycles per sensor row, column): (N, m, p) complex."""
+    """Each frame's Fourier coefficients of the (windowed) raw mosaics ``raw`` (N, H, W) on the
+    grid of ``fy`` (m,) x ``fx`` (p,) (cycles per sensor row, column): (N, m, p) complex."""
     ex = np.exp(-2j * np.pi * np.outer(np.arange(raw.shape[2]), fx))  # (W, p)
     ey = np.exp(-2j * np.pi * np.outer(fy, np.arange(raw.shape[1])))  # (m, H)
     return np.einsum("my,nyp->nmp", ey, raw @ ex)
 
 
-def _power(raw, fy, fx):
-    """Mean periodogram over frames (DN^2) on the grid ``fy`` x ``fx``."""
-    return (np.abs(_coefficients(raw, fy, fx)) ** 2).mean(axis=0) / (raw.shape[1] * raw.shape[2])
-
-
 def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     """DiagBand record at gain ``k`` from a bias or dark stack (N, 4, h, w) in DN: the tones of
-    its raw mosaics off both axes that the model's syntheses lack."""
+    its raw mosaics off both axes that the model's syntheses lack. Searched on the Hann-windowed
+    mosaics (``statistics.windowed_periodogram``: a smooth field's leakage is no tone), each
+    tone removed from the mosaics as they are."""
     if level_dn is not None or not synthesized:
         raise ValueError("DiagBand is measured on bias and dark stacks, against syntheses")
     raw = frame_mosaic(frames)
     models = [frame_mosaic(s) for s in synthesized]
     n_frames, hh, ww = raw.shape
+    window = hann_2d((hh, ww))
+    noise_gain, tone_gain = float(np.sum(window**2)), float(np.sum(window))
     fy, fx, mask = diagonal_bins((hh, ww))
 
-    def periodogram(r):
-        return (np.abs(np.fft.rfft2(r, axes=(1, 2))) ** 2).mean(axis=0) / (hh * ww)
+    def power(r, gy, gx):  # mean windowed periodogram over frames (DN^2) on a frequency grid
+        return (np.abs(_coefficients(r * window, gy, gx)) ** 2).mean(axis=0) / noise_gain
 
-    # the model's spectrum, smoothed (it has no tone: its shape is smooth)
-    model = ndimage.median_filter(np.mean([periodogram(m) for m in models], axis=0), size=SMOOTH, mode="nearest")
-    threshold = stats.f.isf(FAMILY_P / int(mask.sum()), 2 * n_frames, 2 * sum(len(m) for m in models) * SMOOTH * SMOOTH)
+    # a tone stands out of its neighbourhood: each bin over the median of the LOCAL x LOCAL bins
+    # around it, an F ratio (the median of LOCAL^2 bins weighs about as their half)
+    threshold = stats.f.isf(FAMILY_P / int(mask.sum()), 2 * n_frames, n_frames * LOCAL * LOCAL)
     yy, xx = np.arange(hh)[:, None], np.arange(ww)[None, :]
     tones, amps = [], []
     while len(tones) < L.BAND_TONES:
-        ratio = np.where(mask, periodogram(raw) / np.maximum(model, 1e-30), 0.0)
+        p = windowed_periodogram(raw)
+        ratio = np.where(mask, p / np.maximum(local_median(p), 1e-30), 0.0)
         i = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
         if ratio[i] <= threshold:
             break
@@ -119,10 +119,11 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
         for span in ZOOM:  # the peak bin's power depends on where the tone lies between bins: refine it closely
             gy = best_y + span * np.linspace(-1, 1, 21) / hh
             gx = np.clip(best_x + span * np.linspace(-1, 1, 21) / ww, 0.0, 0.5)
-            j = np.unravel_index(int(np.argmax(_power(raw, gy, gx))), (gy.size, gx.size))
+            j = np.unravel_index(int(np.argmax(power(raw, gy, gx))), (gy.size, gx.size))
             best_y, best_x = float(gy[j[0]]), float(gx[j[1]])
-        noise = float(np.mean([_power(m, [best_y], [best_x])[0, 0] for m in models]))  # the model's power there, DN^2
-        amplitude = circle_amplitude(_coefficients(raw, [best_y], [best_x])[:, 0, 0], hh * ww, noise)
+        noise = float(np.mean([power(m, [best_y], [best_x])[0, 0] for m in models]))  # the model's power there, DN^2
+        x = _coefficients(raw * window, [best_y], [best_x])[:, 0, 0]
+        amplitude = circle_amplitude(x, noise_gain, noise, coherent=tone_gain)
         if amplitude <= 0:
             break
         tones.append((best_x, best_y))

@@ -49,7 +49,7 @@ LABEL = {
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
     "row_tone_spectrum": ("frequency (cycles per sensor row)", "temporal sensor-row-mean power (DN^2)", True),
     "col_tone_spectrum": ("frequency (cycles per sensor column)", "temporal sensor-column-mean power (DN^2)", True),
-    "diag_tone_bins": ("bin of the 2-D periodogram off both axes, largest first", "power (DN^2)", True),
+    "diag_tone_bins": ("bin of the 2-D periodogram off both axes, largest first", "power over its 9 x 9 neighbours' median", True),
     "read_noise_profile": ("channel 1-4, then row block 1-8, then column block 1-8", "white temporal variance (DN^2)", False),
     "tile_correlations": ("raw lag (0,1) (1,0) (1,1) (1,-1): pairs in one tile, then in adjacent tiles",
                           "correlation of the temporal residual", False),
@@ -121,8 +121,9 @@ def curve(kind: str, frames, edges=None):
         return row_tone_spectrum(frames)
     if kind == "col_tone_spectrum":
         return col_tone_spectrum(frames)
-    if kind == "diag_tone_bins":  # a 2-D tone stands out of the largest bins
-        p = np.sort(diag_tone_spectrum(frames)[2])[::-1][:DIAG_BINS]
+    if kind == "diag_tone_bins":  # a 2-D tone stands out of the bins that stand most above their neighbours
+        _, _, p, local = diag_tone_spectrum(frames)
+        p = np.sort(p / np.maximum(local, 1e-30))[::-1][:DIAG_BINS]
         return np.arange(1, p.size + 1, dtype=np.float64), p
     if kind == "lag_correlations":
         var, cov = lag_covariances(frames, CURVE_LAGS)
