@@ -726,32 +726,36 @@ def windowed_periodogram(raw):
     return (np.abs(np.fft.rfft2(raw * w, axes=(1, 2))) ** 2).mean(axis=0) / float(np.sum(w * w))
 
 
-LOCAL = 9  # bins along each axis of the neighbourhood a tone must stand out of (a smooth excess moves its median too)
+LOCAL, CORE = 9, 5  # bins along each axis: a tone must stand out of the ring between these squares around it
 
 
-def local_median(p):
-    """Median of a 2-D periodogram over LOCAL x LOCAL bins around each bin (edges mirrored)."""
-    return ndimage.median_filter(p, size=LOCAL, mode="mirror")
+def local_background(p):
+    """Mean of a 2-D periodogram over the ring of bins around each bin between a LOCAL x LOCAL
+    and a CORE x CORE square (edges mirrored): what surrounds a tone, whose windowed main lobe
+    lies within the core; a smooth excess (leakage, a glow's spectrum) moves it with it."""
+    big = ndimage.uniform_filter(p, size=LOCAL, mode="mirror") * LOCAL**2
+    core = ndimage.uniform_filter(p, size=CORE, mode="mirror") * CORE**2
+    return (big - core) / (LOCAL**2 - CORE**2)
 
 
 def diag_tone_spectrum(frames):
     """(fy, fx, mean windowed periodogram over frames in DN^2 (``windowed_periodogram``), its
-    ``local_median``) of each frame's raw mosaic (``frame_mosaic``) at the bins
+    ``local_background``) of each frame's raw mosaic (``frame_mosaic``) at the bins
     ``diagonal_bins`` keeps. Per frame: a tone of random phase has the same power in every
     frame. Windowed and against the local median: the leakage and the broad spectrum of strong
     smooth fields (a glow, low-frequency interference) are not taken for a tone."""
     raw = frame_mosaic(frames)
     p = windowed_periodogram(raw)
     fy, fx, mask = diagonal_bins(raw.shape[1:])
-    return fy[mask], fx[mask], p[mask], local_median(p)[mask]
+    return fy[mask], fx[mask], p[mask], local_background(p)[mask]
 
 
 def diag_tone(frames, level_dn=None):
     """Power of the bin of the raw mosaics' windowed 2-D periodogram off both axes
-    (``diag_tone_spectrum``) that stands most above its neighbourhood's median (DN^2): a few
+    (``diag_tone_spectrum``) that stands most above the ring of bins around it (DN^2): a few
     times the median for white noise, about n a^2 / 10 over n pixels (the Hann window's gains)
     for a tone of amplitude a whose phase advances from row to row (diagonal stripes of a
-    serial readout); a smooth excess moves the median with it."""
+    serial readout); a smooth excess moves the ring with it."""
     _, _, p, local = diag_tone_spectrum(frames)
     return float((p - local).max())
 

@@ -19,8 +19,8 @@ Profile entry (per-K records; ``freq_per_col`` in [0, 0.5], ``freq_per_row`` in 
 Detected by ``diag_tone`` (the largest bin of the raw mosaics' Hann-windowed 2-D periodogram
 off both axes above its median bin: a smooth field's leakage is not a tone). Estimated by
 ``estimate``: ``Band``'s search in two dimensions, on the windowed mosaics: bins
-above the median of their 9 x 9 neighbours by more than chance allows (F-test, family-wise
-p 1e-3: a tone is narrow, a smooth field's excess is not), each refined to the frequency pair that
+above the mean of the ring of bins around them (between 9 x 9 and 5 x 5) by more than chance
+allows (F-test, family-wise p 1e-3: a tone is narrow, a smooth field's excess is not), each refined to the frequency pair that
 maximizes the frames' power (21 x 21 grids of +-1, +-0.1 and +-0.01 bin in turn: the peak
 bin's power, which ``diag_tone`` reads, depends on where a tone lies between bins), its amplitude from the circle of the frames'
 Fourier coefficients (``banding.circle_amplitude``), removed before the next. Judged with the
@@ -32,7 +32,7 @@ import numpy as np
 from scipy import stats
 
 from ..engine import layout as L
-from ..statistics import LOCAL, diagonal_bins, frame_mosaic, hann_2d, local_median, windowed_periodogram
+from ..statistics import CORE, LOCAL, diagonal_bins, frame_mosaic, hann_2d, local_background, windowed_periodogram
 from .banding import FAMILY_P, circle_amplitude
 from .base import BANDING, NoiseEffect, register
 from .k_records import _number, record_index, validate_records
@@ -104,14 +104,14 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     def power(r, gy, gx):  # mean windowed periodogram over frames (DN^2) on a frequency grid
         return (np.abs(_coefficients(r * window, gy, gx)) ** 2).mean(axis=0) / noise_gain
 
-    # a tone stands out of its neighbourhood: each bin over the median of the LOCAL x LOCAL bins
-    # around it, an F ratio (the median of LOCAL^2 bins weighs about as their half)
-    threshold = stats.f.isf(FAMILY_P / int(mask.sum()), 2 * n_frames, n_frames * LOCAL * LOCAL)
+    # a tone stands out of its neighbourhood: each bin over the mean of the ring of bins around
+    # it (``local_background``), an F ratio of 2 N and 2 N (LOCAL^2 - CORE^2) degrees of freedom
+    threshold = stats.f.isf(FAMILY_P / int(mask.sum()), 2 * n_frames, 2 * n_frames * (LOCAL**2 - CORE**2))
     yy, xx = np.arange(hh)[:, None], np.arange(ww)[None, :]
     tones, amps = [], []
     while len(tones) < L.BAND_TONES:
         p = windowed_periodogram(raw)
-        ratio = np.where(mask, p / np.maximum(local_median(p), 1e-30), 0.0)
+        ratio = np.where(mask, p / np.maximum(local_background(p), 1e-30), 0.0)
         i = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
         if ratio[i] <= threshold:
             break

@@ -49,7 +49,7 @@ LABEL = {
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
     "row_tone_spectrum": ("frequency (cycles per sensor row)", "temporal sensor-row-mean power (DN^2)", True),
     "col_tone_spectrum": ("frequency (cycles per sensor column)", "temporal sensor-column-mean power (DN^2)", True),
-    "diag_tone_bins": ("bin of the 2-D periodogram off both axes, largest first", "power over its 9 x 9 neighbours' median", True),
+    "diag_tone_bins": ("bin of the 2-D periodogram off both axes, largest first", "power over the ring of bins around it", True),
     "read_noise_profile": ("channel 1-4, then row block 1-8, then column block 1-8", "white temporal variance (DN^2)", False),
     "tile_correlations": ("raw lag (0,1) (1,0) (1,1) (1,-1): pairs in one tile, then in adjacent tiles",
                           "correlation of the temporal residual", False),
@@ -158,6 +158,8 @@ def step_signature(statistic: str, frames, before, after) -> dict:
         edges = np.linspace(lo, hi if hi > lo else lo + 1.0, BINS + 1)
     x, measured = curve(kind, view, edges)
     out = {"statistic": statistic, "kind": kind, "x": x.tolist(), "measured": measured.tolist()}
+    if kind.endswith("histogram"):  # a histogram of n values resolves fractions down to one value: 1 / n
+        out["floor"] = 1.0 / max(1, _values(kind, view).size)
     for name, synth in (("before", before), ("after", after)):
         ys = np.array([curve(kind, statistic_view(statistic, s), edges)[1] for s in synth])
         out[name] = ys.mean(axis=0).tolist()
@@ -168,14 +170,18 @@ def step_signature(statistic: str, frames, before, after) -> dict:
     return out
 
 
-FLOOR = 1e-9  # log curves: empty histogram bins count as this
+FLOOR = 1e-9  # log curves: values below count as this
 
 
 def distance(sig: dict, which: str) -> float:
     """Mean absolute difference between the model's curve ``which`` and the measured one, in
-    decades for log curves (empty bins at ``FLOOR``), in the curve's unit otherwise; spectra
-    are on log-spaced frequency bins, so each octave weighs alike."""
-    f = (lambda v: np.log10(np.maximum(np.asarray(v, dtype=np.float64), FLOOR))) if sig["log_y"] else np.asarray
+    decades for log curves, in the curve's unit otherwise; spectra are on log-spaced frequency
+    bins, so each octave weighs alike. A histogram's fractions count from one of its values
+    (``floor``, 1 / n): a measured bin that holds none, where the syntheses average a fraction
+    of one, agrees with them (a sparse tail: hot pixels), while one the model leaves empty and
+    the frames fill does not."""
+    floor = max(FLOOR, float(sig.get("floor", 0.0)))
+    f = (lambda v: np.log10(np.maximum(np.asarray(v, dtype=np.float64), floor))) if sig["log_y"] else np.asarray
     d = np.abs(f(sig[which]) - f(sig["measured"]))
     d = d[np.isfinite(d)]
     return float(d.mean()) if d.size else float("nan")
