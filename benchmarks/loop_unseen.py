@@ -158,9 +158,32 @@ def green_imbalance(dn, rng, **_):
     return dn * np.array([1.0, 1.0, 1.0, 1.03])[:, None, None]
 
 
+def leaky_columns(dn, rng, exposure=0.0, k=1.0, **_):
+    """Leaky columns: 1 % of the sensor columns (fixed) collect 15 e-/s more dark current, Poisson, so they show in long exposures and not in bias frames."""
+    leaky = np.random.default_rng(23).random(2 * dn.shape[2]) < 0.01
+    cols = np.stack([leaky[0::2], leaky[1::2], leaky[1::2], leaky[0::2]])[:, None, :]  # R, G2 on even sensor columns
+    return dn + cols * k * rng.poisson(15.0 * exposure, dn.shape)
+
+
+def clamp_sag(dn, rng, exposure=0.0, **_):
+    """The black clamp sags in long exposures: the black level of 4 s frames 3 DN below that of bias frames (a negative dark signal)."""
+    return dn - 3.0 * min(exposure / 4.0, 1.0)
+
+
+def gain_jitter(dn, rng, **_):
+    """Analog gain jitter: each frame's gain off by 0.3 % rms (signal and noise alike), so flat means vary in proportion to their level."""
+    return dn * (1.0 + rng.normal(0.0, 0.003))
+
+
+def coarse_adc(dn, rng, **_):
+    """A 12-bit ADC in a 14-bit container: every code a multiple of 4 DN (the camera writes only those)."""
+    return 4.0 * np.floor(dn / 4.0 + 0.5)
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
-                                 column_gain, dark_hot_pixels, diagonal_tone, green_imbalance)}
+                                 column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
+                                 leaky_columns, clamp_sag, gain_jitter, coarse_adc)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none"}  # cameras whose right answer is to add nothing
 

@@ -179,6 +179,11 @@ def combine(records: list[dict]) -> dict:
     return combine_tones(records, "freq_per_row")
 
 
+def empty(params) -> bool:
+    """True when a record holds no tone of nonzero amplitude: it would add nothing."""
+    return not any(a for record in params["amplitude_dn"] for a in record)
+
+
 def combine_tones(records: list[dict], freq_key: str) -> dict:
     """One record per gain: the tones of the first stack at that K (bias before dark), each
     amplitude the rms over the stacks at that K that found it (within 1/200 cycle per line)."""

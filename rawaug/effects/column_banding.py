@@ -27,7 +27,7 @@ import numpy as np
 
 from ..engine import layout as L
 from ..statistics import frame_col_means
-from .banding import combine_tones, draw_tones, line_tones, validate_tones
+from .banding import combine_tones, draw_tones, empty, line_tones, validate_tones  # noqa: F401 (empty: the loop's)
 from .base import BANDING, NoiseEffect, register
 
 STATISTICS = ("col_tone",)

@@ -75,3 +75,8 @@ def combine(records: list[dict]) -> dict:
     """One gain pattern from the flat stacks (every ISO and level: the same columns): their
     variances averaged."""
     return {"seed": records[0]["seed"], "sigma": float(np.sqrt(np.mean([r["sigma"] ** 2 for r in records])))}
+
+
+def empty(params) -> bool:
+    """True when the gains do not vary (sigma 0): it would add nothing."""
+    return float(params["sigma"]) == 0.0

@@ -115,3 +115,8 @@ def combine(records: list[dict]) -> dict:
     return {"seed": records[0]["seed"], "density": float(np.mean([r["density"] for r in records])),
             "median_e_per_s": float(math.exp(np.mean([math.log(r["median_e_per_s"]) for r in found]))),
             "log_std": float(math.sqrt(np.mean([r["log_std"] ** 2 for r in found])))}
+
+
+def empty(params) -> bool:
+    """True when no pixel is drawn (density 0): it would add nothing."""
+    return float(params["density"]) == 0.0

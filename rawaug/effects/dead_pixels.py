@@ -99,3 +99,8 @@ def combine(records) -> dict:
     levels = np.concatenate([r["levels_dn"] for r in records])
     return {"seed": int(records[0]["seed"]), "density": float(np.median([r["density"] for r in records])),
             "levels_dn": octiles(levels)}
+
+
+def empty(params) -> bool:
+    """True when no pixel is drawn (density 0): it would add nothing."""
+    return float(params["density"]) == 0.0

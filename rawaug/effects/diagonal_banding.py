@@ -33,7 +33,7 @@ from scipy import stats
 
 from ..engine import layout as L
 from ..statistics import CORE, LOCAL, diagonal_bins, frame_mosaic, hann_2d, local_background, windowed_periodogram
-from .banding import FAMILY_P, circle_amplitude
+from .banding import FAMILY_P, circle_amplitude, empty  # noqa: F401 (empty: the loop's)
 from .base import BANDING, NoiseEffect, register
 from .k_records import _number, record_index, validate_records
 

@@ -85,3 +85,8 @@ def estimate(frames, synthesized, k: float, seed: int = 13, **_) -> dict:
         "k": [float(k)],
         "median_dn": [float(math.exp(logs.mean()))],
     }
+
+
+def empty(params) -> bool:
+    """True when no pixel is drawn (density 0): it would add nothing."""
+    return float(params["density"]) == 0.0

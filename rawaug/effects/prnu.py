@@ -62,3 +62,8 @@ def estimate(frames, synthesized, k: float, level_dn=None, seed: int = 17, **_) 
     level = float(np.mean(level_dn))
     base = float(np.mean([_fixed_var(np.asarray(s, dtype=np.float64)) for s in synthesized]))
     return {"seed": int(seed), "sigma": float(np.sqrt(max(_fixed_var(frames) - base, 0.0)) / max(level, 1e-12))}
+
+
+def empty(params) -> bool:
+    """True when the gains do not vary (sigma 0): it would add nothing."""
+    return float(params["sigma"]) == 0.0

@@ -113,3 +113,8 @@ def estimate(frames, synthesized, k: float, seed: int = 41, kind: str = "bias", 
         sd = float(np.clip(sd * target_sd / max(float(sim.std(ddof=1)), 1e-3), 0.0, 2.0))
     return {"seed": int(seed), "density": min(found / max(fraction, 0.05), 0.1), "high": high, "log_std": sd,
             "k": [float(k)], "median_dn": [float(math.exp(mu))]}
+
+
+def empty(params) -> bool:
+    """True when no pixel is drawn (density 0): it would add nothing."""
+    return float(params["density"]) == 0.0

@@ -145,6 +145,14 @@ def _shares_noise(token) -> str:
             else "row noise" if getattr(module, "SHARES_ROW_NOISE", False) else "")
 
 
+def _adds_nothing(token, params) -> bool:
+    """True when a candidate's estimate would leave the model as it is (its module's ``empty``:
+    no tone found, no pixel drawn, no spread): trying it costs a diagnosis and, for a candidate
+    judged with a base stage re-fitted, could credit it with the re-fit alone."""
+    empty = getattr(CANDIDATES[token].module, "empty", None)
+    return bool(empty is not None and empty(params))
+
+
 def _measured(token) -> bool:
     return bool(getattr(CANDIDATES[token].module, "MEASURED", False))
 
@@ -264,6 +272,10 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 if params is None:
                     tried.add(token)
                     say(f"step {step_no}: {token} suggested by {evidence.statistic} but no stack can estimate it")
+                    continue
+                if _adds_nothing(token, params):  # no trial: the model would stay as it is
+                    tried.add(token)
+                    say(f"step {step_no}: {token} suggested by {evidence.statistic}, but its estimate adds nothing")
                     continue
                 trial = current.with_effect(token, params)
                 new_diags = diagnose_all(trial, seed + 1000 * step_no)
