@@ -17,7 +17,9 @@ from rawaug.engine import backend  # noqa: E402
 from rawaug.engine import layout as L  # noqa: E402
 from rawaug.gpu import fused  # noqa: E402
 
-ALL = (L.ROW_DRIFT << 1) - 1  # every stage flag up to the highest, ROW_DRIFT
+from rawaug.effects import EFFECTS  # noqa: E402
+
+ALL = (max(cls.flag for cls in EFFECTS.values()) << 1) - 1  # every stage flag up to the highest registered
 # every stage; then the switches' other branches: P (not P*), G* and G (not the measured read table)
 BRANCHES = {"all": ALL, "P,G*": ALL & ~(L.SHOT_POISSON | L.READ_TABLE), "G": ALL & ~(L.SHOT_POISSON | L.READ_TABLE | L.READ_TUKEY)}
 TYPES = {torch.float32: "fp32", torch.float64: "fp64", torch.int64: "i64", torch.int32: "i32"}
