@@ -47,20 +47,20 @@ class Banding(NoiseEffect):
     columns = tuple(f"band_f{j}" for j in range(L.BAND_TONES)) + tuple(f"band_a{j}" for j in range(L.BAND_TONES))
 
     def draw(self, ctx):
-        return draw_tones(self.profile.effects[self.token], ctx, "freq_per_row", "band")
+        return draw_tones(self.profile.effects[self.token], ctx, {"f": "freq_per_row", "a": "amplitude_dn"}, "band")
 
     @classmethod
     def validate_params(cls, params):
         validate_tones(cls.token, params, "freq_per_row", "sensor row")
 
 
-def draw_tones(p, ctx, freq_key: str, prefix: str) -> dict:
-    """Per-sample columns ``{prefix}_f{j}`` and ``{prefix}_a{j}`` (j < BAND_TONES) of a tone
-    record ``p`` (frequencies under ``freq_key``, amplitudes under ``amplitude_dn``), at the
-    record nearest each drawn K; missing tones have amplitude 0."""
+def draw_tones(p, ctx, fields: dict, prefix: str) -> dict:
+    """Per-sample columns ``{prefix}_{name}{j}`` (j < BAND_TONES) of a tone record ``p``, one
+    per ``fields`` entry ``name: key`` (its lists of per-tone values under ``key``), at the
+    record nearest each drawn K; missing tones are 0 (amplitude 0: no tone)."""
     idx = record_index(p, ctx.k)
     out = {}
-    for name, key in (("f", freq_key), ("a", "amplitude_dn")):
+    for name, key in fields.items():
         table = np.zeros((len(p["k"]), L.BAND_TONES))
         for r, values in enumerate(p[key]):
             table[r, : len(values)] = values

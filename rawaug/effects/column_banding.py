@@ -42,7 +42,7 @@ class ColumnBanding(NoiseEffect):
     columns = tuple(f"cband_f{j}" for j in range(L.BAND_TONES)) + tuple(f"cband_a{j}" for j in range(L.BAND_TONES))
 
     def draw(self, ctx):
-        return draw_tones(self.profile.effects[self.token], ctx, "freq_per_col", "cband")
+        return draw_tones(self.profile.effects[self.token], ctx, {"f": "freq_per_col", "a": "amplitude_dn"}, "cband")
 
     @classmethod
     def validate_params(cls, params):

@@ -33,9 +33,9 @@ from scipy import stats
 
 from ..engine import layout as L
 from ..statistics import CORE, LOCAL, diagonal_bins, frame_mosaic, hann_2d, local_background, windowed_periodogram
-from .banding import FAMILY_P, circle_amplitude, empty  # noqa: F401 (empty: the loop's)
+from .banding import FAMILY_P, circle_amplitude, draw_tones, empty  # noqa: F401 (empty: the loop's)
 from .base import BANDING, NoiseEffect, register
-from .k_records import _number, record_index, validate_records
+from .k_records import _number, validate_records
 
 STATISTICS = ("diag_tone",)
 SHARES_READ_NOISE = True  # calibration counted the tone's power as white read noise
@@ -51,16 +51,7 @@ class DiagonalBanding(NoiseEffect):
     columns = tuple(f"dband_{name}{j}" for name in ("fx", "fy", "a") for j in range(L.BAND_TONES))
 
     def draw(self, ctx):
-        p = self.profile.effects[self.token]
-        idx = record_index(p, ctx.k)
-        out = {}
-        for name, key in zip(("fx", "fy", "a"), KEYS):
-            table = np.zeros((len(p["k"]), L.BAND_TONES))
-            for r, values in enumerate(p[key]):
-                table[r, : len(values)] = values
-            for j in range(L.BAND_TONES):
-                out[f"dband_{name}{j}"] = ctx.k.new_tensor(table[:, j])[idx]
-        return out
+        return draw_tones(self.profile.effects[self.token], ctx, dict(zip(("fx", "fy", "a"), KEYS)), "dband")
 
     @classmethod
     def validate_params(cls, params):
