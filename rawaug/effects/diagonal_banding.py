@@ -39,6 +39,7 @@ from .k_records import _number, validate_records
 
 STATISTICS = ("diag_tone",)
 SHARES_READ_NOISE = True  # calibration counted the tone's power as white read noise
+HANN_BINS = 1.5  # the Hann window's equivalent noise bandwidth, bins
 ZOOM = (1.0, 0.1, 0.01)  # half-widths (bins) of the 21 x 21 grids a tone's frequency is refined on, in turn
 KEYS = ("freq_per_col", "freq_per_row", "amplitude_dn")
 
@@ -96,8 +97,10 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
         return (np.abs(_coefficients(r * window, gy, gx)) ** 2).mean(axis=0) / noise_gain
 
     # a tone stands out of its neighbourhood: each bin over the mean of the ring of bins around
-    # it (``local_background``), an F ratio of 2 N and 2 N (LOCAL^2 - CORE^2) degrees of freedom
-    threshold = stats.f.isf(FAMILY_P / int(mask.sum()), 2 * n_frames, 2 * n_frames * (LOCAL**2 - CORE**2))
+    # it (``local_background``), an F ratio of 2 N and 2 N x (the ring's independent bins)
+    # degrees of freedom: the Hann window correlates neighbouring bins (its noise bandwidth,
+    # HANN_BINS bins per axis)
+    threshold = stats.f.isf(FAMILY_P / int(mask.sum()), 2 * n_frames, 2 * n_frames * (LOCAL**2 - CORE**2) / HANN_BINS**2)
     yy, xx = np.arange(hh)[:, None], np.arange(ww)[None, :]
     tones, amps = [], []
     while len(tones) < L.BAND_TONES:
