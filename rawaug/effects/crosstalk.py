@@ -30,7 +30,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import lag_covariances
 from .base import READ, NoiseEffect, register
-from .k_records import validate_records, value_at_k
+from .k_records import all_zero, validate_records, value_at_k
 
 STATISTICS = ("neighbour_corr",)
 KEYS = tuple(f"lag_{dy}_{dx}_dn" for dy, dx in L.XTALK_LAGS)
@@ -84,3 +84,8 @@ def combine(records: list[dict]) -> dict:
         cov = [np.mean([np.sign(r[key][0]) * r[key][0] ** 2 for r in by_k[k]]) for k in out["k"]]
         out[key] = [float(np.sign(c) * np.sqrt(abs(c))) for c in cov]
     return out
+
+
+def empty(params) -> bool:
+    """True when every amplitude is 0: it would add nothing."""
+    return all_zero(params, KEYS)

@@ -136,3 +136,11 @@ def grid_columns(ctx, token: str, params: dict, prefix: str) -> dict:
            f"{prefix}_gh": torch.full_like(ctx.k, float(gh)), f"{prefix}_gw": torch.full_like(ctx.k, float(gw))}
     out.update(window_columns(ctx, token, params, tuple(f"{prefix}_{n}" for n in ("oy", "ox", "h", "w"))))
     return out
+
+
+def all_zero(params: dict, keys) -> bool:
+    """True when every value under ``keys`` (numbers or nested lists of them) is 0: a record
+    that would add nothing (the loop's ``empty`` for noise amplitudes)."""
+    def values(v):
+        return [x for item in v for x in values(item)] if isinstance(v, (list, tuple)) else [v]
+    return all(float(x) == 0.0 for key in keys for x in values(params.get(key, [])))

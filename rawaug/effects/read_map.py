@@ -31,7 +31,7 @@ from scipy import stats
 from ..engine import layout as L
 from ..statistics import highpass_gain, map_effects, temporal_variance_cells
 from .base import READ, NoiseEffect, register
-from .k_records import frame_size, record_index, validate_records, window_columns
+from .k_records import all_zero, frame_size, record_index, validate_records, window_columns
 
 STATISTICS = ("read_noise_spread",)
 SHARES_READ_NOISE = True  # calibration counted its variance in the frame's read noise
@@ -119,3 +119,8 @@ def combine(records: list[dict]) -> dict:
     first = records[0]
     out["frame_h"], out["frame_w"] = first["frame_h"], first["frame_w"]
     return out
+
+
+def empty(params) -> bool:
+    """True when every amplitude is 0: it would add nothing."""
+    return all_zero(params, tuple(g[0] for g in GROUPS))

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..engine import layout as L
 from .base import BANDING, NoiseEffect, register
-from .k_records import combine_sigma, validate_records, value_at_k
+from .k_records import all_zero, combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("row_excess",)
 SHARES_ROW_NOISE = True  # calibration gave half of its variance to sigma_r
@@ -79,3 +79,8 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
 def combine(records: list[dict]) -> dict:
     """One record per gain: the stacks at one K averaged in variance."""
     return combine_sigma(records)
+
+
+def empty(params) -> bool:
+    """True when every amplitude is 0: it would add nothing."""
+    return all_zero(params, ("sigma_dn",))

@@ -22,7 +22,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import _robust_scale, sensor_row_means
 from .base import BANDING, NoiseEffect, pattern_key, register
-from .k_records import check_seed, combine_sigma, validate_records, value_at_k
+from .k_records import all_zero, check_seed, combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("fixed_row_excess", "row_tone")
 SHARES_ROW_NOISE = True  # calibration gave the fixed rows' variance to sigma_r
@@ -79,3 +79,8 @@ def estimate(frames, synthesized, k: float, seed: int = 31, **_) -> dict:
 def combine(records: list[dict]) -> dict:
     """One record per gain: the stacks at one K (bias, darks, flats) averaged in variance."""
     return {"seed": int(records[0]["seed"]), **combine_sigma(records, "fixed_dn")}
+
+
+def empty(params) -> bool:
+    """True when every amplitude is 0: it would add nothing."""
+    return all_zero(params, ("fixed_dn",))

@@ -24,7 +24,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import tile_covariance_excess
 from .base import READ, NoiseEffect, register
-from .k_records import combine_sigma, validate_records, value_at_k
+from .k_records import all_zero, combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("tile_corr",)
 SHARES_READ_NOISE = True  # calibration counted its variance as white read noise
@@ -62,3 +62,8 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
 def combine(records: list[dict]) -> dict:
     """One record per gain: the stacks at one K averaged in variance."""
     return combine_sigma(records)
+
+
+def empty(params) -> bool:
+    """True when every amplitude is 0: it would add nothing."""
+    return all_zero(params, ("sigma_dn",))
