@@ -295,3 +295,11 @@ class NoiseProfile:
         data = self.to_dict()
         data["effects"][name] = params
         return NoiseProfile.from_dict(data)
+
+    def without_effect(self, name: str) -> "NoiseProfile":
+        """A copy of this profile without the loop effect ``name``."""
+        data = self.to_dict()
+        if name not in data["effects"]:
+            raise KeyError(f"profile {self.camera!r} has no effect {name!r}; it has {sorted(data['effects'])}")
+        del data["effects"][name]
+        return NoiseProfile.from_dict(data)

@@ -192,6 +192,32 @@ def test_a_read_noise_refit_moves_the_dark_stack_to_the_refitted_bias_stack():
     assert new_dark.offsets_of.base["sigma_g"] == new_bias.base["sigma_g"] != bias.base.get("sigma_g")
 
 
+def test_taking_an_effect_out_undoes_the_refit_it_was_judged_with():
+    """Backward elimination takes an added effect out with the base stage's re-fit it was
+    judged with undone: the row and read noise come back to what they were, stacks and profile."""
+    from rawaug.loop.frames_loop import Step, _without
+    from rawaug.loop.refit import apply_read_noise_factors, apply_row_noise_factors
+    from rawaug.loop.diagnose import synthesis_fixed
+
+    bias = measured_stack({}, seed=5, n=2, size=32, label="bias")
+    stacks, prof = [bias], BASE.with_effect("Band", BAND["Band"])
+    stacks, prof = apply_row_noise_factors(stacks, prof, {"bias": 0.6})
+    stacks, prof = apply_read_noise_factors(stacks, prof.with_effect("Xtalk", XTALK["Xtalk"]), {"bias": 0.9})
+    refits = [{"after": "Band", "what": "row noise", "factors": {"bias": 0.6}, "kept": True},
+              {"after": "Xtalk", "what": "read noise", "factors": {"bias": 0.9}, "kept": True}]
+    step = Step("Band", BAND["Band"], True, {}, "bias", 1.0, 0.1, 0.0, {}, {})
+    reduced, out = _without(step, prof, stacks, refits, None)
+    assert set(reduced.effects) == {"Xtalk"}
+    for k in (0.5, K, 4.0):  # row noise as calibrated, read noise still re-fitted after Xtalk
+        assert reduced.row_scale.median(k) == pytest.approx(BASE.row_scale.median(k), rel=1e-12)
+        assert reduced.tukey_scale.median(k) == pytest.approx(0.9 * BASE.tukey_scale.median(k), rel=1e-12)
+    fixed, calibrated = synthesis_fixed(reduced, out[0]), synthesis_fixed(BASE, bias)
+    assert fixed["sigma_r"] == pytest.approx(calibrated["sigma_r"], rel=1e-12)
+    assert fixed["sigma_tl"] == pytest.approx(0.9 * calibrated["sigma_tl"], rel=1e-12)
+    with pytest.raises(KeyError, match="has no effect 'Band'"):
+        reduced.without_effect("Band")
+
+
 def test_a_defect_line_counts_once_as_a_defect_line():
     clean = measured_stack({}, seed=7, n=2).frames_dn
     defects = clean.copy()

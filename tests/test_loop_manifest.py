@@ -292,6 +292,22 @@ def test_manifest_loop_rates_over_seeds(tmp_path, case):
     assert passed >= 9, f"{case}: {passed} of 10 sessions"
 
 
+def test_an_effect_a_later_one_makes_redundant_is_taken_out(tmp_path):
+    """Session 2 of the interference camera (the one of sessions 1-10 where this happens): the
+    forward loop adds RowDrift (physical, for the row means) before LowFreq (measured: the whole
+    smooth field). Beside LowFreq no residual needs RowDrift, so backward elimination takes it
+    out, undoes the row-noise re-fit it was judged with and estimates LowFreq again."""
+    check_case(tmp_path, "interference", seed=2)  # LowFreq alone, its error at least halved
+    data = json.loads((tmp_path / "report" / "report.json").read_text())
+    drift = [s for s in data["steps"] if s["effect"] == "RowDrift"]
+    assert len(drift) == 1 and not drift[0]["accepted"] and drift[0]["note"].startswith("added, then removed"), drift
+    assert [r["effect"] for r in data["removed"]] == ["RowDrift"], data["removed"]
+    assert all(not r["kept"] for r in data["read_noise_refits"] if r["after"] == "RowDrift"), data["read_noise_refits"]
+    low = next(s for s in data["steps"] if s["accepted"])
+    assert low["effect"] == "LowFreq" and low["note"] == "estimated again once RowDrift was removed", low
+    assert "`RowDrift` was added, then removed" in (tmp_path / "report" / "report.md").read_text()
+
+
 def test_glow_grows_with_exposure_over_two_dark_exposures(tmp_path):
     check_glow_two_exposures(tmp_path, seed=0)
 

@@ -13,6 +13,12 @@ spread -- and only trying them tells which one the data hold). A rejected candid
 again once another effect has been added (its estimate depends on the model); the loop ends
 when no significant residual points to an effect untried in the current model.
 
+Then backward elimination (``_redundant``): an effect added early may be redundant once a
+later one explains its residual too (a row drift under a smooth per-frame field that a later
+``LowFreq`` reproduces in full). Each added effect is taken out in turn; one whose removal
+leaves no residual significant that is not significant with it is removed, measured
+fallbacks before physical effects, until every effect left is needed.
+
 After each added effect the base read noise is re-fitted where the model's bias frames now
 come out noisier than the measured ones (``refit``): calibration had given the read noise
 all of the temporal noise, part of which the added effect now explains. A candidate whose
@@ -74,6 +80,7 @@ class LoopResult:
     refits: list = field(default_factory=list)  # read-noise re-fits after added effects
     colour_bias: dict = field(default_factory=dict)  # K -> offsets (DN) fitted with the added effects
     unconfirmed: list = field(default_factory=list)  # residuals of the final model a larger synthesis sample did not confirm
+    removed: list = field(default_factory=list)  # effects taken out at the end as redundant (backward elimination)
 
     @property
     def added(self) -> list[str]:
@@ -97,6 +104,23 @@ class LoopResult:
 def _battery(diags) -> dict:
     every = [r for res, _ in diags.values() for r in res]
     return battery_error(every)
+
+
+def _without(step, profile, stacks, refits, model):
+    """(profile, stacks) without an added effect: the re-fit of the base stage it was judged
+    with (``_shares_noise``) undone, by the inverse factors."""
+    reduced = profile.without_effect(step.effect)
+    for refit in refits:
+        if refit.get("after") == step.effect and refit.get("what") and refit.get("kept"):
+            inverse = {label: 1.0 / f for label, f in refit["factors"].items()}
+            stacks, reduced = (apply_read_noise_factors(stacks, reduced, inverse, model) if refit["what"] == "read noise"
+                               else apply_row_noise_factors(stacks, reduced, inverse))
+    return reduced, stacks
+
+
+def _significant(diags) -> set:
+    """(stack label, statistic) of every significant residual."""
+    return {(label, r.statistic) for label, (res, _) in diags.items() for r in res if r.significant}
 
 
 def _options(diags, tried, present, skip=frozenset()):
@@ -255,7 +279,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 say(f"step {step_no}: {evidence.statistic} ({label}, z={evidence.z:.1f}) not confirmed on "
                     f"{CONFIRM_FACTOR * n_synth} syntheses (z={check.z:.1f}): not acted on")
 
-    diags = diagnose_all(current, seed)
+    diags, diags_seed = diagnose_all(current, seed), seed
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
     tried: set[str] = set()
     for step_no in range(1, max_steps + 1):
@@ -325,7 +349,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             continue
         chosen[0].signature = step_signature(chosen[0].evidence["statistic"], by_label[chosen[0].stack].frames_dn,
                                              diags[chosen[0].stack][1], chosen[2][chosen[0].stack][1])
-        current, diags = chosen[1], chosen[2]
+        current, diags, diags_seed = chosen[1], chosen[2], seed + 1000 * step_no
         if chosen[3] is not stacks:  # the base stage it was judged with, re-fitted
             stacks = chosen[3]
             by_label = {st.label: st for st in stacks}
@@ -350,7 +374,62 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 + ("kept" if kept else "dropped"))
             if kept:
                 current, diags, stacks = refitted, new_diags, new_stacks
+                diags_seed = seed + 1000 * step_no + 500
                 by_label = {st.label: st for st in stacks}
+    while True:  # backward elimination
+        candidates = [s for s in result.steps if s.accepted]
+        if len(candidates) < 2:
+            break
+        full = _significant(diags)
+        removable = []
+        for step in candidates:
+            reduced, reduced_stacks = _without(step, current, stacks, result.refits, model)
+            reduced_diags = diagnose_all(reduced, diags_seed, reduced_stacks)  # the full model's syntheses' seeds
+            if _significant(reduced_diags) <= full:
+                removable.append((step, reduced, reduced_diags, reduced_stacks))
+        if not removable:
+            break
+        step, reduced, reduced_diags, reduced_stacks = min(
+            removable, key=lambda r: (r[0].kind != "measured", _battery(r[2])["mean_rel_error"]))
+        before_b, after_b = _battery(diags), _battery(reduced_diags)
+        others = [s.effect for s in candidates if s is not step]
+        step.accepted, step.note = False, "added, then removed: redundant beside " + ", ".join(others)
+        result.removed.append({"effect": step.effect, "round": step.round, "beside": others,
+                               "battery_before": before_b, "battery_after": after_b})
+        say(f"end: {step.effect} removed: no residual is significant without it beside {', '.join(others)} "
+            f"(battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f})")
+        current, diags, stacks = reduced, reduced_diags, reduced_stacks
+        by_label = {st.label: st for st in stacks}
+        for refit in result.refits:  # undone by _without
+            if refit.get("after") == step.effect and refit.get("what") and refit.get("kept"):
+                refit["kept"], refit["undone"] = False, f"{step.effect} removed"
+        # an effect added after it was estimated beside it: estimated again on the model without it
+        for later in [s for s in result.steps if s.accepted and s.round > step.round and not _shares_noise(s.effect)]:
+            without = current.without_effect(later.effect)
+            without_diags = diagnose_all(without, diags_seed, stacks)
+            params = _estimate(later.effect, stacks, without_diags, seed=int(np.random.default_rng(seed + 90_000 + later.round).integers(1, 2**31)))
+            if params is None or _adds_nothing(later.effect, params):
+                continue
+            trial = without.with_effect(later.effect, params)
+            trial_diags = diagnose_all(trial, diags_seed, stacks)
+            old_b, new_b = _battery(diags), _battery(trial_diags)
+            kept = new_b["mean_rel_error"] <= old_b["mean_rel_error"] and new_b["n_significant"] <= old_b["n_significant"]
+            say(f"end: {later.effect} estimated again without {step.effect}: battery {old_b['mean_rel_error']:.3f} -> "
+                f"{new_b['mean_rel_error']:.3f}: " + ("kept" if kept else "dropped"))
+            if not kept:
+                continue
+            # its evidence as the forward loop picks it: the strongest residual pointing to it
+            label, before_r = next(((lb, r) for t, lb, r in _options(without_diags, set(), set(without.effects)) if t == later.effect),
+                                   (later.stack, next(r for r in without_diags[later.stack][0] if r.statistic == later.evidence["statistic"])))
+            stat = before_r.statistic
+            after_r = next(r for r in trial_diags[label][0] if r.statistic == stat)
+            later.error_before, later.error_after = _evidence_error(later.effect, before_r, without_diags[label][0], trial_diags[label][0])
+            later.params, later.z_after, later.evidence_after = params, after_r.z, after_r.to_dict()
+            later.stack, later.evidence = label, before_r.to_dict()
+            later.battery_before, later.battery_after = _battery(without_diags), new_b
+            later.note = f"estimated again once {step.effect} was removed"
+            later.signature = step_signature(stat, by_label[label].frames_dn, without_diags[label][1], trial_diags[label][1])
+            current, diags = trial, trial_diags
     result.profile, result.colour_bias = _with_fitted_colour_bias(current, stacks, model, seed)
     if result.colour_bias:
         say("colour bias fitted with the added effects: " + "; ".join(

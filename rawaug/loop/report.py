@@ -83,6 +83,10 @@ def outcome_summary(result) -> str:
             lines.append(f"After `{refit['after']}` was added, the base {what} was re-fitted (it had counted "
                          f"the temporal noise `{refit['after']}` now explains): sigma x "
                          + ", ".join(f"{f:.3f} ({label})" for label, f in refit["factors"].items()) + ".")
+    for gone in getattr(result, "removed", []):
+        lines.append(f"`{gone['effect']}` was added, then removed: beside " + ", ".join(f"`{t}`" for t in gone["beside"])
+                     + " no residual is significant without it (battery "
+                     f"{gone['battery_before']['mean_rel_error']:.3f} -> {gone['battery_after']['mean_rel_error']:.3f}).")
     chance = getattr(result, "unconfirmed", [])
     if chance:
         lines.append("Not confirmed on a larger sample of syntheses (a chance deviation, not acted on): "
