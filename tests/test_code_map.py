@@ -108,3 +108,16 @@ def test_a_periodic_comb_goes_on_at_every_signal_level():
     lut = np.asarray(joined["map_dn"][0])
     r = joined["lo_dn"][0] + np.arange(lut.size)
     assert joined["period_dn"] == [4.0] and np.all(lut[r % 4 == 3] != r[r % 4 == 3]) and np.abs(lut - r).max() == 1
+
+
+def test_calibration_counts_a_comb_not_the_gap_between_two_populations():
+    # a dark frame whose leaky columns (3 % of the pixels, ~120 DN) lie above the 99th percentile's
+    # reach: the empty run between them and the noise is no missing code; a digital gain's comb is
+    from rawaug.calibration.stage1 import missing_code_fraction
+
+    rng = np.random.default_rng(5)
+    noise = np.rint(rng.normal(100.0, 3.0, 97_000))
+    leaky = np.rint(3.0 * rng.poisson(40.0, 3_000) + rng.normal(100.0, 3.0, 3_000))  # K = 3, and the read noise
+    assert missing_code_fraction(np.concatenate([noise, leaky])) == 0.0
+    comb = np.rint(np.rint(rng.normal(100.0, 20.0, 100_000)) * 1.5)  # a gain of 1.5 after the ADC
+    assert abs(missing_code_fraction(comb) - 1 / 3) < 0.02

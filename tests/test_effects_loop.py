@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, dark_hot_pixels, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, dark_columns, dark_hot_pixels, dark_offset, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -225,6 +225,78 @@ def test_dark_hot_pixels_estimate_round_trip_and_none_in_white_dark_stacks():
     assert all(w["density"] == 0.0 for w in white), white
     with pytest.raises(ValueError, match="dark stacks"):
         dark_hot_pixels.estimate(meas, base, K, exposure_s=None, kind="bias")
+
+
+DARK_COL = {"seed": 71, "density": 0.03, "median_e_per_s": 15.0, "log_std": 0.3}
+
+
+def test_leaky_columns_grow_with_exposure_along_whole_sensor_columns():
+    from rawaug.effects.dark_columns import _COL_SETS
+
+    size = 128
+    bias = synth({"DarkCol": DARK_COL}, batch=4, size=size, model="G+P*", exposure_s=0.0)
+    stacks = {t: synth({"DarkCol": DARK_COL}, batch=16, size=size, model="G+P*", exposure_s=t) for t in (2.0, 8.0)}
+    assert dark_columns.bright_columns(bias)[0] == 0.0  # no dark electrons without an exposure
+    # sensor column means (DN = electrons at K = 1), each of two packed channels' column means
+    cols = {t: np.concatenate([f.mean(axis=(0, 2))[list(c)].mean(axis=0) for c in _COL_SETS]) for t, f in stacks.items()}
+    leaky = {t: c - np.median(c) > 5.0 for t, c in cols.items()}
+    m = int(leaky[2.0].sum())
+    assert abs(m - 0.03 * 2 * size) < 5 * math.sqrt(0.03 * 2 * size), m  # binomial count of the seeded columns
+    assert np.array_equal(leaky[8.0], leaky[2.0])  # the same columns at every exposure
+    excess = {t: c[leaky[2.0]] - np.median(c) for t, c in cols.items()}
+    assert abs(excess[8.0].sum() / excess[2.0].sum() - 4.0) < 0.1  # linear in exposure
+    # both packed channels of a leaky sensor column carry it: their column means agree within the noise
+    f = stacks[8.0].mean(axis=(0, 2))
+    for chans, half in zip(_COL_SETS, np.split(leaky[8.0], 2)):
+        a, b = f[chans[0]][half], f[chans[1]][half]
+        assert np.all(np.abs(a - b) < 5 * np.sqrt(2 * (1.0 + a) / (16 * size))), (a, b)
+    # shot noise: temporal variance less the read noise's (1 DN^2) over the excess is K = 1
+    var = np.concatenate([stacks[8.0].var(axis=0, ddof=1).mean(axis=1)[list(c)].mean(axis=0) for c in _COL_SETS])
+    ratio = float(np.mean((var[leaky[8.0]] - 1.0) / excess[8.0]))
+    assert abs(ratio - 1.0) < 5 * math.sqrt(2 / 15 / (size * 2 * m)), ratio
+
+
+def test_leaky_columns_estimate_round_trip_and_none_in_white_dark_stacks():
+    dark = {"model": "G+P*", "sigma_g": 2.0, "exposure_s": 4.0}
+    meas = synth({"DarkCol": DARK_COL}, batch=6, size=128, **dark)
+    base = [synth({}, batch=6, size=128, seed=s, **dark) for s in range(1, 5)]
+    est = dark_columns.estimate(meas, base, K, exposure_s=4.0, kind="dark")
+    m = 0.03 * 256
+    assert abs(est["density"] - 0.03) < 5 * math.sqrt(0.03 / 256), est
+    assert abs(math.log(est["median_e_per_s"] / 15.0)) < 5 * 0.3 / math.sqrt(m), est
+    assert abs(est["log_std"] - 0.3) < 0.15, est
+    white = [dark_columns.estimate(synth({}, batch=6, size=128, seed=s, **dark), base, K, exposure_s=4.0, kind="dark")
+             for s in range(20, 30)]
+    assert all(w["density"] == 0.0 for w in white), white  # 8 robust sigma: out of reach of read and shot noise
+    assert dark_columns.empty(white[0]) and not dark_columns.empty(est)
+    with pytest.raises(ValueError, match="dark stacks"):
+        dark_columns.estimate(meas, base, K, exposure_s=4.0, kind="bias")
+
+
+def test_dark_offset_moves_the_black_level_with_exposure_and_adds_no_noise():
+    sag = {"k": [K], "dn_per_s": [-0.75]}
+    for t in (0.0, 4.0):
+        with_sag = synth({"DarkOffset": sag}, batch=4, size=64, model="G+P*", exposure_s=t, seed=3)
+        without = synth({}, batch=4, size=64, model="G+P*", exposure_s=t, seed=3)
+        assert np.allclose(with_sag - without, -0.75 * t, atol=1e-9)  # the same noise, shifted
+
+
+def test_dark_offset_estimate_separates_an_offset_from_dark_electrons():
+    dark = {"model": "G+P*", "sigma_g": 2.0, "exposure_s": 4.0}
+    base = [synth({}, batch=6, size=64, seed=s, **dark) for s in range(1, 5)]
+    sag = synth({"DarkOffset": {"k": [K], "dn_per_s": [-0.75]}}, batch=6, size=64, **dark)
+    est = dark_offset.combine([dark_offset.estimate(sag, base, K, exposure_s=4.0, kind="dark")])
+    # the spread of a (6, 4, 64, 64) stack's temporal variance: 4 DN^2 * sqrt(2 / 5 / 16384); its mean's 2 / sqrt(6 * 16384)
+    assert abs(est["dn_per_s"][0] + 0.75) < 5 * (4 * math.sqrt(2 / 5 / 16384) + 2 / math.sqrt(6 * 16384)) / 4.0, est
+    # dark current (3 e-/s, K = 1) moves the mean by 12 DN with its shot noise: no offset
+    current = synth({"Dark": {"seed": 19, "k": [K], "rate_e_per_s": [3.0], "dsnu": [0.0]}}, batch=6, size=64, **dark)
+    est = dark_offset.estimate(current, base, K, exposure_s=4.0, kind="dark")
+    assert abs(est["dn_per_s"][0]) < 5 * (4 * math.sqrt(2 / 5 / 16384) + 3.6 / math.sqrt(6 * 16384)) / 4.0, est
+    # exposures of 2 and 8 s: one slope through the bias level
+    two = dark_offset.combine([{"k": [K], "dn_per_s": [-1.0], "exposure_s": [2.0]}, {"k": [K], "dn_per_s": [-0.5], "exposure_s": [8.0]}])
+    assert two["dn_per_s"][0] == pytest.approx((-2.0 * 2 - 4.0 * 8) / (4 + 64))
+    with pytest.raises(ValueError, match="dark stacks"):
+        dark_offset.estimate(sag, base, K, exposure_s=None, kind="dark")
 
 
 COLGAIN = {"seed": 67, "sigma": 0.005}
@@ -556,6 +628,10 @@ def test_effects_replay_bit_exactly():
     ("DarkHot", {"seed": 1, "density": 0.01, "median_e_per_s": -1.0, "log_std": 0.0}, "median_e_per_s must be >= 0, got -1.0"),
     ("DarkHot", {"seed": 1, "density": 0.01, "median_e_per_s": float("nan"), "log_std": 0.0}, "DarkHot.median_e_per_s must be finite"),
     ("DarkHot", {"density": 0.01, "median_e_per_s": 1.0, "log_std": 0.0}, "seed"),
+    ("DarkCol", {"seed": 1, "density": 0.2, "median_e_per_s": 1.0, "log_std": 0.0}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
+    ("DarkCol", {"seed": 1, "density": 0.01, "median_e_per_s": 1.0, "log_std": -0.1}, "log_std must be >= 0, got -0.1"),
+    ("DarkOffset", {"k": [1.0], "dn_per_s": [float("inf")]}, "finite"),
+    ("DarkOffset", {"k": [1.0, 2.0], "dn_per_s": [1.0]}, "one value per k"),
     ("ColGain", {"seed": 1, "sigma": 0.6}, r"sigma \(fraction of the signal\) must be in \[0, 0.5\), got 0.6"),
     ("ColGain", {"sigma": 0.01}, "seed"),
     ("DiagBand", {"k": [1.0], "freq_per_col": [[0.0]], "freq_per_row": [[0.0]], "amplitude_dn": [[1.0]]}, "not both 0, got"),

@@ -19,6 +19,8 @@ LOOP_EFFECTS = {
             "frame_h": 48, "frame_w": 64},  # larger than the test inputs: a window per sample
     "Hot": {"seed": 13, "density": 0.01, "log_std": 0.5, "k": [1.0], "median_dn": [50.0]},
     "DarkHot": {"seed": 61, "density": 0.03, "median_e_per_s": 5.0, "log_std": 0.5},  # before the Poisson draw
+    "DarkCol": {"seed": 71, "density": 0.08, "median_e_per_s": 4.0, "log_std": 0.4},  # ... keyed by the sensor column
+    "DarkOffset": {"k": [1.0, 3.0], "dn_per_s": [-0.6, 0.4]},  # signed, either gain
     "Clip": {"floor_dn": -3.0},
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
     "PRNU": {"seed": 17, "sigma": 0.02},

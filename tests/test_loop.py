@@ -155,6 +155,45 @@ def test_dark_hot_pixels_rate_over_seeds():
     assert successes >= 19, f"DarkHot: {successes} of 20 seeds"
 
 
+# effects only dark frames show: leaky columns (3 e-/s more in 2 % of the sensor columns) and
+# a black level that sags 0.4 DN per second of exposure (no electrons: no shot noise)
+DARK_ONLY = {"DarkCol": {"seed": 73, "density": 0.02, "median_e_per_s": 8.0, "log_std": 0.3},
+             "DarkOffset": {"k": [K], "dn_per_s": [-0.4]}}
+
+
+def dark_only_named(token, seed):
+    """Bias and dark (5 s) stacks of a camera with ``token``: it is named (not Lines or Dark:
+    the bias frames do not show it, the dark frames' variance does not grow with it), nothing
+    is left, and its estimate is within bounds."""
+    effects = {token: DARK_ONLY[token]}
+    stacks = [measured_stack(effects, seed=seed, n=6, size=96, label="bias"),
+              measured_stack(effects, seed=seed + 1, n=6, size=96, label="dark 5 s", exposure_s=5.0)]
+    result = run_frame_loop(stacks, BASE, n_synth=8, seed=1)
+    if result.added != [token] or result.unexplained():
+        return False
+    rec = result.profile.effects[token]
+    if token == "DarkCol":  # the pattern's leaky columns (as 100 s shows them all) within one column; their rate
+        from rawaug.effects.dark_columns import bright_columns
+
+        seeded = bright_columns(measured_stack(effects, seed=seed, n=2, size=96, exposure_s=100.0).frames_dn)[0]
+        return abs(rec["density"] - seeded) <= 1 / 192 + 1e-12 and abs(np.log(rec["median_e_per_s"] / 8.0)) < 0.5
+    # the mean of 6 x 4 x 96 x 96 pixels and their temporal variance: ~0.04 DN, 0.008 DN/s over 5 s
+    return abs(rec["dn_per_s"][0] + 0.4) < 0.05
+
+
+@pytest.mark.parametrize("token", list(DARK_ONLY))
+def test_loop_names_what_only_dark_frames_show(token):
+    assert dark_only_named(token, seed=300)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("token", list(DARK_ONLY))
+def test_dark_only_effects_rate_over_seeds(token):
+    successes = sum(dark_only_named(token, seed) for seed in range(300, 340, 2))
+    print(f"{token}: {successes} of 20 seeds")
+    assert successes >= 19, f"{token}: {successes} of 20 seeds"
+
+
 def test_the_written_profile_carries_offsets_fitted_with_a_clip():
     # planted: offsets 0.5 DN and a clip at -2 DN, which raises the measured mean by ~0.6 DN;
     # the offsets are fitted with the added clip, so the profile gets 0.5 back, not the mean

@@ -131,6 +131,20 @@ def flicker(dn, rng, **_):
     return dn + 20.0 * (where & (rng.random(dn.shape) < 0.5))
 
 
+def leaky_column_bus(dn, rng, exposure=0.0, k=1.0, **_):
+    """Leaky columns (made outside rawaug): 2 % of the sensor columns (fixed) collect 10 e-/s
+    more dark current, Poisson, so they show in long exposures and not in bias frames."""
+    leaky = np.random.default_rng(31).random(2 * dn.shape[2]) < 0.02
+    cols = np.stack([leaky[0::2], leaky[1::2], leaky[1::2], leaky[0::2]])[:, None, :]  # R, G2 on even sensor columns
+    return dn + cols * k * rng.poisson(10.0 * exposure, dn.shape)
+
+
+def warming_amplifier(dn, rng, exposure=0.0, **_):
+    """The black level rises while the amplifier warms up (made outside rawaug): +0.5 DN per
+    second of exposure, no electrons, so no shot noise."""
+    return dn + 0.5 * exposure
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -151,6 +165,8 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "split amplifiers": (None, None, split_amplifiers, ["ReadMap"]),
          "shared readout": (None, None, shared_readout, ["Shared"]),
          "telegraph": (None, None, flicker, ["RTS"]),
+         "leaky columns": (None, None, leaky_column_bus, ["DarkCol"]),
+         "black drift": (None, None, warming_amplifier, ["DarkOffset"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
@@ -167,7 +183,8 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
-SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph"}
+SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
+              "leaky columns", "black drift"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

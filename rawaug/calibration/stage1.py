@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from ..statistics import stuck_outliers
+from ..statistics import stuck_outliers, written_codes
 from .joint import IsoParameters
 
 # Packed channels read out from the same sensor row (see rawaug.bayer).
@@ -292,15 +292,19 @@ def estimate_quantization_step(codes, max_values: int = 1_000_000) -> float | No
 
 def missing_code_fraction(codes, max_values: int = 1_000_000) -> float:
     """Fraction of codes between the 1st and 99th percentile (in steps of the quantization
-    step) that never occur: > 0 means missing ADC codes (a non-ideal ADC or a digital gain)."""
+    step) that never occur: > 0 means missing ADC codes (a non-ideal ADC or a digital gain).
+    A code counts as missing only in a short gap between well-populated codes
+    (``written_codes``): a long empty run between two populations (leaky columns far above
+    the noise) or a sparse tail is no missing code."""
     values = subsample(codes, max_values)
     step = estimate_quantization_step(values)
     if step is None:
         return 0.0
     lo, hi = np.percentile(values, [1, 99])
-    levels = np.unique(values[(values >= lo) & (values <= hi)])
-    expected = int(round((hi - lo) / step)) + 1
-    return float(max(0.0, 1.0 - levels.size / max(expected, 1)))
+    levels = np.rint(values / step)
+    written = written_codes(levels)
+    start = int(round(lo / step)) - int(levels.min())
+    return float((~written[start : start + int(round((hi - lo) / step)) + 1]).mean())
 
 
 # ----------------------------------------------------------------------------- gain (photon transfer)

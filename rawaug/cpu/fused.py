@@ -64,6 +64,9 @@ _CBF0, _CBA0 = L.COLUMN["cband_f0"], L.COLUMN["cband_a0"]
 _DHD, _DHE, _DHL = L.COLUMN["dhot_density"], L.COLUMN["dhot_e"], L.COLUMN["dhot_log_std"]
 _DHOT_WHERE, _DHOT_SIZE = L.STREAM["dhot_where"], L.STREAM["dhot_size"]
 _CGS, _COLGAIN_PATTERN = L.COLUMN["colgain_sigma"], L.STREAM["colgain_pattern"]
+_DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_log_std"]
+_DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
+_DOFF = L.COLUMN["dark_offset"]
 _DBX0, _DBY0, _DBA0 = L.COLUMN["dband_fx0"], L.COLUMN["dband_fy0"], L.COLUMN["dband_a0"]
 _DIAG_BAND = L.STREAM["diag_band"]
 _COL_BAND = L.STREAM["col_band"]
@@ -226,6 +229,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         if stages & L.BLE:
             line += v[_BS] * symmetric(normal, draw(keys[_BLE], b * 5))
             line += v[_BC] * symmetric(normal, draw(keys[_BLE], b * 5 + 1 + c))
+        if stages & L.DARK_OFFSET:
+            line += v[_DOFF]
         if stages & L.BAND:
             line += banding_at(keys[_BAND], v, b, 2 * y + row_set, _BF0, _BA0)
         if stages & L.ROW_CHANNEL:
@@ -274,6 +279,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.DARK_HOT:  # a hot pixel's dark electrons: the median this exposure times its log-normal factor
                 if unit(draw(keys[_DHOT_WHERE], p)) < v[_DHD]:
                     s += k * v[_DHE] * math.exp(v[_DHL] * symmetric(normal, draw(keys[_DHOT_SIZE], p)))
+            if stages & L.DARK_COL:  # a leaky sensor column's dark electrons, keyed by the column
+                q = (sensor * 2 + col_set) * w + x
+                if unit(draw(keys[_DCOL_WHERE], q)) < v[_DCD]:
+                    s += k * v[_DCE] * math.exp(v[_DCL] * symmetric(normal, draw(keys[_DCOL_SIZE], q)))
             if stages & L.SHOT_POISSON:  # exact Poisson: tables and PTRS of rawaug.cpu.poisson, inlined (a call with the table tuples per element costs ~100 ns)
                 lam = s / k
                 if not math.isfinite(lam):

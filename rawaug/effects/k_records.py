@@ -94,11 +94,11 @@ def combine_sigma(records: list[dict], key: str = "sigma_dn") -> dict:
     return {"k": ks, key: [float(math.sqrt(sum(v) / len(v))) for v in (by_k[k] for k in ks)]}
 
 
-def check_density(token: str, params: dict, most: float = 0.1) -> float:
-    """``params["density"]``, a fraction of pixels in [0, most]; ValueError naming it otherwise."""
+def check_density(token: str, params: dict, most: float = 0.1, of: str = "pixels") -> float:
+    """``params["density"]``, a fraction of ``of`` in [0, most]; ValueError naming it otherwise."""
     density = _number(params.get("density"), f"{token}.density")
     if not 0.0 <= density <= most:
-        raise ValueError(f"effect {token!r}: density (fraction of pixels) must be in [0, {most:g}], got {density}")
+        raise ValueError(f"effect {token!r}: density (fraction of {of}) must be in [0, {most:g}], got {density}")
     return density
 
 

@@ -41,6 +41,8 @@ COL_BAND = 1 << 30  # column banding: tones along the sensor columns, a random p
 DARK_HOT = 1 << 31  # hot pixels of dark current: sparse pixels with a high dark-current rate, before shot noise
 COL_GAIN = 1 << 32  # column gain non-uniformity: each sensor column's amplifier multiplies the photo signal by its own gain
 DIAG_BAND = 1 << 33  # diagonal banding: tones along both sensor axes (a serial readout's interference), a phase per frame
+DARK_COL = 1 << 34  # leaky columns: sparse sensor columns with a high dark-current rate, before shot noise
+DARK_OFFSET = 1 << 35  # black level moving with exposure time, without shot noise (clamp sag, amplifier warm-up)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -84,6 +86,8 @@ COLUMNS = (
     "colgain_sigma",  # column gain non-uniformity: std of the sensor columns' relative gains
     "dband_fx0", "dband_fx1", "dband_fx2", "dband_fy0", "dband_fy1", "dband_fy2",  # diagonal banding: cycles per sensor column, per sensor row
     "dband_a0", "dband_a1", "dband_a2",  # ... amplitude (DN)
+    "dcol_density", "dcol_e", "dcol_log_std",  # leaky columns: share of sensor columns, median electrons this exposure, log-normal spread
+    "dark_offset",  # black-level shift this exposure (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -97,7 +101,7 @@ STREAMS = (
     "prnu_pattern", "dsnu_pattern", "fpn_pattern", "lowfreq", "hot_where", "hot_size", "col_pattern",
     "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map", "shared",
     "rts_where", "rts_size", "rts_state", "dead_where", "dead_level", "row_drift", "row_drift_phase",
-    "col_band", "dhot_where", "dhot_size", "colgain_pattern", "diag_band",
+    "col_band", "dhot_where", "dhot_size", "colgain_pattern", "diag_band", "dcol_where", "dcol_size",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -41,6 +41,8 @@ C_BF0, C_BA0 = _column("band_f0"), _column("band_a0")
 C_CBF0, C_CBA0 = _column("cband_f0"), _column("cband_a0")
 C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_log_std")
 C_CGS = _column("colgain_sigma")
+C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
+C_DOFF = _column("dark_offset")
 C_DBX0, C_DBY0, C_DBA0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0")
 C_RF, C_RC = _column("rowfix_sigma"), _column("rowch_sigma")
 TONES = tl.constexpr(L.BAND_TONES)
@@ -74,6 +76,7 @@ K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
+K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
 K_DIAG_BAND = S["diag_band"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
@@ -206,6 +209,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         dhot = unit(draw(_key(keys_ptr, K_DHOT_WHERE), p)) < _col(v, C_DHD)
         dark = k * _col(v, C_DHE) * tl.exp(_col(v, C_DHL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DHOT_SIZE), p)))
         s += tl.where(dhot, dark, 0.0)
+    if FLAGS & 17179869184:  # leaky columns: a sensor column's dark electrons, before shot noise (keyed by the column)
+        q = ((sensor * 2 + col_set) * W + x).to(tl.uint64)
+        leaky = unit(draw(_key(keys_ptr, K_DCOL_WHERE), q)) < _col(v, C_DCD)
+        dark = k * _col(v, C_DCE) * tl.exp(_col(v, C_DCL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DCOL_SIZE), q)))
+        s += tl.where(leaky, dark, 0.0)
     if FLAGS & 2:  # P*
         lam = s / k
         counted = k * poisson_count(lam, _key(keys_ptr, K_SHOT), _key(keys_ptr, K_SHOT_REST), _key(keys_ptr, K_SHOT_COARSE), g,
@@ -321,6 +329,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 2048:  # BLE
         line += _col(v, C_BS) * _normal(draw(_key(keys_ptr, K_BLE), (b * 5).to(tl.uint64) + tl.zeros_like(g)))
         line += _col(v, C_BC) * _normal(draw(_key(keys_ptr, K_BLE), (b * 5 + 1 + c).to(tl.uint64) + tl.zeros_like(g)))
+    if FLAGS & 34359738368:  # black level moving with exposure
+        line += _col(v, C_DOFF)
     s += line
     if FLAGS & 65536:  # measured code map: nearest code the camera uses
         code = tl.floor(s + 0.5)

@@ -133,11 +133,11 @@ def _options(diags, tried, present, skip=frozenset()):
                 continue
             # a candidate adds something that raises the statistics it is shown by: a statistic
             # the model overshoots (z < 0) calls for a refit, not for one more effect -- unless
-            # the candidate replaces a base stage's shape (TWO_SIDED: a measured distribution)
+            # the candidate replaces a base stage's shape (TWO_SIDED: a measured distribution) or is an offset of either sign (SIGNED)
             if not r.significant:
                 continue
             for token in r.effects:
-                if token in tried or token in present or (r.z <= 0 and not _two_sided(token)):
+                if token in tried or token in present or (r.z <= 0 and not _signed(token)):
                     continue
                 if token not in best or abs(r.z) > abs(best[token][2].z):
                     best[token] = (token, label, r)
@@ -146,6 +146,12 @@ def _options(diags, tried, present, skip=frozenset()):
 
 def _two_sided(token) -> bool:
     return bool(getattr(CANDIDATES[token].module, "TWO_SIDED", False))
+
+
+def _signed(token) -> bool:
+    """True for a candidate that can lower the statistics it is shown by (a measured
+    distribution; ``SIGNED``: an offset of either sign)."""
+    return _two_sided(token) or bool(getattr(CANDIDATES[token].module, "SIGNED", False))
 
 
 def _evidence_error(token, evidence, before, after) -> tuple[float, float]:
