@@ -180,10 +180,38 @@ def coarse_adc(dn, rng, **_):
     return 4.0 * np.floor(dn / 4.0 + 0.5)
 
 
+def impulses(dn, rng, **_):
+    """Impulsive noise (cosmic rays, charge bursts): 0.05 % of the pixels of every frame, at new places each frame, 30-200 DN brighter."""
+    hit = rng.random(dn.shape) < 5e-4
+    return dn + hit * rng.uniform(30.0, 200.0, dn.shape)
+
+
+def column_flicker(dn, rng, **_):
+    """Column telegraph noise: 3 % of the sensor columns (fixed) sit 4 DN high or low, a new choice in every frame."""
+    w = dn.shape[2]
+    flick = np.random.default_rng(41).random(2 * w) < 0.03
+    step = flick * np.where(rng.random(2 * w) < 0.5, 4.0, -4.0)
+    return dn + np.stack([step[0::2], step[1::2], step[1::2], step[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
+def reset_transient(dn, rng, **_):
+    """A reset transient: the first sensor rows of every frame read high, 6 DN decaying over 4 rows (the same in every frame)."""
+    h = dn.shape[1]
+    y = np.arange(2 * h)
+    rows = 6.0 * np.exp(-y / 4.0)
+    return dn + np.stack([rows[0::2], rows[0::2], rows[1::2], rows[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
+def noisy_frames(dn, rng, **_):
+    """Supply noise of its own level in every frame: 1.5 DN of white noise times a per-frame factor drawn from 0.2 to 2."""
+    return dn + rng.uniform(0.2, 2.0) * rng.normal(0.0, 1.5, dn.shape)
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
-                                 leaky_columns, clamp_sag, gain_jitter, coarse_adc)}
+                                 leaky_columns, clamp_sag, gain_jitter, coarse_adc,
+                                 impulses, column_flicker, reset_transient, noisy_frames)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none"}  # cameras whose right answer is to add nothing
 

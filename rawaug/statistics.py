@@ -543,6 +543,59 @@ def flicker_fraction(frames, level_dn=None):
     return float(flickering(frames).mean())
 
 
+SPIKE_Z = 8.0  # robust sigmas above the pixel's other frames: a single-frame event, not noise
+
+
+def spikes(frames):
+    """(N, 4, h, w) mask of single-frame events of a stack (N >= 3; DN): a value more than
+    ``SPIKE_Z`` x the larger of its channel's robust temporal scale and the spread of the
+    pixel's other frames above the median of those, in a pixel where no other frame is. A hot
+    pixel is high in every frame, a telegraph pixel in several, a pixel with much dark shot
+    noise spread in all: none of them is a spike."""
+    f = np.asarray(frames, dtype=np.float64)
+    n = f.shape[0]
+    top = f.argmax(axis=0)
+    others = np.sort(f, axis=0)[:-1]  # the N - 1 lowest values of each pixel
+    med = np.median(others, axis=0)
+    spread = others.std(axis=0, ddof=1) if n >= 3 else np.zeros_like(med)
+    r = f - np.median(f, axis=0)
+    scale = 1.482602218505602 * np.median(np.abs(r), axis=(0, 2, 3))[:, None, None]
+    high = (f.max(axis=0) - med) > SPIKE_Z * np.maximum(np.maximum(scale, spread), 1e-9)
+    mask = np.zeros(f.shape, dtype=bool)
+    idx = np.nonzero(high)
+    mask[(top[idx],) + idx] = True
+    return mask
+
+
+def spike_fraction(frames, level_dn=None):
+    """Excess of bright single-frame events (``spikes``) over dark ones, as a fraction of a
+    stack's pixel values: heavy-tailed read noise makes both alike (at Tukey lambda -0.14 each
+    ~5e-4), an impulse only bright ones."""
+    f = np.asarray(frames, dtype=np.float64)
+    return float(spikes(f).mean() - spikes(-f).mean())
+
+
+def spike_outliers(frames):
+    """(N, 4, h, w) mask of a stack's impulses: where bright single-frame events (``spikes``)
+    outnumber the dark ones significantly (``significant_spikes``), the brightest of them,
+    all but as many as there are dark ones (those are the read noise's own tail); else none."""
+    f = np.asarray(frames, dtype=np.float64)
+    bright, n_dark = spikes(f), int(spikes(-f).sum())
+    if not significant_spikes(int(bright.sum()), n_dark):
+        return np.zeros(f.shape, dtype=bool)
+    excess = (f - np.median(f, axis=0))[bright]
+    cut = np.sort(excess)[n_dark] if n_dark < excess.size else np.inf
+    out = np.zeros(f.shape, dtype=bool)
+    out[bright] = excess >= cut
+    return out
+
+
+def significant_spikes(n_bright: int, n_dark: int) -> bool:
+    """True when ``n_bright`` single-frame events above the noise outnumber the ``n_dark`` below
+    it by more than 5 standard deviations of their difference (symmetric noise: none)."""
+    return n_bright - n_dark > 5.0 * np.sqrt(max(n_bright + n_dark, 1))
+
+
 def stuck_from_range(lo, hi):
     """Mask of the stuck pixels from each pixel's lowest and highest value over a stack (same
     shape, (4, h, w)): equal in every frame. A pixel that stays at the stack's lowest (highest)
@@ -854,6 +907,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("read_noise_spread", read_noise_spread, min_frames=2, kind="bias"),
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
         Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),
+        Statistic("spike_fraction", spike_fraction, min_frames=3, kind="bias", pixel_fraction=True),
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("col_tone", col_tone, kind="bias"),

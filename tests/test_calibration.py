@@ -303,3 +303,21 @@ def test_dead_pixels_at_code_zero_leave_gain_and_read_noise_as_they_were():
     assert q.extra["dead_pixels"] == int(big.sum()) and p.extra["dead_pixels"] == 0
     # the fit without them is the fit of their live neighbours: 1.6 % fewer samples of one distribution
     assert abs(q.lam - p.lam) < 0.03 and q.sigma_tl == pytest.approx(p.sigma_tl, rel=0.03), (p, q)
+
+
+# ----------------------------------------------------------------------------- impulses
+@pytest.mark.parametrize("lam", [0.05, -0.14])
+def test_single_frame_spikes_are_left_out_of_the_read_noise_fit_and_heavy_tails_are_not(lam):
+    # 0.1 % of the values of 6 bias frames get a 40-200 DN spike at a new pixel in every frame:
+    # left out (as many dark extremes with them), the fit is that of the frames without them.
+    # A heavy-tailed read noise (lambda -0.14) makes as many dark single-frame extremes as bright
+    # ones: nothing is left out of the frames without spikes, and its lambda stays.
+    bias = [_dn(b) for b in synthesize_iso_set(PROFILE, k=1.0, sigma_tl=2.0, lam=lam, sigma_r=0.3, shape=(128, 128),
+                                               n_bias=6, flat_levels=(0.03, 0.08), seed=7)[0]]
+    flats = _flat_pairs(PROFILE, 2.0, LEVELS[:3], seed=2, shape=(128, 128))
+    rng = np.random.default_rng(11)
+    hit = [b + (rng.random(b.shape) < 1e-3) * rng.uniform(40.0, 200.0, b.shape) for b in bias]
+    p, q = calibrate_iso(bias, flats, 100), calibrate_iso(hit, flats, 100)
+    assert p.extra["spikes"] == 0
+    assert abs(q.extra["spikes"] - 1e-3 * hit[0].size * 6) < 5 * math.sqrt(1e-3 * hit[0].size * 6), q.extra["spikes"]
+    assert abs(q.lam - p.lam) < 0.02 and q.sigma_tl == pytest.approx(p.sigma_tl, rel=0.02), (p.lam, q.lam, p.sigma_tl, q.sigma_tl)

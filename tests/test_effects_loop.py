@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, dark_columns, dark_hot_pixels, dark_offset, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, dark_columns, dark_hot_pixels, dark_offset, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -297,6 +297,53 @@ def test_dark_offset_estimate_separates_an_offset_from_dark_electrons():
     assert two["dn_per_s"][0] == pytest.approx((-2.0 * 2 - 4.0 * 8) / (4 + 64))
     with pytest.raises(ValueError, match="dark stacks"):
         dark_offset.estimate(sag, base, K, exposure_s=None, kind="dark")
+
+
+SPIKES = {"density": 1e-3, "density_per_s": 2e-4, "log_std": 0.4, "k": [K], "median_dn": [60.0]}
+
+
+def test_spikes_hit_new_pixels_in_every_frame_and_grow_with_exposure():
+    from rawaug.statistics import spikes
+
+    n_px = 4 * 96 * 96
+    for t, density in ((0.0, 1e-3), (5.0, 2e-3)):
+        frames = synth({"Spikes": SPIKES}, batch=12, size=96, model="G", exposure_s=t)
+        mask = spikes(frames)
+        m = int(mask.sum())
+        # binomial count over 12 frames (those below 8 sigma of 1 DN, ~0 of 60 DN spikes, are missed)
+        assert abs(m - density * 12 * n_px) < 5 * math.sqrt(density * 12 * n_px), (t, m)
+        assert mask.sum(axis=0).max() == 1  # never the same pixel twice in 12 frames (expected 0.4 pixels at most)
+        excess = frames[mask] - np.median(frames, axis=0)[mask.any(axis=0)]
+        assert abs(np.log(excess).mean() - math.log(60.0)) < 5 * 0.4 / math.sqrt(m)
+
+
+def test_spikes_estimate_round_trip_and_none_in_white_or_heavy_tailed_stacks():
+    from rawaug.statistics import spike_fraction
+
+    n_px = 4 * 128 * 128
+    base = [synth({}, batch=6, size=128, seed=s) for s in range(1, 5)]
+    meas = synth({"Spikes": {**SPIKES, "density_per_s": 0.0}}, batch=6, size=128)
+    est = impulses.estimate(meas, base, K, exposure_s=1e-4, kind="bias")
+    assert abs(est["density"] - 1e-3) < 5 * math.sqrt(1e-3 / (6 * n_px)), est
+    assert abs(math.log(est["median_dn"][0] / 60.0)) < 5 * 0.4 / math.sqrt(1e-3 * 6 * n_px), est
+    assert abs(est["log_std"] - 0.4) < 0.1, est
+    # bias at t = 0 and dark at 5 s: a per-frame and a per-second density
+    dark = synth({"Spikes": SPIKES}, batch=6, size=128, exposure_s=5.0, seed=9)
+    both = impulses.combine([impulses.estimate(synth({"Spikes": SPIKES}, batch=6, size=128, seed=8), base, K, exposure_s=0.0, kind="bias"),
+                             impulses.estimate(dark, base, K, exposure_s=5.0, kind="dark")])
+    assert abs(both["density"] - 1e-3) < 5 * math.sqrt(1e-3 / (6 * n_px)) and abs(both["density_per_s"] - 2e-4) < 5 * math.sqrt(2e-3 / (6 * n_px)) / 5, both
+    # heavy-tailed read noise (Tukey lambda -0.3) makes ~0.2 % bright single-frame extremes and as
+    # many dark ones: their difference within 5 sd of a difference of two Poisson counts
+    from rawaug.statistics import spikes
+
+    for seed in range(20, 25):
+        f = synth({}, batch=6, size=128, seed=seed, model="G*", sigma_tl=1.0, **{"lambda": -0.3})
+        n_both = int(spikes(f).sum() + spikes(-f).sum())
+        assert n_both > 100 and abs(spike_fraction(f)) * f.size < 5 * math.sqrt(n_both), (seed, n_both, spike_fraction(f))
+    white = [impulses.estimate(synth({}, batch=6, size=128, seed=s), base, K, exposure_s=0.0, kind="bias") for s in range(30, 40)]
+    assert all(impulses.empty(w) for w in white), white
+    with pytest.raises(ValueError, match="bias or dark stacks"):
+        impulses.estimate(meas, base, K, kind="flat")
 
 
 COLGAIN = {"seed": 67, "sigma": 0.005}
@@ -631,6 +678,8 @@ def test_effects_replay_bit_exactly():
     ("DarkCol", {"seed": 1, "density": 0.2, "median_e_per_s": 1.0, "log_std": 0.0}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
     ("DarkCol", {"seed": 1, "density": 0.01, "median_e_per_s": 1.0, "log_std": -0.1}, "log_std must be >= 0, got -0.1"),
     ("DarkOffset", {"k": [1.0], "dn_per_s": [float("inf")]}, "finite"),
+    ("Spikes", {"density": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]}, r"density \(fraction of pixels per frame\) must be in \[0, 0.01\], got 0.5"),
+    ("Spikes", {"density": 0.0, "density_per_s": -1e-3, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]}, "density_per_s"),
     ("DarkOffset", {"k": [1.0, 2.0], "dn_per_s": [1.0]}, "one value per k"),
     ("ColGain", {"seed": 1, "sigma": 0.6}, r"sigma \(fraction of the signal\) must be in \[0, 0.5\), got 0.6"),
     ("ColGain", {"sigma": 0.01}, "seed"),

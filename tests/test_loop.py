@@ -194,6 +194,31 @@ def test_dark_only_effects_rate_over_seeds(token):
     assert successes >= 19, f"{token}: {successes} of 20 seeds"
 
 
+SPIKES = {"Spikes": {"density": 5e-4, "density_per_s": 0.0, "log_std": 0.5, "k": [K], "median_dn": [50.0]}}
+
+
+def spikes_named(seed):
+    """A bias stack with impulses (0.05 % of the values of every frame, at new pixels): Spikes
+    named (not Hot, RTS or a heavier read-noise tail), nothing left, its density within 5
+    binomial sd and its median (of the detected, ~all of them) within 5 standard errors."""
+    result = run_frame_loop([measured_stack(SPIKES, seed=seed, n=8, size=96)], BASE, n_synth=8, seed=1)
+    if result.added != ["Spikes"] or result.unexplained():
+        return False
+    rec, n = result.profile.effects["Spikes"], 8 * 4 * 96 * 96
+    return abs(rec["density"] - 5e-4) < 5 * (5e-4 / n) ** 0.5 and abs(np.log(rec["median_dn"][0] / 50.0)) < 5 * 0.5 / (5e-4 * n) ** 0.5
+
+
+def test_loop_names_impulses():
+    assert spikes_named(seed=300)
+
+
+@pytest.mark.slow
+def test_impulses_rate_over_seeds():
+    successes = sum(spikes_named(seed) for seed in range(300, 340, 2))
+    print(f"Spikes: {successes} of 20 seeds")
+    assert successes >= 19, f"Spikes: {successes} of 20 seeds"
+
+
 def test_the_written_profile_carries_offsets_fitted_with_a_clip():
     # planted: offsets 0.5 DN and a clip at -2 DN, which raises the measured mean by ~0.6 DN;
     # the offsets are fitted with the added clip, so the profile gets 0.5 back, not the mean

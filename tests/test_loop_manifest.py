@@ -145,6 +145,13 @@ def warming_amplifier(dn, rng, exposure=0.0, **_):
     return dn + 0.5 * exposure
 
 
+def charge_bursts(dn, rng, **_):
+    """Impulsive noise (made outside rawaug): 0.1 % of the values of every frame, at new pixels
+    each frame, 20 to 300 DN brighter (log-uniform)."""
+    hit = rng.random(dn.shape) < 1e-3
+    return dn + hit * np.exp(rng.uniform(np.log(20.0), np.log(300.0), dn.shape))
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -167,6 +174,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "telegraph": (None, None, flicker, ["RTS"]),
          "leaky columns": (None, None, leaky_column_bus, ["DarkCol"]),
          "black drift": (None, None, warming_amplifier, ["DarkOffset"]),
+         "impulses": (None, None, charge_bursts, ["Spikes"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
@@ -184,7 +192,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
 SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
-              "leaky columns", "black drift"}
+              "leaky columns", "black drift", "impulses"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

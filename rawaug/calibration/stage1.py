@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from ..statistics import stuck_outliers, written_codes
+from ..statistics import SPIKE_Z, significant_spikes, stuck_outliers, written_codes
 from .joint import IsoParameters
 
 # Packed channels read out from the same sensor row (see rawaug.bayer).
@@ -528,6 +528,19 @@ def _load(item, what):
     return np.asarray(array)
 
 
+def _extremes(state, r, i):
+    """(highest, second highest, frame of the highest) of each pixel over the frames so far,
+    float32, updated with frame ``i``'s values ``r`` (a new state when ``state`` is None)."""
+    if state is None:
+        return r.astype(np.float32), np.full(r.shape, -np.inf, np.float32), np.full(r.shape, i, np.int32)
+    top, second, frame = state
+    higher = r > top
+    np.copyto(second, np.where(higher, top, np.maximum(second, r)), casting="unsafe")
+    np.copyto(top, np.where(higher, r, top), casting="unsafe")
+    frame[higher] = i
+    return top, second, frame
+
+
 def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | None = 200_000,
                   saturation_dn: float | None = None, black_clip_dn: float | None = None,
                   tile: int = 32, seed: int = 0, progress=None) -> IsoParameters:
@@ -554,7 +567,7 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         raise ValueError(f"ISO {iso:g}: no bias frames; row and read noise need at least one")
     tell = progress or (lambda _msg: None)
     rows, biases, samples, shapes = [], [], [], []
-    first_bias = lo = hi = None
+    first_bias = lo = hi = extremes = None
     per_frame = max(1, (max_samples or 0) // len(bias_frames)) if max_samples else None
     for i, item in enumerate(bias_frames):
         bias = _packed(_load(item, "bias"), f"ISO {iso:g} bias frame {i}")
@@ -569,6 +582,8 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         idx = sample_indices(where.size, per_frame, seed + i)
         where = where if idx is None else where[idx]
         samples.append((where, r[where]))
+        if len(bias_frames) >= 3:  # each pixel's two highest and two lowest values, and their frames
+            extremes = [_extremes(e, v, i) for e, v in zip(extremes or (None, None), (r, -r))]
         if first_bias is None:
             first_bias, lo, hi = bias, bias.astype(np.float32), bias.astype(np.float32)
         else:
@@ -577,6 +592,23 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         tell(f"ISO {iso:g}: bias frame {i + 1}/{len(bias_frames)}")
     dead = stuck_outliers(lo, hi, first_bias).ravel() if len(bias_frames) >= 3 else None
     residual = np.concatenate([v if dead is None else v[~dead[w]] for w, v in samples])
+    n_spikes = None
+    if extremes:  # single-frame events (cosmic rays, charge bursts) are not read noise
+        scale = 1.482602218505602 * float(np.median(np.abs(residual - np.median(residual))))
+        (top, second, frame), (low, _, _) = extremes[0], extremes[1]
+        gap = top - second
+        bright = gap > SPIKE_Z * max(scale, 1e-9)
+        n_dark = int((low - extremes[1][1] > SPIKE_Z * max(scale, 1e-9)).sum())
+        n_spikes = 0
+        if significant_spikes(int(bright.sum()), n_dark):
+            # bright single-frame events beyond the dark ones are impulses: the largest of them
+            # leave; as many as the dark ones stay (the read noise's own tail, symmetric)
+            gaps = np.sort(gap[bright])
+            cut = gaps[n_dark] if n_dark < gaps.size else np.inf
+            spike = bright & (gap >= cut)
+            n_spikes = int(spike.sum())
+            keep = lambda i, w: ~((spike[w] & (frame[w] == i)) | (dead[w] if dead is not None else False))  # noqa: E731
+            residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])
     read = estimate_read_noise(residual, max_samples=max_samples, seed=seed)
     tell(f"ISO {iso:g}: read noise fitted")
     read_var = float(np.median([r.read_variance_dn2 for r in rows]))
@@ -612,6 +644,7 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         "banding": banding_ratios(first_bias[1]),
         "n_bias": len(bias_frames),
         "dead_pixels": int(dead.sum()) if dead is not None else None,  # stuck outliers left out of the read-noise fit
+        "spikes": n_spikes,  # single-frame events left out of it (None: fewer than 3 frames)
         "n_flat_pairs": len(pairs),
         # Kept for the report's figures, left out of report.json (leading underscore).
         "_residual_sample": subsample(residual, 20_000, seed),

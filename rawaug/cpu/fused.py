@@ -67,6 +67,8 @@ _CGS, _COLGAIN_PATTERN = L.COLUMN["colgain_sigma"], L.STREAM["colgain_pattern"]
 _DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_log_std"]
 _DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
 _DOFF = L.COLUMN["dark_offset"]
+_SPD, _SPM, _SPL = L.COLUMN["spike_density"], L.COLUMN["spike_median"], L.COLUMN["spike_log_std"]
+_SPIKE_WHERE, _SPIKE_SIZE = L.STREAM["spike_where"], L.STREAM["spike_size"]
 _DBX0, _DBY0, _DBA0 = L.COLUMN["dband_fx0"], L.COLUMN["dband_fy0"], L.COLUMN["dband_a0"]
 _DIAG_BAND = L.STREAM["diag_band"]
 _COL_BAND = L.STREAM["col_band"]
@@ -327,6 +329,9 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += v[_SH] * symmetric(normal, draw(keys[_SHARED], (b * h + y) * w + x))
             if stages & L.READ_MAP:
                 s += math.sqrt(rm_row + v[_RMX0 + min((x + rmox) * _NB // rmw, _NB - 1)] ** 2) * symmetric(normal, draw(keys[_READ_MAP], g))
+            if stages & L.SPIKES:  # a single-frame event at this pixel of this frame
+                if unit(draw(keys[_SPIKE_WHERE], g)) < v[_SPD]:
+                    s += v[_SPM] * math.exp(v[_SPL] * symmetric(normal, draw(keys[_SPIKE_SIZE], g)))
             if stages & L.COL:
                 s += v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))

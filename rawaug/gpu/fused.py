@@ -43,6 +43,7 @@ C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_
 C_CGS = _column("colgain_sigma")
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DOFF = _column("dark_offset")
+C_SPD, C_SPM, C_SPL = _column("spike_density"), _column("spike_median"), _column("spike_log_std")
 C_DBX0, C_DBY0, C_DBA0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0")
 C_RF, C_RC = _column("rowfix_sigma"), _column("rowch_sigma")
 TONES = tl.constexpr(L.BAND_TONES)
@@ -77,6 +78,7 @@ K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
 K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
+K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
 K_DIAG_BAND = S["diag_band"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
@@ -276,6 +278,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         sy = tl.load(v + C_RMY0 + by, mask=live, other=0.0)
         sx = tl.load(v + C_RMX0 + bx, mask=live, other=0.0)
         s += tl.sqrt(sc * sc + sy * sy + sx * sx) * _normal(draw(_key(keys_ptr, K_READ_MAP), g))
+    if FLAGS & 68719476736:  # impulsive noise: a single-frame event at this pixel of this frame
+        hit = unit(draw(_key(keys_ptr, K_SPIKE_WHERE), g)) < _col(v, C_SPD)
+        size = _col(v, C_SPM) * tl.exp(_col(v, C_SPL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_SPIKE_SIZE), g)))
+        s += tl.where(hit, size, 0.0)
     if FLAGS & 256:  # column noise: per frame and fixed
         s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))

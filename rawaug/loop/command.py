@@ -176,7 +176,7 @@ def flat_series(iso, points, offsets):
 def _run_manifest(args, path):
     from ..calibration.stage1 import estimate_read_noise, estimate_row_noise, read_residual
     from ..io import read_manifest
-    from ..statistics import stuck_outliers
+    from ..statistics import spike_outliers, stuck_outliers
     from .diagnose import FrameStack, channel_offsets
     from .frames_loop import run_frame_loop
 
@@ -219,7 +219,9 @@ def _run_manifest(args, path):
         frames = np.stack(frames).astype(np.float64)
         row = estimate_row_noise(frames[0])
         dead = stuck_outliers(frames.min(axis=0), frames.max(axis=0), frames[0]) if len(frames) >= 3 else None
-        read = estimate_read_noise(read_residual(frames[0], row.row_means, exclude=dead))  # dead pixels left out
+        if dead is not None:  # impulses: bright single-frame events beyond the dark ones (``spike_outliers``)
+            dead = dead | spike_outliers(frames)[0]
+        read = estimate_read_noise(read_residual(frames[0], row.row_means, exclude=dead))  # dead pixels and spikes left out
         k = profile.k_at_iso(iso) if iso else 1.0
         settings[f"ISO {iso:g}"] = {"kind": "bias", "iso": iso, "k": k, "exposure_s": bias_exposure[iso], "level_dn": None}
         stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}", base={"sigma_tl": read.sigma_tl, "lambda": read.lam,

@@ -1,0 +1,114 @@
+"""Impulsive noise (Spikes): single-frame events at random pixels, far above the noise.
+
+Physics: a cosmic-ray muon or a radioactive decay in the package deposits hundreds of
+electrons in one pixel during an exposure (their rate grows with exposure time); a charge
+burst in the readout does the same once per frame. Either hits a pixel in one frame only,
+at a new place in the next: unlike ``Hot`` (a fixed pixel), ``RTS`` (a fixed pixel with two
+states) or a heavy-tailed read noise (every pixel, symmetric).
+
+Stage (DN, after read noise): ``s -> s + median_dn(K) * exp(log_std * z)`` where a U(0, 1) of
+the frame and pixel falls below ``density + density_per_s * t`` (``t``: the synthesis setting
+``fixed={"exposure_s": t}``, default 0), ``z`` a standard normal of the frame and pixel.
+
+Profile entry (per-K amplitude records)::
+
+    Spikes: {density: 5.0e-4, density_per_s: 0.0, log_std: 0.6, k: [K, ...], median_dn: [...]}
+
+Detected on bias and dark stacks of >= 3 frames by ``spike_fraction`` (values 8 robust sigmas
+above the pixel's other frames, in one frame only, beyond as many below: heavy-tailed read
+noise makes both) and ``tail_mass``. Estimated by ``estimate``: that excess over the model's,
+and the bright events' excess in DN; ``combine`` fits the density
+against exposure (two or more exposures: a per-frame part and a per-second part). Spikes
+below the threshold are not seen: density and median are those of the detectable population.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ..engine import layout as L
+from ..statistics import spike_fraction, spikes
+from .base import READ, NoiseEffect, register
+from .k_records import _number, validate_records, value_at_k
+
+STATISTICS = ("spike_fraction", "tail_mass")
+RAW_FRAMES = True  # a spike in a line's pixel is a spike: estimated on the frames as measured
+MAX_DENSITY = 0.01
+
+
+@register
+class Impulses(NoiseEffect):
+    token = "Spikes"
+    order = READ + 5
+    flag = L.SPIKES
+    columns = ("spike_density", "spike_median", "spike_log_std")
+
+    def draw(self, ctx):
+        p = self.profile.effects[self.token]
+        exposure = torch.as_tensor(ctx.fixed.get("exposure_s", 0.0), dtype=torch.float64, device=ctx.device).expand(ctx.batch)
+        n = ctx.k.shape[0]
+        return {"spike_density": float(p["density"]) + float(p.get("density_per_s", 0.0)) * exposure,
+                "spike_median": value_at_k(p, "median_dn", ctx.k), "spike_log_std": ctx.k.new_full((n,), float(p["log_std"]))}
+
+    @classmethod
+    def validate_params(cls, params):
+        validate_records(cls.token, params, ("median_dn",), nonnegative=("median_dn",))
+        for key, unit in (("density", "fraction of pixels per frame"), ("density_per_s", "... per second of exposure")):
+            value = _number(params.get(key, 0.0), f"{cls.token}.{key}")
+            if not 0.0 <= value <= MAX_DENSITY:
+                raise ValueError(f"effect {cls.token!r}: {key} ({unit}) must be in [0, {MAX_DENSITY:g}], got {value}")
+        if _number(params.get("log_std"), f"{cls.token}.log_std") < 0:
+            raise ValueError(f"effect {cls.token!r}: log_std must be >= 0, got {params.get('log_std')}")
+
+
+def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, **_) -> dict:
+    """One record from a bias or dark stack (N >= 3, 4, h, w) in DN at gain ``k``, against
+    stacks of the same shape synthesized by the model: the spike density per pixel and frame
+    beyond the model's, and the spikes' excess over their pixel's other frames (DN)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if kind not in ("bias", "dark") or frames.shape[0] < 3:
+        raise ValueError("Spikes are measured on bias or dark stacks of >= 3 frames")
+    mask = spikes(frames)
+    base = float(np.mean([spike_fraction(s) for s in synthesized])) if synthesized else 0.0
+    density = max(spike_fraction(frames) - base, 0.0)  # bright events beyond the dark ones heavy tails make too
+    others = np.sort(frames, axis=0)[:-1]
+    excess = (frames - np.median(others, axis=0))[mask]
+    excess = excess[excess > 0]
+    t = float(exposure_s or 0.0)
+    if density == 0.0 or excess.size == 0:
+        return {"density": 0.0, "density_per_s": 0.0, "log_std": 0.0, "k": [float(k)], "median_dn": [0.0], "exposure_s": [t]}
+    logs = np.log(excess)
+    return {"density": min(density, MAX_DENSITY), "density_per_s": 0.0, "log_std": float(logs.std(ddof=1)) if logs.size > 1 else 0.0,
+            "k": [float(k)], "median_dn": [float(math.exp(logs.mean()))], "exposure_s": [t]}
+
+
+def combine(records: list[dict]) -> dict:
+    """One population: the density as a per-frame part plus a per-second part (least squares
+    over the stacks' exposures, both >= 0; one exposure: per frame only); the median per gain
+    (log-mean over its stacks); the log spreads pooled. Stacks that found none count for the
+    density only."""
+    t = np.array([r["exposure_s"][0] for r in records])
+    d = np.array([r["density"] for r in records])
+    per_frame, per_s = float(d.mean()), 0.0
+    if np.ptp(t) > 0:
+        a = np.stack([np.ones_like(t), t], axis=1)
+        (per_frame, per_s), *_ = np.linalg.lstsq(a, d, rcond=None)
+        if per_s < 0 or per_frame < 0:  # the nearer bound
+            per_frame, per_s = (float(d.mean()), 0.0) if per_s < 0 else (0.0, float(d @ t / (t @ t)))
+    found = [r for r in records if r["density"] > 0]
+    if not found:
+        return {"density": 0.0, "density_per_s": 0.0, "log_std": 0.0, "k": [records[0]["k"][0]], "median_dn": [0.0]}
+    by_k: dict = {}
+    for r in found:
+        by_k.setdefault(r["k"][0], []).append(math.log(r["median_dn"][0]))
+    ks = sorted(by_k)
+    return {"density": min(float(per_frame), MAX_DENSITY), "density_per_s": min(float(per_s), MAX_DENSITY),
+            "log_std": float(math.sqrt(np.mean([r["log_std"] ** 2 for r in found]))),
+            "k": ks, "median_dn": [float(math.exp(np.mean(by_k[k]))) for k in ks]}
+
+
+def empty(params) -> bool:
+    """True when no spike is drawn (both densities 0): it would add nothing."""
+    return float(params["density"]) == 0.0 and float(params.get("density_per_s", 0.0)) == 0.0
