@@ -548,22 +548,30 @@ SPIKE_Z = 8.0  # robust sigmas above the pixel's other frames: a single-frame ev
 
 def spikes(frames):
     """(N, 4, h, w) mask of single-frame events of a stack (N >= 3; DN): a value more than
-    ``SPIKE_Z`` x the larger of its channel's robust temporal scale and the spread of the
-    pixel's other frames above the median of those, in a pixel where no other frame is. A hot
-    pixel is high in every frame, a telegraph pixel in several, a pixel with much dark shot
-    noise spread in all: none of them is a spike."""
+    ``SPIKE_Z`` x the larger of its channel's temporal scale (the median pixel's temporal
+    variance, as a Gaussian's sigma) and the spread of the pixel's other frames above the
+    median of those, in a pixel where no other frame is. A hot pixel is high in every frame, a
+    telegraph pixel in several, a pixel with much dark shot noise spread in all: none of them
+    is a spike. Only pixels whose highest value stands 4.5 scales above their mean can be one
+    (the rule implies it for N >= 3); the rule is applied to those."""
     f = np.asarray(frames, dtype=np.float64)
     n = f.shape[0]
-    top = f.argmax(axis=0)
-    others = np.sort(f, axis=0)[:-1]  # the N - 1 lowest values of each pixel
-    med = np.median(others, axis=0)
-    spread = others.std(axis=0, ddof=1) if n >= 3 else np.zeros_like(med)
-    r = f - np.median(f, axis=0)
-    scale = 1.482602218505602 * np.median(np.abs(r), axis=(0, 2, 3))[:, None, None]
-    high = (f.max(axis=0) - med) > SPIKE_Z * np.maximum(np.maximum(scale, spread), 1e-9)
     mask = np.zeros(f.shape, dtype=bool)
-    idx = np.nonzero(high)
-    mask[(top[idx],) + idx] = True
+    if n < 3:
+        return mask
+    var = f.var(axis=0, ddof=1)
+    scale = np.sqrt(np.median(var.reshape(4, -1), axis=1) / (sstats.chi2.median(n - 1) / (n - 1)))[:, None, None]
+    top = f.max(axis=0)
+    cand = np.nonzero(top - f.mean(axis=0) > 4.5 * np.maximum(scale, 1e-9))
+    if cand[0].size == 0:
+        return mask
+    v = np.sort(f[(slice(None),) + cand], axis=0)  # (N, candidates)
+    others = v[:-1]
+    spread = others.std(axis=0, ddof=1)
+    hit = (v[-1] - np.median(others, axis=0)) > SPIKE_Z * np.maximum(np.maximum(scale[cand[0], 0, 0], spread), 1e-9)
+    sel = tuple(c[hit] for c in cand)
+    frame = f[(slice(None),) + sel].argmax(axis=0)
+    mask[(frame,) + sel] = True
     return mask
 
 
