@@ -13,11 +13,13 @@ spread -- and only trying them tells which one the data hold). A rejected candid
 again once another effect has been added (its estimate depends on the model); the loop ends
 when no significant residual points to an effect untried in the current model.
 
-Then backward elimination (``_redundant``): an effect added early may be redundant once a
-later one explains its residual too (a row drift under a smooth per-frame field that a later
-``LowFreq`` reproduces in full). Each added effect is taken out in turn; one whose removal
-leaves no residual significant that is not significant with it is removed, measured
-fallbacks before physical effects, until every effect left is needed.
+Then backward elimination: an effect added early may be redundant once a later one explains
+its residual too (a row drift under a smooth per-frame field that a later ``LowFreq``
+reproduces in full). Each added effect that a later one shares a statistic with is taken out
+in turn (with the base stage's re-fit it was judged with undone); one whose removal leaves
+no residual significant that is not significant with it is removed, measured fallbacks
+before physical effects, and the effects added after it are estimated again, until every
+effect left is needed.
 
 After each added effect the base read noise is re-fitted where the model's bias frames now
 come out noisier than the measured ones (``refit``): calibration had given the read noise
@@ -383,8 +385,14 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 diags_seed = seed + 1000 * step_no + 500
                 by_label = {st.label: st for st in stacks}
     while True:  # backward elimination
-        candidates = [s for s in result.steps if s.accepted]
-        if len(candidates) < 2:
+        kept = [s for s in result.steps if s.accepted]
+        if len(kept) < 2:
+            break
+        # an effect can only have been made redundant by one added after it that a statistic of
+        # its own also points to (the last one added was needed beside all the others)
+        stats = lambda step: set(CANDIDATES[step.effect].statistics)  # noqa: E731
+        candidates = [s for i, s in enumerate(kept[:-1]) if any(stats(s) & stats(later) for later in kept[i + 1:])]
+        if not candidates:
             break
         full = _significant(diags)
         removable = []
@@ -398,7 +406,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         step, reduced, reduced_diags, reduced_stacks = min(
             removable, key=lambda r: (r[0].kind != "measured", _battery(r[2])["mean_rel_error"]))
         before_b, after_b = _battery(diags), _battery(reduced_diags)
-        others = [s.effect for s in candidates if s is not step]
+        others = [s.effect for s in kept if s is not step]
         step.accepted, step.note = False, "added, then removed: redundant beside " + ", ".join(others)
         result.removed.append({"effect": step.effect, "round": step.round, "beside": others,
                                "battery_before": before_b, "battery_after": after_b})
