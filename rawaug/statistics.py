@@ -543,6 +543,23 @@ def flicker_fraction(frames, level_dn=None):
     return float(flickering(frames).mean())
 
 
+def flickering_columns(frames):
+    """Of a stack (N, 4, h, w; DN): (mask over the 2w sensor columns of those whose frame means
+    -- less the column's mean over frames and each frame's mean -- show two states by the
+    pixels' rule (``two_state`` over ``flicker_threshold`` x the median column's temporal
+    variance), their steps (DN), their shares of high frames)."""
+    m = sensor_col_means(np.asarray(frames, dtype=np.float64))  # (N, 2w)
+    m = m - m.mean(axis=0, keepdims=True) - m.mean(axis=1, keepdims=True) + m.mean()
+    values = m.T
+    var = max(float(np.median(values.var(axis=1, ddof=1))), 1e-12)
+    return two_state(values, flicker_threshold(values.shape[1]) * var)
+
+
+def col_flicker_fraction(frames, level_dn=None):
+    """Fraction of the sensor columns with two states (``flickering_columns``)."""
+    return float(flickering_columns(frames)[0].mean())
+
+
 SPIKE_Z = 8.0  # robust sigmas above the pixel's other frames: a single-frame event, not noise
 
 
@@ -916,6 +933,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
         Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),
         Statistic("spike_fraction", spike_fraction, min_frames=3, kind="bias", pixel_fraction=True),
+        Statistic("col_flicker_fraction", col_flicker_fraction, min_frames=4, kind="bias", line_fraction=True, view="lines"),
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("col_tone", col_tone, kind="bias"),

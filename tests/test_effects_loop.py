@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, dark_columns, dark_hot_pixels, dark_offset, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, column_telegraph, dark_columns, dark_hot_pixels, dark_offset, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -346,6 +346,42 @@ def test_spikes_estimate_round_trip_and_none_in_white_or_heavy_tailed_stacks():
         impulses.estimate(meas, base, K, kind="flat")
 
 
+COLRTS = {"seed": 79, "density": 0.05, "high": 0.3, "log_std": 0.2, "k": [K], "median_dn": [6.0]}
+
+
+def test_telegraph_columns_jump_between_their_level_and_a_step_above():
+    from rawaug.statistics import sensor_col_means
+
+    frames = synth({"ColRTS": COLRTS}, batch=40, size=64)
+    m = sensor_col_means(frames)  # (40, 128) DN; white noise of 1 DN over 128 pixels: 0.09 DN
+    m = m - m.mean(axis=1, keepdims=True)
+    jumpy = m.std(axis=0) > 1.0  # a 6 DN step in 30 % of the frames: sd 2.7 DN
+    n = int(jumpy.sum())
+    assert abs(n - 0.05 * 128) < 5 * math.sqrt(0.05 * 128), n  # binomial count of the seeded columns
+    for col in np.flatnonzero(jumpy):
+        v = m[:, col]
+        high = v > v.min() + 0.5 * (v.max() - v.min())
+        assert abs(high.mean() - 0.3) < 5 * math.sqrt(0.3 * 0.7 / 40), high.mean()  # a state per frame
+        # the low state is the column's level without the trap: its neighbours' (the frame centring
+        # moves both by the others' steps / 128, < 0.1 DN)
+        assert abs(v[~high].mean()) < 5 * 0.09 / math.sqrt(40) + 0.1, v[~high].mean()
+        assert v[high].std() < 0.3 and v[~high].std() < 0.3  # two levels, the column noise apart
+
+
+def test_telegraph_columns_estimate_round_trip_and_none_in_white_stacks():
+    base = [synth({}, batch=12, size=64, seed=s) for s in range(1, 5)]
+    meas = synth({"ColRTS": COLRTS}, batch=12, size=64)
+    est = column_telegraph.estimate(meas, base, K, kind="bias")
+    n = 0.05 * 128
+    assert abs(est["density"] - 0.05) < 5 * math.sqrt(0.05 / 128), est
+    assert abs(math.log(est["median_dn"][0] / 6.0)) < 5 * 0.2 / math.sqrt(n), est
+    assert abs(est["high"] - 0.3) < 5 * math.sqrt(0.21 / (12 * n)), est
+    white = [column_telegraph.estimate(synth({}, batch=12, size=64, seed=s), base, K, kind="bias") for s in range(20, 30)]
+    assert all(column_telegraph.empty(w) for w in white), white
+    with pytest.raises(ValueError, match="bias or dark stacks"):
+        column_telegraph.estimate(meas[:3], base, K, kind="bias")
+
+
 COLGAIN = {"seed": 67, "sigma": 0.005}
 
 
@@ -678,6 +714,8 @@ def test_effects_replay_bit_exactly():
     ("DarkCol", {"seed": 1, "density": 0.2, "median_e_per_s": 1.0, "log_std": 0.0}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
     ("DarkCol", {"seed": 1, "density": 0.01, "median_e_per_s": 1.0, "log_std": -0.1}, "log_std must be >= 0, got -0.1"),
     ("DarkOffset", {"k": [1.0], "dn_per_s": [float("inf")]}, "finite"),
+    ("ColRTS", {"seed": 1, "density": 0.01, "high": 0.0, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, r"high \(share of frames in the high state\) must be in \(0, 1\), got 0.0"),
+    ("ColRTS", {"density": 0.01, "high": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, "seed"),
     ("Spikes", {"density": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]}, r"density \(fraction of pixels per frame\) must be in \[0, 0.01\], got 0.5"),
     ("Spikes", {"density": 0.0, "density_per_s": -1e-3, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]}, "density_per_s"),
     ("DarkOffset", {"k": [1.0, 2.0], "dn_per_s": [1.0]}, "one value per k"),

@@ -219,6 +219,31 @@ def test_impulses_rate_over_seeds():
     assert successes >= 19, f"Spikes: {successes} of 20 seeds"
 
 
+COLRTS = {"ColRTS": {"seed": 81, "density": 0.04, "high": 0.5, "log_std": 0.2, "k": [K], "median_dn": [5.0]}}
+
+
+def telegraph_columns_named(seed):
+    """A bias stack whose telegraph columns (4 % of the sensor columns, a 5 DN step in half the
+    frames): ColRTS named (not Col, Lines or Band), nothing left, its density within 5
+    binomial sd of the pattern's and its median step within 0.2 in log."""
+    result = run_frame_loop([measured_stack(COLRTS, seed=seed, n=8, size=96)], BASE, n_synth=8, seed=1)
+    if result.added != ["ColRTS"] or result.unexplained():
+        return False
+    rec = result.profile.effects["ColRTS"]
+    return abs(rec["density"] - 0.04) < 5 * (0.04 / 192) ** 0.5 and abs(np.log(rec["median_dn"][0] / 5.0)) < 0.2
+
+
+def test_loop_names_telegraph_columns():
+    assert telegraph_columns_named(seed=300)
+
+
+@pytest.mark.slow
+def test_telegraph_columns_rate_over_seeds():
+    successes = sum(telegraph_columns_named(seed) for seed in range(300, 340, 2))
+    print(f"ColRTS: {successes} of 20 seeds")
+    assert successes >= 19, f"ColRTS: {successes} of 20 seeds"
+
+
 def test_the_written_profile_carries_offsets_fitted_with_a_clip():
     # planted: offsets 0.5 DN and a clip at -2 DN, which raises the measured mean by ~0.6 DN;
     # the offsets are fitted with the added clip, so the profile gets 0.5 back, not the mean

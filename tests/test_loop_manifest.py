@@ -152,6 +152,14 @@ def charge_bursts(dn, rng, **_):
     return dn + hit * np.exp(rng.uniform(np.log(20.0), np.log(300.0), dn.shape))
 
 
+def column_traps(dn, rng, **_):
+    """Column telegraph noise (made outside rawaug): sensor columns 9, 40, 71 and 100 read 6 DN
+    higher in a random 40 % of the frames."""
+    flick = np.isin(np.arange(2 * dn.shape[2]), (9, 40, 71, 100))
+    step = 6.0 * flick * (rng.random(2 * dn.shape[2]) < 0.4)
+    return dn + np.stack([step[0::2], step[1::2], step[1::2], step[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -175,6 +183,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "leaky columns": (None, None, leaky_column_bus, ["DarkCol"]),
          "black drift": (None, None, warming_amplifier, ["DarkOffset"]),
          "impulses": (None, None, charge_bursts, ["Spikes"]),
+         "column flicker": (None, None, column_traps, ["ColRTS"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
@@ -192,7 +201,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
 SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
-              "leaky columns", "black drift", "impulses"}
+              "leaky columns", "black drift", "impulses", "column flicker"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

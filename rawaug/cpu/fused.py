@@ -69,6 +69,8 @@ _DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
 _DOFF = L.COLUMN["dark_offset"]
 _SPD, _SPM, _SPL = L.COLUMN["spike_density"], L.COLUMN["spike_median"], L.COLUMN["spike_log_std"]
 _SPIKE_WHERE, _SPIKE_SIZE = L.STREAM["spike_where"], L.STREAM["spike_size"]
+_CRD, _CRM, _CRL, _CRH = L.COLUMN["crts_density"], L.COLUMN["crts_median"], L.COLUMN["crts_log_std"], L.COLUMN["crts_high"]
+_CRTS_WHERE, _CRTS_SIZE, _CRTS_STATE = L.STREAM["crts_where"], L.STREAM["crts_size"], L.STREAM["crts_state"]
 _DBX0, _DBY0, _DBA0 = L.COLUMN["dband_fx0"], L.COLUMN["dband_fy0"], L.COLUMN["dband_a0"]
 _DIAG_BAND = L.STREAM["diag_band"]
 _COL_BAND = L.STREAM["col_band"]
@@ -332,6 +334,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.SPIKES:  # a single-frame event at this pixel of this frame
                 if unit(draw(keys[_SPIKE_WHERE], g)) < v[_SPD]:
                     s += v[_SPM] * math.exp(v[_SPL] * symmetric(normal, draw(keys[_SPIKE_SIZE], g)))
+            if stages & L.COL_RTS:  # a telegraph column's step, in the frames where it is high
+                q = (sensor * 2 + col_set) * w + x
+                if unit(draw(keys[_CRTS_WHERE], q)) < v[_CRD] and unit(draw(keys[_CRTS_STATE], (b * 2 + col_set) * w + x)) < v[_CRH]:
+                    s += v[_CRM] * math.exp(v[_CRL] * symmetric(normal, draw(keys[_CRTS_SIZE], q)))
             if stages & L.COL:
                 s += v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))

@@ -44,6 +44,7 @@ DIAG_BAND = 1 << 33  # diagonal banding: tones along both sensor axes (a serial 
 DARK_COL = 1 << 34  # leaky columns: sparse sensor columns with a high dark-current rate, before shot noise
 DARK_OFFSET = 1 << 35  # black level moving with exposure time, without shot noise (clamp sag, amplifier warm-up)
 SPIKES = 1 << 36  # impulsive noise: single-frame events at random pixels (cosmic rays, charge bursts), after read noise
+COL_RTS = 1 << 37  # column telegraph noise: sparse sensor columns with two offsets, a state per frame
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -90,6 +91,7 @@ COLUMNS = (
     "dcol_density", "dcol_e", "dcol_log_std",  # leaky columns: share of sensor columns, median electrons this exposure, log-normal spread
     "dark_offset",  # black-level shift this exposure (DN)
     "spike_density", "spike_median", "spike_log_std",  # impulsive noise: share of pixels per frame, median (DN), log-normal spread
+    "crts_density", "crts_median", "crts_log_std", "crts_high",  # column telegraph: share of sensor columns, step (DN), spread, share high
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -104,7 +106,7 @@ STREAMS = (
     "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map", "shared",
     "rts_where", "rts_size", "rts_state", "dead_where", "dead_level", "row_drift", "row_drift_phase",
     "col_band", "dhot_where", "dhot_size", "colgain_pattern", "diag_band", "dcol_where", "dcol_size",
-    "spike_where", "spike_size",
+    "spike_where", "spike_size", "crts_where", "crts_size", "crts_state",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

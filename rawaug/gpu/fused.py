@@ -44,6 +44,7 @@ C_CGS = _column("colgain_sigma")
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DOFF = _column("dark_offset")
 C_SPD, C_SPM, C_SPL = _column("spike_density"), _column("spike_median"), _column("spike_log_std")
+C_CRD, C_CRM, C_CRL, C_CRH = _column("crts_density"), _column("crts_median"), _column("crts_log_std"), _column("crts_high")
 C_DBX0, C_DBY0, C_DBA0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0")
 C_RF, C_RC = _column("rowfix_sigma"), _column("rowch_sigma")
 TONES = tl.constexpr(L.BAND_TONES)
@@ -79,6 +80,7 @@ K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
 K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
 K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
+K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["crts_state"]
 K_DIAG_BAND = S["diag_band"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
@@ -282,6 +284,12 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         hit = unit(draw(_key(keys_ptr, K_SPIKE_WHERE), g)) < _col(v, C_SPD)
         size = _col(v, C_SPM) * tl.exp(_col(v, C_SPL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_SPIKE_SIZE), g)))
         s += tl.where(hit, size, 0.0)
+    if FLAGS & 137438953472:  # column telegraph noise: a telegraph column's step, in the frames where it is high
+        q = ((sensor * 2 + col_set) * W + x).to(tl.uint64)
+        flick = (unit(draw(_key(keys_ptr, K_CRTS_WHERE), q)) < _col(v, C_CRD)) & \
+            (unit(draw(_key(keys_ptr, K_CRTS_STATE), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64))) < _col(v, C_CRH))
+        step = _col(v, C_CRM) * tl.exp(_col(v, C_CRL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_CRTS_SIZE), q)))
+        s += tl.where(flick, step, 0.0)
     if FLAGS & 256:  # column noise: per frame and fixed
         s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
