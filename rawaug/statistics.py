@@ -684,6 +684,17 @@ def map_effects(cells):
     return cells.mean(axis=(1, 2)) - m, cells.mean(axis=(0, 2)) - m, cells.mean(axis=(0, 1)) - m
 
 
+def frame_noise_spread(frames, level_dn=None):
+    """Standard deviation over frames of the log of each frame's white-noise variance: the
+    robust (1.4826 MAD) variance of its high-passed temporal residual (``temporal_highpass``),
+    so that smooth fields, line noise, spikes and telegraph pixels do not count. Near
+    sqrt(2 / pixels) for a read noise of one level."""
+    r = temporal_highpass(np.asarray(frames, dtype=np.float64))
+    flat = r.reshape(r.shape[0], -1)
+    mad = np.median(np.abs(flat - np.median(flat, axis=1, keepdims=True)), axis=1)
+    return float(np.std(np.log(np.maximum(1.482602218505602 * mad, 1e-12) ** 2), ddof=1))
+
+
 def read_noise_spread(frames, level_dn=None):
     """Rms of the channel, row-block and column-block main effects (``map_effects``) of the
     log temporal variance per cell (``temporal_variance_cells``): near 0 for read noise the same
@@ -930,6 +941,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("fixed_row_excess", fixed_row_excess, min_frames=2),
         Statistic("neighbour_corr", neighbour_corr, min_frames=2, kind="bias"),
         Statistic("read_noise_spread", read_noise_spread, min_frames=2, kind="bias"),
+        Statistic("frame_noise_spread", frame_noise_spread, min_frames=3, kind="bias"),
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
         Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),
         Statistic("spike_fraction", spike_fraction, min_frames=3, kind="bias", pixel_fraction=True),

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, column_telegraph, dark_columns, dark_hot_pixels, dark_offset, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, column_telegraph, dark_columns, dark_hot_pixels, dark_offset, frame_noise, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -382,6 +382,30 @@ def test_telegraph_columns_estimate_round_trip_and_none_in_white_stacks():
         column_telegraph.estimate(meas[:3], base, K, kind="bias")
 
 
+def test_frame_noise_scales_each_frame_read_noise_and_keeps_its_mean_variance():
+    frames = synth({"FrameNoise": {"k": [K], "log_std": [0.3]}}, batch=200, size=32, model="G", sigma_g=2.0)
+    v = frames.reshape(200, -1).var(axis=1)  # 4096 pixels: each variance within 2.2 % of its frame's
+    # log variance: 2 x 0.3 spread; the mean variance stays 4 DN^2 (the factor is normalised)
+    assert abs(np.log(v).std(ddof=1) - 0.6) < 5 * 0.6 / math.sqrt(2 * 199) + 0.03, np.log(v).std()
+    assert abs(v.mean() / 4.0 - 1.0) < 5 * math.sqrt(math.exp(4 * 0.09) - 1) / math.sqrt(200), v.mean()
+
+
+def test_frame_noise_estimate_round_trip_and_nothing_for_a_steady_read_noise():
+    from rawaug.statistics import frame_noise_spread
+
+    base = [synth({}, batch=16, size=64, seed=s) for s in range(1, 9)]
+    est = [frame_noise.estimate(synth({"FrameNoise": {"k": [K], "log_std": [0.25]}}, batch=16, size=64, seed=s), base, K, kind="bias")
+           for s in range(20, 30)]
+    # each from 16 frames: the spread of a std of 16 values is 1 / sqrt(30) of it, ~0.05 here
+    got = np.array([e["log_std"][0] for e in est])
+    assert abs(got.mean() - 0.25) < 5 * 0.25 / math.sqrt(30 * 10), got
+    steady = [frame_noise.estimate(synth({}, batch=16, size=64, seed=s), base, K, kind="bias")["log_std"][0] for s in range(40, 50)]
+    assert max(steady) < 0.03, steady  # sqrt(2 / 16384) per frame: a spread of ~0.011
+    assert frame_noise_spread(base[0]) < 0.03
+    with pytest.raises(ValueError, match="bias and dark stacks"):
+        frame_noise.estimate(base[0], base, K, kind="flat")
+
+
 COLGAIN = {"seed": 67, "sigma": 0.005}
 
 
@@ -714,6 +738,7 @@ def test_effects_replay_bit_exactly():
     ("DarkCol", {"seed": 1, "density": 0.2, "median_e_per_s": 1.0, "log_std": 0.0}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
     ("DarkCol", {"seed": 1, "density": 0.01, "median_e_per_s": 1.0, "log_std": -0.1}, "log_std must be >= 0, got -0.1"),
     ("DarkOffset", {"k": [1.0], "dn_per_s": [float("inf")]}, "finite"),
+    ("FrameNoise", {"k": [1.0], "log_std": [1.5]}, r"log_std \(spread of the log read-noise scale over frames\) must be in \[0, 1\], got 1.5"),
     ("ColRTS", {"seed": 1, "density": 0.01, "high": 0.0, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, r"high \(share of frames in the high state\) must be in \(0, 1\), got 0.0"),
     ("ColRTS", {"density": 0.01, "high": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, "seed"),
     ("Spikes", {"density": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]}, r"density \(fraction of pixels per frame\) must be in \[0, 0.01\], got 0.5"),

@@ -67,6 +67,7 @@ _CGS, _COLGAIN_PATTERN = L.COLUMN["colgain_sigma"], L.STREAM["colgain_pattern"]
 _DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_log_std"]
 _DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
 _DOFF = L.COLUMN["dark_offset"]
+_RG = L.COLUMN["read_gain"]
 _SPD, _SPM, _SPL = L.COLUMN["spike_density"], L.COLUMN["spike_median"], L.COLUMN["spike_log_std"]
 _SPIKE_WHERE, _SPIKE_SIZE = L.STREAM["spike_where"], L.STREAM["spike_size"]
 _CRD, _CRM, _CRL, _CRH = L.COLUMN["crts_density"], L.COLUMN["crts_median"], L.COLUMN["crts_log_std"], L.COLUMN["crts_high"]
@@ -266,6 +267,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             rmw = int(v[_RMW]) if v[_RMW] > 0.0 else w
             rmox = int(v[_RMOX])
             rm_row = v[_RMC0 + c] ** 2 + v[_RMY0 + min((y + int(v[_RMOY])) * _NB // rmh, _NB - 1)] ** 2
+        read_gain = v[_RG] if stages & L.FRAME_NOISE else 1.0  # this frame's factor on the base read noise
         g0 = r * w
         p0 = ((sensor * 4 + c) * h + y) * w
         for x in range(w):
@@ -320,11 +322,11 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 if unit(draw(keys[_RTS_WHERE], p)) < v[_RTD] and unit(draw(keys[_RTS_STATE], g)) < v[_RTH]:
                     s += v[_RTM] * math.exp(v[_RTL] * symmetric(normal, draw(keys[_RTS_SIZE], p)))
             if stages & L.READ_TABLE:  # measured quantiles on a grid of normal scores, linear between
-                s += v[_RQ_SCALE] * table_at(read_lut, int(v[_RQ_REC]) * 4 + c, symmetric(normal, draw(keys[_READ], g)))
+                s += read_gain * v[_RQ_SCALE] * table_at(read_lut, int(v[_RQ_REC]) * 4 + c, symmetric(normal, draw(keys[_READ], g)))
             elif stages & L.READ_TUKEY:
-                s += v[_TL] * symmetric(table, draw(keys[_READ], g))
+                s += read_gain * v[_TL] * symmetric(table, draw(keys[_READ], g))
             elif stages & L.READ_GAUSS:
-                s += v[_G] * symmetric(normal, draw(keys[_READ], g))
+                s += read_gain * v[_G] * symmetric(normal, draw(keys[_READ], g))
             if stages & L.XTALK:
                 s += crosstalk_at(normal, keys[_XTALK], v, b, 2 * y + row_set, 2 * x + col_set, 2 * h, 2 * w)
             if stages & L.SHARED:  # one value per frame and packed position: the tile's four pixels

@@ -45,6 +45,7 @@ DARK_COL = 1 << 34  # leaky columns: sparse sensor columns with a high dark-curr
 DARK_OFFSET = 1 << 35  # black level moving with exposure time, without shot noise (clamp sag, amplifier warm-up)
 SPIKES = 1 << 36  # impulsive noise: single-frame events at random pixels (cosmic rays, charge bursts), after read noise
 COL_RTS = 1 << 37  # column telegraph noise: sparse sensor columns with two offsets, a state per frame
+FRAME_NOISE = 1 << 38  # frame-to-frame read-noise level: the base read noise of a frame times its own factor
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -92,6 +93,7 @@ COLUMNS = (
     "dark_offset",  # black-level shift this exposure (DN)
     "spike_density", "spike_median", "spike_log_std",  # impulsive noise: share of pixels per frame, median (DN), log-normal spread
     "crts_density", "crts_median", "crts_log_std", "crts_high",  # column telegraph: share of sensor columns, step (DN), spread, share high
+    "read_gain",  # frame-to-frame read-noise level: this frame's factor on the base read noise
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

@@ -43,6 +43,7 @@ C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_
 C_CGS = _column("colgain_sigma")
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DOFF = _column("dark_offset")
+C_RG = _column("read_gain")
 C_SPD, C_SPM, C_SPL = _column("spike_density"), _column("spike_median"), _column("spike_log_std")
 C_CRD, C_CRM, C_CRL, C_CRH = _column("crts_density"), _column("crts_median"), _column("crts_log_std"), _column("crts_high")
 C_DBX0, C_DBY0, C_DBA0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0")
@@ -246,18 +247,21 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         flips = (unit(draw(_key(keys_ptr, K_RTS_WHERE), p)) < _col(v, C_RTD)) & (unit(draw(_key(keys_ptr, K_RTS_STATE), g)) < _col(v, C_RTH))
         step = _col(v, C_RTM) * tl.exp(_col(v, C_RTL) * _normal(draw(_key(keys_ptr, K_RTS_SIZE), p)))
         s += tl.where(flips, step, 0.0)
+    read_gain = 1.0
+    if FLAGS & 274877906944:  # frame-to-frame read-noise level: this frame's factor on the base read noise
+        read_gain = _col(v, C_RG)
     if FLAGS & 131072:  # measured read-noise quantiles on a grid of normal scores, linear between
         n1 = (READ_N - 1).to(tl.float64)
         t = tl.minimum(tl.maximum((_normal(draw(_key(keys_ptr, K_READ), g)) + Z_MAX) * (n1 / (2.0 * Z_MAX)), 0.0), n1)
         i = tl.minimum(t.to(tl.int64), READ_N - 2)
         f = t - i.to(tl.float64)
         row = read_ptr + (_col(v, C_RQ_REC).to(tl.int64) * 4 + c) * READ_N
-        s += _col(v, C_RQ_SCALE) * (tl.load(row + i, mask=live, other=0.0) * (1.0 - f) + tl.load(row + i + 1, mask=live, other=0.0) * f)
+        s += read_gain * _col(v, C_RQ_SCALE) * (tl.load(row + i, mask=live, other=0.0) * (1.0 - f) + tl.load(row + i + 1, mask=live, other=0.0) * f)
     elif FLAGS & 32:  # G*
         t, sign = tail_of(draw(_key(keys_ptr, K_READ), g))
-        s += _col(v, C_TL) * (sign * tukey_upper(t, _col(v, C_LAM).to(tl.float32))).to(tl.float64)
+        s += read_gain * _col(v, C_TL) * (sign * tukey_upper(t, _col(v, C_LAM).to(tl.float32))).to(tl.float64)
     elif FLAGS & 64:  # G
-        s += _col(v, C_G) * _normal(draw(_key(keys_ptr, K_READ), g))
+        s += read_gain * _col(v, C_G) * _normal(draw(_key(keys_ptr, K_READ), g))
     if FLAGS & 2097152:  # correlated read noise: one per-frame raw normal field per lag
         kx = _key(keys_ptr, K_XTALK)
         ry = 2 * y + row_set
