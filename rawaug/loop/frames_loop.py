@@ -427,23 +427,25 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             trial = without.with_effect(later.effect, params)
             trial_diags = diagnose_all(trial, diags_seed, stacks)
             old_b, new_b = _battery(diags), _battery(trial_diags)
-            kept = new_b["mean_rel_error"] <= old_b["mean_rel_error"] and new_b["n_significant"] <= old_b["n_significant"]
+            # the estimate made in the right model, unless it spoils the battery (the forward rule)
+            kept = (new_b["n_significant"] <= old_b["n_significant"]
+                    and new_b["mean_rel_error"] <= BATTERY_GROWTH * old_b["mean_rel_error"])
             say(f"end: {later.effect} estimated again without {step.effect}: battery {old_b['mean_rel_error']:.3f} -> "
                 f"{new_b['mean_rel_error']:.3f}: " + ("kept" if kept else "dropped"))
-            if not kept:
-                continue
-            # its evidence as the forward loop picks it: the strongest residual pointing to it
+            if kept:
+                later.params, current, diags = params, trial, trial_diags
+                later.note = f"estimated again once {step.effect} was removed"
+            # its evidence restated in the final model, as the forward loop picks it: the
+            # strongest residual pointing to it without it
             label, before_r = next(((lb, r) for t, lb, r in _options(without_diags, set(), set(without.effects)) if t == later.effect),
                                    (later.stack, next(r for r in without_diags[later.stack][0] if r.statistic == later.evidence["statistic"])))
             stat = before_r.statistic
-            after_r = next(r for r in trial_diags[label][0] if r.statistic == stat)
-            later.error_before, later.error_after = _evidence_error(later.effect, before_r, without_diags[label][0], trial_diags[label][0])
-            later.params, later.z_after, later.evidence_after = params, after_r.z, after_r.to_dict()
+            after_r = next(r for r in diags[label][0] if r.statistic == stat)
+            later.error_before, later.error_after = _evidence_error(later.effect, before_r, without_diags[label][0], diags[label][0])
+            later.z_after, later.evidence_after = after_r.z, after_r.to_dict()
             later.stack, later.evidence = label, before_r.to_dict()
-            later.battery_before, later.battery_after = _battery(without_diags), new_b
-            later.note = f"estimated again once {step.effect} was removed"
-            later.signature = step_signature(stat, by_label[label].frames_dn, without_diags[label][1], trial_diags[label][1])
-            current, diags = trial, trial_diags
+            later.battery_before, later.battery_after = _battery(without_diags), _battery(diags)
+            later.signature = step_signature(stat, by_label[label].frames_dn, without_diags[label][1], diags[label][1])
     result.profile, result.colour_bias = _with_fitted_colour_bias(current, stacks, model, seed)
     if result.colour_bias:
         say("colour bias fitted with the added effects: " + "; ".join(
