@@ -876,6 +876,13 @@ def flat_linearity(frames, level_dn=None):
     return float(np.mean(frames.mean(axis=(0, 2, 3)) / np.maximum(level, 1e-12) - 1.0))
 
 
+def flat_gain_spread(frames, level_dn=None):
+    """Spread (ddof 1) over a flat stack's frames of their means, over the stack's level (its
+    mean or ``level_dn``'s): a gain or a light that changes from frame to frame."""
+    level = float(np.mean(level_dn)) if level_dn is not None else float(frames.mean())
+    return float(frames.mean(axis=(1, 2, 3)).std(ddof=1) / max(level, 1e-12))
+
+
 LIGHT_STABILITY = 1e-3  # a flat's light is stable to about 0.1 %: smaller deviations of its mean are not resolved
 
 
@@ -954,6 +961,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),
         Statistic("flat_linearity", flat_linearity, kind="flat", floor=LIGHT_STABILITY),
+        Statistic("flat_gain_spread", flat_gain_spread, min_frames=2, kind="flat", floor=LIGHT_STABILITY),
     )
 }
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, column_telegraph, dark_columns, dark_hot_pixels, dark_offset, frame_noise, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, column_telegraph, dark_columns, dark_hot_pixels, dark_offset, frame_gain, frame_noise, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -406,6 +406,32 @@ def test_frame_noise_estimate_round_trip_and_nothing_for_a_steady_read_noise():
         frame_noise.estimate(base[0], base, K, kind="flat")
 
 
+def test_frame_gain_scales_each_flat_frame_and_leaves_bias_frames_alone():
+    from rawaug.statistics import flat_gain_spread
+
+    flats = synth({"FrameGain": {"sigma": 0.01}}, batch=100, size=32, level_dn=1000.0, model="G+P*")
+    means = flats.mean(axis=(1, 2, 3)) / 1000.0 - 1.0  # shot noise of a 4096-pixel mean: 0.05 %
+    assert abs(means.std(ddof=1) - 0.01) < 5 * 0.01 / math.sqrt(2 * 99) + 0.0005, means.std()
+    assert abs(flat_gain_spread(flats, 1000.0) - means.std(ddof=1)) < 1e-12
+    bias = [synth({"FrameGain": {"sigma": 0.01}}, batch=4, size=32, seed=3), synth({}, batch=4, size=32, seed=3)]
+    assert np.array_equal(bias[0], bias[1])  # no signal: nothing to scale
+
+
+def test_frame_gain_estimate_pools_flat_pairs():
+    base = [synth({}, batch=2, size=32, level_dn=1000.0, model="G+P*", seed=s) for s in range(1, 9)]
+    pairs = [synth({"FrameGain": {"sigma": 0.01}}, batch=2, size=32, level_dn=1000.0, model="G+P*", seed=s) for s in range(20, 60)]
+    est = frame_gain.combine([frame_gain.estimate(f, base, K, kind="flat", level_dn=1000.0) for f in pairs])
+    # 40 pairs: one degree of freedom each, the pooled variance within 5 x sqrt(2 / 40) of itself
+    assert abs(est["sigma"] ** 2 / 1e-4 - 1.0) < 5 * math.sqrt(2 / 40), est
+    steady = frame_gain.combine([frame_gain.estimate(synth({}, batch=2, size=32, level_dn=1000.0, model="G+P*", seed=s), base, K,
+                                                     kind="flat", level_dn=1000.0) for s in range(60, 100)])
+    # shot noise alone (0.05 % on a frame mean): the pooled excess variance is 0 within 5 sd,
+    # (0.05 %)^2 x 5 x sqrt(2 / 40): sigma below 0.05 % x 1.06
+    assert steady["sigma"] < 0.0006, steady
+    with pytest.raises(ValueError, match="flat stacks"):
+        frame_gain.estimate(pairs[0], base, K, kind="bias")
+
+
 COLGAIN = {"seed": 67, "sigma": 0.005}
 
 
@@ -738,6 +764,7 @@ def test_effects_replay_bit_exactly():
     ("DarkCol", {"seed": 1, "density": 0.2, "median_e_per_s": 1.0, "log_std": 0.0}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
     ("DarkCol", {"seed": 1, "density": 0.01, "median_e_per_s": 1.0, "log_std": -0.1}, "log_std must be >= 0, got -0.1"),
     ("DarkOffset", {"k": [1.0], "dn_per_s": [float("inf")]}, "finite"),
+    ("FrameGain", {"sigma": -0.01}, r"sigma \(fraction of the signal, per frame\) must be in \[0, 0.1\], got -0.01"),
     ("FrameNoise", {"k": [1.0], "log_std": [1.5]}, r"log_std \(spread of the log read-noise scale over frames\) must be in \[0, 1\], got 1.5"),
     ("ColRTS", {"seed": 1, "density": 0.01, "high": 0.0, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, r"high \(share of frames in the high state\) must be in \(0, 1\), got 0.0"),
     ("ColRTS", {"density": 0.01, "high": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, "seed"),

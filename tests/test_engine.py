@@ -21,6 +21,7 @@ LOOP_EFFECTS = {
     "DarkHot": {"seed": 61, "density": 0.03, "median_e_per_s": 5.0, "log_std": 0.5},  # before the Poisson draw
     "DarkCol": {"seed": 71, "density": 0.08, "median_e_per_s": 4.0, "log_std": 0.4},  # ... keyed by the sensor column
     "DarkOffset": {"k": [1.0, 3.0], "dn_per_s": [-0.6, 0.4]},  # signed, either gain
+    "FrameGain": {"sigma": 0.02},
     "FrameNoise": {"k": [1.0, 3.0], "log_std": [0.3, 0.1]},
     "ColRTS": {"seed": 79, "density": 0.1, "high": 0.4, "log_std": 0.3, "k": [1.0, 3.0], "median_dn": [5.0, 9.0]},
     "Spikes": {"density": 0.01, "density_per_s": 0.005, "log_std": 0.5, "k": [1.0, 3.0], "median_dn": [40.0, 90.0]},

@@ -160,6 +160,11 @@ def column_traps(dn, rng, **_):
     return dn + np.stack([step[0::2], step[1::2], step[1::2], step[0::2]])[:, None, :]  # R, G2 on even sensor columns
 
 
+def jittery_gain(dn, rng, kind="bias", **_):
+    """Frame-to-frame gain (made outside rawaug): each frame's analog gain off by 1 % rms."""
+    return dn * (1.0 + rng.normal(0.0, 0.01))
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
 
 
@@ -184,24 +189,26 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "black drift": (None, None, warming_amplifier, ["DarkOffset"]),
          "impulses": (None, None, charge_bursts, ["Spikes"]),
          "column flicker": (None, None, column_traps, ["ColRTS"]),
+         "gain jitter": (None, None, jittery_gain, ["FrameGain"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
+FLAT_FRAMES = {"gain jitter": 8}  # flats per level (every other case: a pair); a pair's frame-mean spread has 1 degree of freedom
 
 
 def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_exposures=(4.0,), flat_levels=(0.02, 0.1),
-                 lights=False):
+                 lights=False, n_flat=2):
     """The manifest camera (``write_manifest_camera``) of the base camera plus ``effect`` nobody
     declared, plus ``post`` (a change to the DN no rawaug stage makes)."""
     profile = BASE.with_effect(effect, params) if effect else BASE
     return write_manifest_camera(folder, profile, post=post, seed=seed, dark_exposures=dark_exposures,
-                                 flat_levels=flat_levels, lights=lights)
+                                 flat_levels=flat_levels, lights=lights, n_flat=n_flat)
 
 
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
 SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
-              "leaky columns", "black drift", "impulses", "column flicker"}
+              "leaky columns", "black drift", "impulses", "column flicker", "gain jitter"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])
@@ -211,7 +218,8 @@ def test_loop_on_a_manifest_names_the_undeclared_effect(tmp_path, case):
 
 def check_case(tmp_path, case, seed):
     effect, params, post, expected = CASES[case]
-    manifest = write_frames(tmp_path, effect, params, post, seed=seed, flat_levels=FLAT_LEVELS.get(case, (0.02, 0.1)))
+    manifest = write_frames(tmp_path, effect, params, post, seed=seed, flat_levels=FLAT_LEVELS.get(case, (0.02, 0.1)),
+                            n_flat=FLAT_FRAMES.get(case, 2))
     out, report = tmp_path / "loop.yaml", tmp_path / "report"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)

@@ -52,10 +52,10 @@ def to_mosaic(packed: np.ndarray, cfa: str) -> np.ndarray:
 
 def write_manifest_camera(folder, profile: NoiseProfile, *, post=None, seed: int = 0, isos=((800, 0.75), (3200, 3.0)),
                           n_bias: int = 6, n_dark: int = 4, dark_exposures=(4.0,), flat_levels=(0.02, 0.1), lights: bool = False,
-                          size: int = 64, cfa: str = "RGGB"):
+                          size: int = 64, cfa: str = "RGGB", n_flat: int = 2):
     """A virtual camera's calibration frames as a manifest (``folder/manifest.csv``) of 16-bit
     mosaics: at each (ISO, K DN/e-) of ``isos``, ``n_bias`` bias frames, ``n_dark`` dark frames
-    per exposure of ``dark_exposures`` (s) and flat pairs at ``flat_levels`` (fraction of
+    per exposure of ``dark_exposures`` (s) and ``n_flat`` flats (a pair by default) at ``flat_levels`` (fraction of
     white; exposure in seconds = level, or with ``lights`` all at 0.5 s under a relative light
     = level, listed in the manifest's ``light`` column), ``size`` x ``size`` per packed channel.
     The noise is ``profile``'s (``G*+P*+R`` at its median sigmas, lambda 0.05, and every effect
@@ -71,7 +71,7 @@ def write_manifest_camera(folder, profile: NoiseProfile, *, post=None, seed: int
     for i, (iso, k) in enumerate(isos):
         frames = ([("bias", 1e-4, 0.0, j) for j in range(n_bias)]
                   + [("dark", t, 0.0, j) for t in dark_exposures for j in range(n_dark)]
-                  + [("flat", 0.5 if lights else level, level, j) for level in flat_levels for j in range(2)])
+                  + [("flat", 0.5 if lights else level, level, j) for level in flat_levels for j in range(n_flat)])
         for kind, exposure, level, j in frames:
             fixed = {"k": k, "sigma_tl": profile.tukey_scale.median(k), "lambda": 0.05, "sigma_r": profile.row_scale.median(k),
                      "exposure_s": exposure, "sensor": 0}  # one camera: one sensor in every frame

@@ -68,6 +68,7 @@ _DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_
 _DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
 _DOFF = L.COLUMN["dark_offset"]
 _RG = L.COLUMN["read_gain"]
+_FG = L.COLUMN["frame_gain"]
 _SPD, _SPM, _SPL = L.COLUMN["spike_density"], L.COLUMN["spike_median"], L.COLUMN["spike_log_std"]
 _SPIKE_WHERE, _SPIKE_SIZE = L.STREAM["spike_where"], L.STREAM["spike_size"]
 _CRD, _CRM, _CRL, _CRH = L.COLUMN["crts_density"], L.COLUMN["crts_median"], L.COLUMN["crts_log_std"], L.COLUMN["crts_high"]
@@ -311,6 +312,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
             if stages & L.NONLIN:  # the photo signal compressed: s (1 - c s) above 0 DN
                 s -= v[_NL] * s * max(s, 0.0)
+            if stages & L.FRAME_GAIN:  # this frame's gain on the photo signal and its shot noise
+                s *= v[_FG]
             if stages & L.COL_GAIN:  # the sensor column's amplifier gain on the photo signal and its shot noise
                 s *= 1.0 + v[_CGS] * symmetric(normal, draw(keys[_COLGAIN_PATTERN], (sensor * 2 + col_set) * w + x))
             if stages & L.FPN:

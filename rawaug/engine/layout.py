@@ -46,6 +46,7 @@ DARK_OFFSET = 1 << 35  # black level moving with exposure time, without shot noi
 SPIKES = 1 << 36  # impulsive noise: single-frame events at random pixels (cosmic rays, charge bursts), after read noise
 COL_RTS = 1 << 37  # column telegraph noise: sparse sensor columns with two offsets, a state per frame
 FRAME_NOISE = 1 << 38  # frame-to-frame read-noise level: the base read noise of a frame times its own factor
+FRAME_GAIN = 1 << 39  # frame-to-frame gain: the photo signal of a frame times its own factor, after shot noise
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -94,6 +95,7 @@ COLUMNS = (
     "spike_density", "spike_median", "spike_log_std",  # impulsive noise: share of pixels per frame, median (DN), log-normal spread
     "crts_density", "crts_median", "crts_log_std", "crts_high",  # column telegraph: share of sensor columns, step (DN), spread, share high
     "read_gain",  # frame-to-frame read-noise level: this frame's factor on the base read noise
+    "frame_gain",  # frame-to-frame gain: this frame's factor on the photo signal
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

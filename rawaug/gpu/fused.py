@@ -44,6 +44,7 @@ C_CGS = _column("colgain_sigma")
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DOFF = _column("dark_offset")
 C_RG = _column("read_gain")
+C_FG = _column("frame_gain")
 C_SPD, C_SPM, C_SPL = _column("spike_density"), _column("spike_median"), _column("spike_log_std")
 C_CRD, C_CRM, C_CRL, C_CRH = _column("crts_density"), _column("crts_median"), _column("crts_log_std"), _column("crts_high")
 C_DBX0, C_DBY0, C_DBA0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0")
@@ -229,6 +230,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += tl.sqrt(k * tl.maximum(s, 0.0)) * _normal(draw(_key(keys_ptr, K_SHOT), g))
     if FLAGS & 1048576:  # gain non-linearity: the photo signal compressed, s (1 - c s) above 0 DN
         s -= _col(v, C_NL) * s * tl.maximum(s, 0.0)
+    if FLAGS & 549755813888:  # frame-to-frame gain: this frame's factor on the photo signal and its shot noise
+        s *= _col(v, C_FG)
     if FLAGS & 4294967296:  # column gain: the sensor column's amplifier gain on the photo signal and its shot noise
         s *= 1.0 + _col(v, C_CGS) * _normal(draw(_key(keys_ptr, K_COLGAIN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
     if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading, a window (fpn_oy, fpn_ox) of fpn_h x fpn_w
