@@ -51,12 +51,15 @@ class DarkOffset(NoiseEffect):
 
 def offset_excess(frames, synthesized, k: float) -> float:
     """DN of a stack's mean excess over the model's syntheses that its temporal-variance excess
-    does not explain as electrons (excess variance / K, DN; a variance below the model's
-    explains none)."""
+    does not explain as electrons (excess variance / K, DN; a variance excess within 3 sd of
+    the syntheses' spread explains none)."""
     frames = np.asarray(frames, dtype=np.float64)
     base = [np.asarray(s, dtype=np.float64) for s in synthesized]
     mean = float(frames.mean() - np.mean([s.mean() for s in base]))
-    var = float(frames.var(axis=0, ddof=1).mean() - np.mean([s.var(axis=0, ddof=1).mean() for s in base]))
+    model_var = [s.var(axis=0, ddof=1).mean() for s in base]
+    var = float(frames.var(axis=0, ddof=1).mean() - np.mean(model_var))
+    if len(base) >= 2 and var < 3.0 * float(np.std(model_var, ddof=1)):
+        var = 0.0  # within the syntheses' spread: no electrons shown, only noise
     return mean - max(var, 0.0) / float(k)
 
 
