@@ -563,6 +563,15 @@ def col_flicker_fraction(frames, level_dn=None):
 SPIKE_Z = 8.0  # robust sigmas above the pixel's other frames: a single-frame event, not noise
 
 
+def spike_scale(frames):
+    """(4,) temporal scale of each channel of a stack (N >= 3; DN): the median pixel's temporal
+    variance as a Gaussian's sigma (what ``spikes`` measures single-frame events against)."""
+    f = np.asarray(frames, dtype=np.float64)
+    n = f.shape[0]
+    var = f.var(axis=0, ddof=1)
+    return np.sqrt(np.median(var.reshape(f.shape[1], -1), axis=1) / (sstats.chi2.median(n - 1) / (n - 1)))
+
+
 def spikes(frames):
     """(N, 4, h, w) mask of single-frame events of a stack (N >= 3; DN): a value more than
     ``SPIKE_Z`` x the larger of its channel's temporal scale (the median pixel's temporal
@@ -576,8 +585,7 @@ def spikes(frames):
     mask = np.zeros(f.shape, dtype=bool)
     if n < 3:
         return mask
-    var = f.var(axis=0, ddof=1)
-    scale = np.sqrt(np.median(var.reshape(4, -1), axis=1) / (sstats.chi2.median(n - 1) / (n - 1)))[:, None, None]
+    scale = spike_scale(f)[:, None, None]
     top = f.max(axis=0)
     cand = np.nonzero(top - f.mean(axis=0) > 4.5 * np.maximum(scale, 1e-9))
     if cand[0].size == 0:

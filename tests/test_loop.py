@@ -144,17 +144,6 @@ def dark_hot_named(seed):
     return abs(rec["density"] - 2e-3) < 5 * (2e-3 / n) ** 0.5 and abs(np.log(rec["median_e_per_s"] / 10.0)) < 5 * 0.4 / 74**0.5
 
 
-def test_loop_names_hot_pixels_of_dark_current_from_dark_frames():
-    assert dark_hot_named(seed=300)
-
-
-@pytest.mark.slow
-def test_dark_hot_pixels_rate_over_seeds():
-    successes = sum(dark_hot_named(seed) for seed in range(300, 340, 2))
-    print(f"DarkHot: {successes} of 20 seeds")
-    assert successes >= 19, f"DarkHot: {successes} of 20 seeds"
-
-
 # effects only dark frames show: leaky columns (3 e-/s more in 2 % of the sensor columns) and
 # a black level that sags 0.4 DN per second of exposure (no electrons: no shot noise)
 DARK_ONLY = {"DarkCol": {"seed": 73, "density": 0.02, "median_e_per_s": 8.0, "log_std": 0.3},
@@ -181,19 +170,6 @@ def dark_only_named(token, seed):
     return abs(rec["dn_per_s"][0] + 0.4) < 0.05
 
 
-@pytest.mark.parametrize("token", list(DARK_ONLY))
-def test_loop_names_what_only_dark_frames_show(token):
-    assert dark_only_named(token, seed=300)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("token", list(DARK_ONLY))
-def test_dark_only_effects_rate_over_seeds(token):
-    successes = sum(dark_only_named(token, seed) for seed in range(300, 340, 2))
-    print(f"{token}: {successes} of 20 seeds")
-    assert successes >= 19, f"{token}: {successes} of 20 seeds"
-
-
 SPIKES = {"Spikes": {"density": 5e-4, "density_per_s": 0.0, "log_std": 0.5, "k": [K], "median_dn": [50.0]}}
 
 
@@ -206,17 +182,6 @@ def spikes_named(seed):
         return False
     rec, n = result.profile.effects["Spikes"], 8 * 4 * 96 * 96
     return abs(rec["density"] - 5e-4) < 5 * (5e-4 / n) ** 0.5 and abs(np.log(rec["median_dn"][0] / 50.0)) < 5 * 0.5 / (5e-4 * n) ** 0.5
-
-
-def test_loop_names_impulses():
-    assert spikes_named(seed=300)
-
-
-@pytest.mark.slow
-def test_impulses_rate_over_seeds():
-    successes = sum(spikes_named(seed) for seed in range(300, 340, 2))
-    print(f"Spikes: {successes} of 20 seeds")
-    assert successes >= 19, f"Spikes: {successes} of 20 seeds"
 
 
 COLRTS = {"ColRTS": {"seed": 81, "density": 0.04, "high": 0.5, "log_std": 0.2, "k": [K], "median_dn": [5.0]}}
@@ -233,15 +198,22 @@ def telegraph_columns_named(seed):
     return abs(rec["density"] - 0.04) < 5 * (0.04 / 192) ** 0.5 and abs(np.log(rec["median_dn"][0] / 5.0)) < 0.2
 
 
-def test_loop_names_telegraph_columns():
-    assert telegraph_columns_named(seed=300)
+# each check: seed -> the effect named, nothing left and its estimate within bounds
+NAMED = {"DarkHot": dark_hot_named, "DarkCol": lambda seed: dark_only_named("DarkCol", seed),
+         "DarkOffset": lambda seed: dark_only_named("DarkOffset", seed), "Spikes": spikes_named, "ColRTS": telegraph_columns_named}
+
+
+@pytest.mark.parametrize("token", list(NAMED))
+def test_loop_names_the_effect_and_estimates_it(token):
+    assert NAMED[token](300)
 
 
 @pytest.mark.slow
-def test_telegraph_columns_rate_over_seeds():
-    successes = sum(telegraph_columns_named(seed) for seed in range(300, 340, 2))
-    print(f"ColRTS: {successes} of 20 seeds")
-    assert successes >= 19, f"ColRTS: {successes} of 20 seeds"
+@pytest.mark.parametrize("token", list(NAMED))
+def test_named_effects_rate_over_seeds(token):
+    successes = sum(NAMED[token](seed) for seed in range(300, 340, 2))
+    print(f"{token}: {successes} of 20 seeds")  # shown with -rA: the count, not only the bound
+    assert successes >= 19, f"{token}: {successes} of 20 seeds"
 
 
 def test_the_written_profile_carries_offsets_fitted_with_a_clip():

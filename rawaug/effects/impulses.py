@@ -16,10 +16,11 @@ Profile entry (per-K amplitude records)::
 
 Detected on bias and dark stacks of >= 3 frames by ``spike_fraction`` (values 8 robust sigmas
 above the pixel's other frames, in one frame only, beyond as many below: heavy-tailed read
-noise makes both) and ``tail_mass``. Estimated by ``estimate``: that excess over the model's,
-and the bright events' excess in DN; ``combine`` fits the density
-against exposure (two or more exposures: a per-frame part and a per-second part). Spikes
-below the threshold are not seen: density and median are those of the detectable population.
+noise makes both) and ``tail_mass``. Estimated by ``estimate``: the bright events' excess in
+DN by a log-normal truncated at the detection threshold (``truncated_log_normal``), the
+density as that excess over the model's over the share the threshold lets through;
+``combine`` fits the density against exposure (two or more exposures: a per-frame part and a
+per-second part).
 """
 from __future__ import annotations
 
@@ -27,9 +28,10 @@ import math
 
 import numpy as np
 import torch
+from scipy import optimize, stats
 
 from ..engine import layout as L
-from ..statistics import spike_fraction, spikes
+from ..statistics import SPIKE_Z, spike_fraction, spike_scale, spikes
 from .base import READ, NoiseEffect, register
 from .k_records import _number, validate_records, value_at_k
 
@@ -72,16 +74,37 @@ def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, **_) -> 
         raise ValueError("Spikes are measured on bias or dark stacks of >= 3 frames")
     mask = spikes(frames)
     base = float(np.mean([spike_fraction(s) for s in synthesized])) if synthesized else 0.0
-    density = max(spike_fraction(frames) - base, 0.0)  # bright events beyond the dark ones heavy tails make too
+    detected = max(spike_fraction(frames) - base, 0.0)  # bright events beyond the dark ones heavy tails make too
     others = np.sort(frames, axis=0)[:-1]
     excess = (frames - np.median(others, axis=0))[mask]
-    excess = excess[excess > 0]
+    floor = np.broadcast_to((SPIKE_Z * spike_scale(frames))[None, :, None, None], frames.shape)[mask]
+    keep = excess > 0
+    excess, floor = excess[keep], floor[keep]
     t = float(exposure_s or 0.0)
-    if density == 0.0 or excess.size == 0:
+    if detected == 0.0 or excess.size == 0:
         return {"density": 0.0, "density_per_s": 0.0, "log_std": 0.0, "k": [float(k)], "median_dn": [0.0], "exposure_s": [t]}
-    logs = np.log(excess)
-    return {"density": min(density, MAX_DENSITY), "density_per_s": 0.0, "log_std": float(logs.std(ddof=1)) if logs.size > 1 else 0.0,
-            "k": [float(k)], "median_dn": [float(math.exp(logs.mean()))], "exposure_s": [t]}
+    mu, s = truncated_log_normal(np.log(excess), np.log(floor))
+    seen = float(np.mean(stats.norm.sf((np.log(SPIKE_Z * spike_scale(frames)) - mu) / max(s, 1e-6))))
+    return {"density": min(detected / max(seen, 0.1), MAX_DENSITY), "density_per_s": 0.0, "log_std": s,
+            "k": [float(k)], "median_dn": [float(math.exp(mu))], "exposure_s": [t]}
+
+
+def truncated_log_normal(logs, log_floor) -> tuple[float, float]:
+    """(mu, sigma) of log amplitudes ``logs`` each seen only above its ``log_floor`` (maximum
+    likelihood of a normal truncated below; sigma in [0.05, 2]): spikes near the detection
+    threshold are missed, so the plain mean and spread of the seen ones are too high and too
+    narrow."""
+    logs, log_floor = np.asarray(logs, dtype=np.float64), np.asarray(log_floor, dtype=np.float64)
+    if logs.size < 3:
+        return float(logs.mean()), 0.0
+
+    def nll(p):
+        mu, s = p[0], math.exp(p[1])
+        return -float(np.sum(stats.norm.logpdf(logs, mu, s) - stats.norm.logsf(log_floor, mu, s)))
+
+    start = np.array([logs.mean(), math.log(max(logs.std(ddof=1), 0.05))])
+    sol = optimize.minimize(nll, start, method="L-BFGS-B", bounds=[(logs.min() - 3.0, logs.max()), (math.log(0.05), math.log(2.0))])
+    return float(sol.x[0]), float(math.exp(sol.x[1]))
 
 
 def combine(records: list[dict]) -> dict:

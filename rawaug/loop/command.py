@@ -129,18 +129,31 @@ class _Flat(NamedTuple):
 
 
 def _split_levels(flats: dict) -> dict:
-    """Flats of one setting (ISO, exposure, light) split where their means differ by more
-    than ``LEVEL_SPLIT``: under lights the manifest does not list, one exposure holds
-    several levels, and each is a stack of its own (keys gain the level's index)."""
+    """Flats of one setting (ISO, exposure, light) split where their sorted means jump by more
+    than ``LEVEL_SPLIT`` and by more than 6 x the spread of the frames within the levels
+    that leaves (a gain jitter spreads one level's frames): under lights the manifest does
+    not list, one exposure holds several levels, and each is a stack of its own (keys gain
+    the level's index)."""
     out = {}
     for (iso, exposure, light), frames in flats.items():
         means = np.array([float(np.mean(packed)) for packed, _ in frames])
         order = np.argsort(means)
-        level, groups = 0, {}
-        for before, i in zip([None] + list(order[:-1]), order):
-            if before is not None and means[i] > (1 + LEVEL_SPLIT) * max(means[before], 1e-9):
-                level += 1
-            groups.setdefault(level, []).append(i)
+
+        def split(gap_ok):
+            level, groups = 0, {}
+            for before, i in zip([None] + list(order[:-1]), order):
+                if before is not None and gap_ok(means[i] / max(means[before], 1e-9) - 1):
+                    level += 1
+                groups.setdefault(level, []).append(i)
+            return groups
+
+        groups = split(lambda gap: gap > LEVEL_SPLIT)
+        # a frame-to-frame gain (or light) jitter spreads one level's frames: a gap counts only
+        # where it also exceeds 6 x the spread of the frames within the levels it would leave
+        within = [np.log(means[g]) - np.log(means[g]).mean() for g in groups.values() if len(g) > 1]
+        spread = float(np.sqrt(np.sum(np.concatenate(within) ** 2) / sum(len(w) - 1 for w in within))) if within else 0.0
+        if spread > 0:
+            groups = split(lambda gap: gap > max(LEVEL_SPLIT, 6 * spread))
         if len(groups) > 1:
             print(f"warning: ISO {iso:g}: the flats at {exposure:g} s" + (f", light {light:g}" if light else "")
                   + f" fall at {len(groups)} levels (was the light changed?): each level is a stack of its own; "
