@@ -534,10 +534,10 @@ def _extremes(state, r, i):
     if state is None:
         return r.astype(np.float32), np.full(r.shape, -np.inf, np.float32), np.full(r.shape, i, np.int32)
     top, second, frame = state
-    higher = r > top
-    np.copyto(second, np.where(higher, top, np.maximum(second, r)), casting="unsafe")
-    np.copyto(top, np.where(higher, r, top), casting="unsafe")
-    frame[higher] = i
+    r = r.astype(np.float32)
+    frame[r > top] = i
+    np.maximum(second, np.minimum(r, top), out=second)  # the old top where r beats it, else the larger of second and r
+    np.maximum(top, r, out=top)
     return top, second, frame
 
 
