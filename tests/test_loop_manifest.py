@@ -350,6 +350,7 @@ def test_an_effect_a_later_one_makes_redundant_is_taken_out(tmp_path):
     assert "`RowDrift` was added, then removed" in (tmp_path / "report" / "report.md").read_text()
 
 
+@pytest.mark.slow  # the default run checks the glow at one exposure (the manifest case "glow"); 17 s
 def test_glow_grows_with_exposure_over_two_dark_exposures(tmp_path):
     check_glow_two_exposures(tmp_path, seed=0)
 
