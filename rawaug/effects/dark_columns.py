@@ -33,7 +33,7 @@ import torch
 from ..engine import layout as L
 from ..statistics import defect_line_residuals, without_stuck
 from .base import PHOTON, NoiseEffect, pattern_key, register
-from .k_records import _number, check_density, check_seed
+from .dark_hot_pixels import combine as combine_populations, validate_population
 
 STATISTICS = ("defect_lines",)
 RAW_FRAMES = True  # the leaky columns are defect lines: estimated before their repair
@@ -60,13 +60,7 @@ class DarkColumns(NoiseEffect):
 
     @classmethod
     def validate_params(cls, params):
-        if not isinstance(params, dict):
-            raise ValueError(f"effect {cls.token!r} parameters must be a mapping, got {params!r}")
-        check_seed(cls.token, params)
-        check_density(cls.token, params, of="sensor columns")
-        for key in ("median_e_per_s", "log_std"):
-            if _number(params.get(key), f"{cls.token}.{key}") < 0:
-                raise ValueError(f"effect {cls.token!r}: {key} must be >= 0, got {params.get(key)}")
+        validate_population(cls.token, params, "sensor columns")
 
 
 def bright_columns(frames):
@@ -103,8 +97,6 @@ def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, seed: in
 def combine(records: list[dict]) -> dict:
     """One population from the dark stacks (every ISO and exposure: the same columns in
     electrons), as ``DarkHot`` combines its records."""
-    from .dark_hot_pixels import combine as combine_populations
-
     return combine_populations(records)
 
 

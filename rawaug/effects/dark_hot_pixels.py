@@ -61,13 +61,19 @@ class DarkHotPixels(NoiseEffect):
 
     @classmethod
     def validate_params(cls, params):
-        if not isinstance(params, dict):
-            raise ValueError(f"effect {cls.token!r} parameters must be a mapping, got {params!r}")
-        check_seed(cls.token, params)
-        check_density(cls.token, params)
-        for key in ("median_e_per_s", "log_std"):
-            if _number(params.get(key), f"{cls.token}.{key}") < 0:
-                raise ValueError(f"effect {cls.token!r}: {key} must be >= 0, got {params.get(key)}")
+        validate_population(cls.token, params, "pixels")
+
+
+def validate_population(token: str, params, of: str) -> None:
+    """Check a dark-current population entry (seed, density of ``of``, median e-/s, log
+    spread): ValueError naming the bad value."""
+    if not isinstance(params, dict):
+        raise ValueError(f"effect {token!r} parameters must be a mapping, got {params!r}")
+    check_seed(token, params)
+    check_density(token, params, of=of)
+    for key in ("median_e_per_s", "log_std"):
+        if _number(params.get(key), f"{token}.{key}") < 0:
+            raise ValueError(f"effect {token!r}: {key} must be >= 0, got {params.get(key)}")
 
 
 def isolated_hot(frames):
