@@ -334,6 +334,7 @@ def test_manifest_loop_rates_over_seeds(tmp_path, case):
     assert passed >= 9, f"{case}: {passed} of 10 sessions"
 
 
+@pytest.mark.slow  # 16 s; the default run checks the undoing of a re-fit (tests/test_loop.py)
 def test_an_effect_a_later_one_makes_redundant_is_taken_out(tmp_path):
     """Session 2 of the interference camera (the one of sessions 1-10 where this happens): the
     forward loop adds RowDrift (physical, for the row means) before LowFreq (measured: the whole
