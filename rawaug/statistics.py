@@ -616,11 +616,18 @@ def spike_outliers(frames):
     bright, n_dark = spikes(f), int(spikes(-f).sum())
     if not significant_spikes(int(bright.sum()), n_dark):
         return np.zeros(f.shape, dtype=bool)
-    excess = (f - np.median(f, axis=0))[bright]
-    cut = np.sort(excess)[n_dark] if n_dark < excess.size else np.inf
     out = np.zeros(f.shape, dtype=bool)
-    out[bright] = excess >= cut
+    out[bright] = beyond_dark((f - np.median(f, axis=0))[bright], n_dark)
     return out
+
+
+def beyond_dark(excess, n_dark: int):
+    """Mask over bright single-frame events with ``excess`` (DN above their pixel) of the
+    impulses among them: all but the ``n_dark`` smallest, as many as there are dark events
+    (the read noise's own tail, symmetric)."""
+    excess = np.asarray(excess)
+    cut = np.sort(excess)[n_dark] if n_dark < excess.size else np.inf
+    return excess >= cut
 
 
 def significant_spikes(n_bright: int, n_dark: int) -> bool:

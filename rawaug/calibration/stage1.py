@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from ..statistics import SPIKE_Z, significant_spikes, stuck_outliers, written_codes
+from ..statistics import SPIKE_Z, beyond_dark, significant_spikes, stuck_outliers, written_codes
 from .joint import IsoParameters
 
 # Packed channels read out from the same sensor row (see rawaug.bayer).
@@ -595,17 +595,14 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
     n_spikes = None
     if extremes:  # single-frame events (cosmic rays, charge bursts) are not read noise
         scale = 1.482602218505602 * float(np.median(np.abs(residual - np.median(residual))))
-        (top, second, frame), (low, _, _) = extremes[0], extremes[1]
+        (top, second, frame), (low, second_low, _) = extremes  # the lows as the highs of -r
         gap = top - second
         bright = gap > SPIKE_Z * max(scale, 1e-9)
-        n_dark = int((low - extremes[1][1] > SPIKE_Z * max(scale, 1e-9)).sum())
+        n_dark = int((low - second_low > SPIKE_Z * max(scale, 1e-9)).sum())
         n_spikes = 0
-        if significant_spikes(int(bright.sum()), n_dark):
-            # bright single-frame events beyond the dark ones are impulses: the largest of them
-            # leave; as many as the dark ones stay (the read noise's own tail, symmetric)
-            gaps = np.sort(gap[bright])
-            cut = gaps[n_dark] if n_dark < gaps.size else np.inf
-            spike = bright & (gap >= cut)
+        if significant_spikes(int(bright.sum()), n_dark):  # impulses: the bright events beyond the dark ones leave
+            spike = np.zeros_like(bright)
+            spike[bright] = beyond_dark(gap[bright], n_dark)
             n_spikes = int(spike.sum())
             keep = lambda i, w: ~((spike[w] & (frame[w] == i)) | (dead[w] if dead is not None else False))  # noqa: E731
             residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])

@@ -428,11 +428,11 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             trial_diags = diagnose_all(trial, diags_seed, stacks)
             old_b, new_b = _battery(diags), _battery(trial_diags)
             # the estimate made in the right model, unless it spoils the battery (the forward rule)
-            kept = (new_b["n_significant"] <= old_b["n_significant"]
+            fits = (new_b["n_significant"] <= old_b["n_significant"]
                     and new_b["mean_rel_error"] <= BATTERY_GROWTH * old_b["mean_rel_error"])
             say(f"end: {later.effect} estimated again without {step.effect}: battery {old_b['mean_rel_error']:.3f} -> "
-                f"{new_b['mean_rel_error']:.3f}: " + ("kept" if kept else "dropped"))
-            if kept:
+                f"{new_b['mean_rel_error']:.3f}: " + ("kept" if fits else "dropped"))
+            if fits:
                 later.params, current, diags = params, trial, trial_diags
                 later.note = f"estimated again once {step.effect} was removed"
             # its evidence restated in the final model, as the forward loop picks it: the
