@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 LAMBDA_ZERO = 1e-6  # |lambda| below this: the logistic limit
@@ -45,3 +46,19 @@ def tukey_lambda_variance(lam: float) -> float:
 def normal_upper_quantile(tail: torch.Tensor) -> torch.Tensor:
     """Quantile of the standard normal at ``1 - tail``."""
     return -torch.special.ndtri(tail)
+
+
+_TAILS = np.geomspace(1e-15, 0.5, 4000)  # tail probabilities tabulated by tukey_lambda_survival
+
+
+def tukey_lambda_survival(y, lam: float):
+    """P(T > y) of the standard Tukey lambda distribution (numpy, y >= 0), by inverting its
+    quantile on a table of tail probabilities from 1e-15 to 0.5 (relative error ~1e-3)."""
+    lam = float(lam)
+    p = _TAILS[::-1]  # ascending quantiles: upper tail 0.5 .. 1e-15
+    if abs(lam) < LAMBDA_ZERO:
+        q = np.log1p(-p) - np.log(p)
+    else:
+        q = ((1.0 - p) ** lam - p**lam) / lam
+    y = np.abs(np.asarray(y, dtype=np.float64))
+    return np.exp(np.interp(y, q, np.log(p), left=math.log(0.5), right=math.log(_TAILS[0])))

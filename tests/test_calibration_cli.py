@@ -73,3 +73,52 @@ def test_stage2_table_and_clean_errors(tmp_path, capsys):
     np.save(tmp_path / "b.npy", np.zeros((8, 8), np.uint16))
     assert main(["calibrate", str(tmp_path / "m.csv"), "--out", str(out), "--no-progress"]) == 2
     assert "single flat" in capsys.readouterr().err
+
+
+def _counting_reads(monkeypatch):
+    """Every frame read of a calibration, counted by path (the real reader is called)."""
+    import rawaug.calibration.command as command
+    from collections import Counter
+
+    reads, real = Counter(), command.read_frame
+
+    def read_frame(path, **hints):
+        reads[str(path)] += 1
+        return real(path, **hints)
+
+    monkeypatch.setattr(command, "read_frame", read_frame)
+    return reads
+
+
+@pytest.mark.parametrize("base", ["calibrated", "--profile"])
+def test_loop_reads_each_frame_once(tmp_path, monkeypatch, base):
+    """``rawaug loop`` keeps its view of each frame as calibration reads it: every frame of
+    the manifest, the flat calibration cannot pair included, is read exactly once."""
+    _write_set(tmp_path, "raw")
+    mosaic = np.fromfile(tmp_path / "iso400_02.raw", dtype="<u2").reshape(192, 192)
+    np.roll(mosaic, 2, axis=1).tofile(tmp_path / "odd.raw")  # a third flat at the first level: no pair for it
+    with open(tmp_path / "frames.csv", "a") as f:
+        f.write("odd.raw,flat,400,0.01,192,192,uint16,RGGB,512,16383\n")
+    reads = _counting_reads(monkeypatch)
+    extra = ["--profile", "SonyA7S2"] if base == "--profile" else []
+    assert main(["loop", str(tmp_path / "frames.csv"), "--out", str(tmp_path / "p.yaml"), "--report",
+                 str(tmp_path / "report"), "--n-synth", "3", "--no-progress", *extra]) == 0
+    listed = [line.split(",")[0] for line in (tmp_path / "frames.csv").read_text().splitlines()[1:]]
+    assert sorted(reads) == sorted(str(tmp_path / name) for name in listed) and set(reads.values()) == {1}, reads
+    stacks = json.loads((tmp_path / "report" / "report.json").read_text())["stacks"]
+    assert [s["kind"] for s in stacks.values()].count("bias") == 2 and "flat" in [s["kind"] for s in stacks.values()]
+    assert (tmp_path / "report" / "calibration").is_dir() == (base == "calibrated")
+
+
+def test_loop_on_a_folder_without_manifest(tmp_path):
+    """``rawaug loop`` takes what ``rawaug calibrate`` takes: a folder of raw files (DNG,
+    through rawpy) without a manifest, kinds guessed from the frame means."""
+    (tmp_path / "frames").mkdir()
+    _write_set(tmp_path / "frames", "dng")
+    report = tmp_path / "report"
+    assert main(["loop", str(tmp_path / "frames"), "--out", str(tmp_path / "p.yaml"), "--report", str(report),
+                 "--n-synth", "3", "--no-progress"]) == 0
+    data = json.loads((report / "report.json").read_text())
+    kinds = sorted(s["kind"] for s in data["stacks"].values())
+    assert kinds.count("bias") == 2 and kinds.count("flat") >= 2, data["stacks"]
+    assert NoiseProfile.load(tmp_path / "p.yaml").k_at_iso(1600) == pytest.approx(1.6, rel=0.05)

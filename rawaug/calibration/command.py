@@ -90,21 +90,29 @@ def _directory_entries(folder: Path, tell) -> list[ManifestEntry]:
 
 
 class _FrameSource:
-    """Reads frames on demand, checks they agree in size/levels, and keeps what the report needs."""
+    """Reads frames on demand, checks they agree in size/levels, and keeps what the report
+    needs. ``on_frame(entry, frame)`` sees each frame once, when it is first read."""
 
-    def __init__(self, overrides, bar):
+    def __init__(self, overrides, bar, on_frame=None):
         self.overrides = overrides
         self.bar = bar
+        self.on_frame = on_frame
         self.reference = None
         self.quant_steps = []
         self.notes = []
         self.spectrum = None
+        self.seen: set[int] = set()  # id() of the entries read
+        self._held = None  # (entry, frame): the reference, read ahead of its turn
 
     def read(self, entry):
+        if self._held is not None and self._held[0] is entry:
+            frame, self._held = self._held[1], None
+            return frame
         hints = {**entry.hints, **{k: v for k, v in self.overrides.items() if v is not None}}
         frame = read_frame(entry.path, **hints)
         if self.reference is None:
             self.reference = frame
+            self._held = (entry, frame)
         ref = self.reference
         if frame.shape != ref.shape:
             raise ValueError(f"frames differ in size: {entry.path} is {frame.shape[1]}x{frame.shape[0]}, "
@@ -116,7 +124,19 @@ class _FrameSource:
         if frame.cfa != ref.cfa or frame.white_level != ref.white_level:
             raise ValueError(f"frames differ in CFA/white level: {entry.path} ({frame.cfa}, {frame.white_level:g}) "
                              f"vs {ref.path} ({ref.cfa}, {ref.white_level:g})")
+        if id(entry) not in self.seen:
+            self.seen.add(id(entry))
+            if self.on_frame is not None:
+                self.on_frame(entry, frame)
         return frame
+
+    def read_rest(self, entries):
+        """The entries no step has read yet, for ``on_frame`` (none without it)."""
+        if self.on_frame is None:
+            return
+        for entry in entries:
+            if id(entry) not in self.seen:
+                self.read(entry)
 
     def loader(self, entry):
         def load():
@@ -192,16 +212,48 @@ def is_table(source: Path) -> bool:
                                  or (source.suffix.lower() == ".csv" and not _is_manifest_csv(source)))
 
 
-def calibrate(source, options: CalibrationOptions | None = None) -> Calibration:
+def calibrate(source, options: CalibrationOptions | None = None, on_frame=None) -> Calibration:
     """Calibrate a camera from ``source``: a manifest, a folder (with or without
     ``manifest.csv``) or a per-ISO parameter table. The library under ``rawaug calibrate``
-    and ``rawaug loop``."""
+    and ``rawaug loop``.
+
+    ``on_frame(entry, frame)`` is called once for every frame of a manifest or folder, the
+    frames calibration does not use included, as each is read and checked: a caller that
+    needs the frames (``rawaug loop``) reads none of them again."""
     source, options = Path(source), options or CalibrationOptions()
     if not source.exists():
         raise FileNotFoundError(f"input {str(source)!r} does not exist")
     if is_table(source):
         return _calibrate_table(source, options)
-    return _calibrate_frames(source, options)
+    return _calibrate_frames(source, options, on_frame)
+
+
+def frame_entries(source: Path, tell=lambda _m: None) -> tuple[list[ManifestEntry], str]:
+    """The frames of a manifest or a folder (its ``manifest.csv``, else its raw files with
+    their kinds guessed), and where they were listed."""
+    if source.is_dir():
+        manifest = source / "manifest.csv"
+        if manifest.is_file():
+            return read_manifest(manifest), str(manifest)
+        return _directory_entries(source, tell), f"{source} (kinds guessed from the frame means)"
+    return read_manifest(source), str(source)
+
+
+def visit_frames(source, options: CalibrationOptions | None, on_frame) -> str:
+    """Read every frame of a manifest or folder once, with the checks and options of a
+    calibration, for ``on_frame(entry, frame)`` (``rawaug loop --profile``: no calibration);
+    returns where the frames were listed."""
+    options = options or CalibrationOptions()
+    entries, where = frame_entries(Path(source))
+    overrides = {"cfa": options.cfa, "black_level": options.black_level, "white_level": options.white_level}
+    frames = _FrameSource(overrides, _NoBar(), on_frame)
+    frames.read_rest(entries)
+    return where
+
+
+class _NoBar:
+    def update(self, _n):
+        pass
 
 
 def run(args) -> int:
@@ -219,20 +271,14 @@ def run(args) -> int:
     return 0
 
 
-def _calibrate_frames(source: Path, args: CalibrationOptions) -> Calibration:
+def _calibrate_frames(source: Path, args: CalibrationOptions, on_frame=None) -> Calibration:
     from tqdm import tqdm
 
     start = time.perf_counter()
     max_samples = args.max_samples
     quiet = args.quiet
     tell = (lambda _m: None) if quiet else (lambda m: tqdm.write(m))
-    if source.is_dir():
-        manifest = source / "manifest.csv"
-        entries = read_manifest(manifest) if manifest.is_file() else _directory_entries(source, tell)
-        where = str(manifest) if manifest.is_file() else f"{source} (kinds guessed from the frame means)"
-    else:
-        entries = read_manifest(source)
-        where = str(source)
+    entries, where = frame_entries(source, tell)
 
     by_iso = group_by_iso(entries)
     plan = {}
@@ -256,7 +302,7 @@ def _calibrate_frames(source: Path, args: CalibrationOptions) -> Calibration:
     total = sum(len(b) + 2 * len(p) for b, p in plan.values())
     params = []
     with tqdm(total=total, desc="calibrate", unit="frame", disable=quiet) as bar:
-        frames = _FrameSource(overrides, bar)
+        frames = _FrameSource(overrides, bar, on_frame)
         frames.read(plan[min(plan)][0][0])  # reference frame: levels and CFA
         ref = frames.reference
         saturation = ref.white_level - float(np.max(ref.black_packed()))
@@ -271,6 +317,7 @@ def _calibrate_frames(source: Path, args: CalibrationOptions) -> Calibration:
                                   progress=None)
                 bar.set_postfix_str(f"ISO {iso:g}: K={p.k:.3g}")
                 params.append(p)
+        frames.read_rest(entries)  # the frames calibration left out (unpaired flats, ...), for on_frame
         notes += [str(w.message) for w in caught] + frames.notes
     for note in notes:
         warnings.warn(note, CalibrationWarning, stacklevel=1)

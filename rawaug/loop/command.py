@@ -9,9 +9,11 @@ INPUT is one of
 * a per-frame fit table (CSV with ``frame, channel, meanR, sigmaR, sigmaGs``): the
   frame-to-frame black-level error is diagnosed (needs ``--k`` and ``--frame-size``);
   with ``--profile`` the found ``BLE`` is added to that profile;
-* a frame manifest (CSV with ``path, kind, iso, ...``) or a folder, as ``rawaug calibrate``
-  takes it: without ``--profile`` the base model is first calibrated from it (stage 1 and 2,
-  report in ``DIR/calibration``); then the frame loop compares the bias stacks of every ISO
+* a frame manifest (CSV with ``path, kind, iso, ...``) or a folder (with or without its
+  ``manifest.csv``), as ``rawaug calibrate`` takes it: without ``--profile`` the base model
+  is first calibrated from it (stage 1 and 2, report in ``DIR/calibration``), and the loop
+  keeps the central view of each frame as calibration reads it (each frame is read once);
+  then the frame loop compares the bias stacks of every ISO
   with syntheses and adds the missing effects. Dark frames (kind ``dark``, with their
   exposure) are compared with syntheses of the same exposure that carry the read noise and
   offsets of the bias frames of their ISO, so that dark current shows. Flats (kind
@@ -186,47 +188,53 @@ def flat_series(iso, points, offsets):
     return series
 
 
-def _run_manifest(args, path):
-    from ..calibration.stage1 import estimate_read_noise, estimate_row_noise, read_residual
-    from ..io import read_manifest
-    from ..statistics import spike_outliers, stuck_outliers
-    from .diagnose import FrameStack, channel_offsets
-    from .frames_loop import run_frame_loop
+class _Collected:
+    """What the frame loop keeps of each frame as calibration reads it: the central
+    ``size`` x ``size`` of its packed channels (DN), by kind and setting."""
 
-    calibration = None
-    if args.profile:
-        profile = NoiseProfile.load(args.profile)
-    else:  # the base model, as rawaug calibrate fits it; its report goes to REPORT/calibration
-        from ..calibration.command import calibrate, options_from
+    def __init__(self, size: int):
+        self.size = size
+        self.bias: dict = {}  # ISO -> crops
+        self.darks: dict = {}  # (ISO, exposure s) -> crops
+        self.flats: dict = {}  # (ISO, exposure s, light) -> (crop, headroom DN per channel)
+        self.bias_exposure: dict = {}  # ISO -> shortest exposure of its bias frames (s)
+        self.shapes = None  # (whole, diagnosed) packed shape
 
-        calibration = calibrate(path, options_from(args))
-        profile = calibration.profile
-    if path.is_dir():
-        path = path / "manifest.csv"
-        if not path.is_file():
-            raise ValueError(f"{path.parent}: the frame loop needs a manifest.csv (kinds and ISOs of the frames)")
-    bias: dict = {}
-    darks: dict = {}
-    flats: dict = {}
-    bias_exposure: dict = {}  # ISO -> shortest exposure of its bias frames (s)
-    for entry in read_manifest(path):
+    def add(self, entry, frame) -> None:
         kind = getattr(entry, "kind", "bias")
-        frame = entry.read()
         whole = frame.packed_dn()
-        packed = central(whole, args.loop_size)
-        shapes = (whole.shape[1:], packed.shape[1:])
+        packed = central(whole, self.size)
+        self.shapes = (whole.shape[1:], packed.shape[1:])
         if kind == "flat":
-            flats.setdefault((frame.iso, float(frame.exposure_s or 0.0), entry.light), []).append(
+            self.flats.setdefault((frame.iso, float(frame.exposure_s or 0.0), getattr(entry, "light", None)), []).append(
                 (packed, frame.white_level - frame.black_packed()))
         elif kind == "dark":
             if not frame.exposure_s:
                 raise ValueError(f"{entry.path}: a dark frame needs its exposure_s (manifest column or EXIF)")
-            darks.setdefault((frame.iso, float(frame.exposure_s)), []).append(packed)
+            self.darks.setdefault((frame.iso, float(frame.exposure_s)), []).append(packed)
         else:
-            bias.setdefault(frame.iso, []).append(packed)
-            bias_exposure[frame.iso] = min(bias_exposure.get(frame.iso, math.inf), float(frame.exposure_s or 0.0))
+            self.bias.setdefault(frame.iso, []).append(packed)
+            self.bias_exposure[frame.iso] = min(self.bias_exposure.get(frame.iso, math.inf), float(frame.exposure_s or 0.0))
+
+
+def _run_manifest(args, path):
+    from ..calibration.stage1 import estimate_read_noise, estimate_row_noise, read_residual
+    from ..statistics import spike_outliers, stuck_outliers
+    from .diagnose import FrameStack, channel_offsets
+    from ..calibration.command import calibrate, options_from, visit_frames
+    from .frames_loop import run_frame_loop
+
+    frames = _Collected(args.loop_size)
+    calibration = None
+    if args.profile:  # every frame read once, with the checks and options of a calibration
+        profile = NoiseProfile.load(args.profile)
+        visit_frames(path, options_from(args), frames.add)
+    else:  # the base model, as rawaug calibrate fits it (report in REPORT/calibration), from the same reads
+        calibration = calibrate(path, options_from(args), on_frame=frames.add)
+        profile = calibration.profile
+    bias, darks, flats, bias_exposure, shapes = frames.bias, frames.darks, frames.flats, frames.bias_exposure, frames.shapes
     if not bias:
-        raise ValueError(f"{path}: no bias frames in the manifest")
+        raise ValueError(f"{path}: no bias frames (kind 'bias') among the frames")
     stacks, measured, settings = [], {}, {}  # settings: label -> what the report's curves need
     for iso, frames in sorted(bias.items()):
         frames = np.stack(frames).astype(np.float64)

@@ -120,6 +120,11 @@ def _without(step, profile, stacks, refits, model):
     return reduced, stacks
 
 
+def _screen(stack) -> list:
+    """The stacks a trial's evidence on ``stack`` needs: it, and the bias stack whose offsets it takes."""
+    return [stack] + ([stack.offsets_of] if stack.offsets_of is not None else [])
+
+
 def _significant(diags) -> set:
     """(stack label, statistic) of every significant residual."""
     return {(label, r.statistic) for label, (res, _) in diags.items() for r in res if r.significant}
@@ -211,6 +216,39 @@ def _estimate(token, stacks, diags, seed):
     return records[0]
 
 
+def diagnose_stacks(prof, labels: list, which: list, step_seed: int, *, model=None, n_synth: int = 12,
+                    z_min: float = 6.0, rel_min: float = 0.1) -> dict:
+    """{label: (residuals, syntheses)} of the stacks ``which`` against ``prof``.
+
+    A stack's seed is ``step_seed`` plus its place in ``labels`` (every stack of the loop), so
+    a subset gives each of its stacks the result the whole battery would (a trial's
+    screening), provided it holds the bias stack a dark or flat takes its offsets from. A bias
+    stack's offsets are fitted once, with its own seed, for it and every stack that takes
+    them. Stacks run on parallel threads (NumPy's partitions and FFTs release the GIL); the
+    outcome does not depend on them."""
+    which = list(which)
+    prof = NoiseProfile.load(prof)
+    index = {id(s): i for i, s in enumerate(which)}
+    place = [labels.index(s.label) for s in which]
+    shared = [i for i, s in enumerate(which) if any(t.offsets_of is s for t in which)]
+    pilot = lambda i: fitted_offsets(prof, which[i], step_seed + place[i], model)  # noqa: E731
+
+    def job(i):
+        of = which[i].offsets_of if which[i].offsets_of is not None else which[i]
+        return diagnose(which[i], prof, model=model, n_synth=n_synth, seed=step_seed + place[i], z_min=z_min,
+                        rel_min=rel_min, offsets=offsets.get(index.get(id(of))))
+
+    workers = min(len(which), torch.get_num_threads())
+    if workers < 2:
+        offsets = {i: pilot(i) for i in shared}
+        results = [job(i) for i in range(len(which))]
+    else:
+        with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="rawaug-loop") as pool:
+            offsets = dict(zip(shared, pool.map(pilot, shared)))
+            results = list(pool.map(job, range(len(which))))
+    return {s.label: r for s, r in zip(which, results)}
+
+
 def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = None, n_synth: int = 12, seed: int = 0,
                    z_min: float = 6.0, rel_min: float = 0.1, max_steps: int = 8, log=None) -> LoopResult:
     """Fit the missing effects of ``profile`` to measured ``stacks``.
@@ -231,32 +269,9 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         raise ValueError(f"stack labels must be unique, got {labels}")
     current = NoiseProfile.load(profile)
     say = log or (lambda *_: None)
-
     def diagnose_all(prof, step_seed, which=None):
-        # stacks on parallel threads (NumPy's partitions and FFTs release the GIL); each
-        # stack's result depends on its own seed only (and a dark or flat stack's offsets on
-        # its bias stack's), so the outcome does not depend on them. A bias stack's offsets
-        # are fitted once, with its own seed, for it and every stack that takes them.
-        which = list(which or stacks)
-        prof = NoiseProfile.load(prof)
-        index = {id(s): i for i, s in enumerate(which)}
-        shared = [i for i, s in enumerate(which) if any(t.offsets_of is s for t in which)]
-        pilot = lambda i: fitted_offsets(prof, which[i], step_seed + i, model)  # noqa: E731
-
-        def job(i):
-            of = which[i].offsets_of if which[i].offsets_of is not None else which[i]
-            return diagnose(which[i], prof, model=model, n_synth=n_synth, seed=step_seed + i, z_min=z_min, rel_min=rel_min,
-                            offsets=offsets.get(index.get(id(of))))
-
-        workers = min(len(which), torch.get_num_threads())
-        if workers < 2:
-            offsets = {i: pilot(i) for i in shared}
-            results = [job(i) for i in range(len(which))]
-        else:
-            with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="rawaug-loop") as pool:
-                offsets = dict(zip(shared, pool.map(pilot, shared)))
-                results = list(pool.map(job, range(len(which))))
-        return {s.label: r for s, r in zip(which, results)}
+        return diagnose_stacks(prof, labels, which or stacks, step_seed, model=model, n_synth=n_synth, z_min=z_min,
+                               rel_min=rel_min)
 
     by_label = {st.label: st for st in stacks}
     checks: dict = {}  # stack label -> its residuals on CONFIRM_FACTOR x n_synth syntheses of the current model
@@ -287,6 +302,22 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 say(f"step {step_no}: {evidence.statistic} ({label}, z={evidence.z:.1f}) not confirmed on "
                     f"{CONFIRM_FACTOR * n_synth} syntheses (z={check.z:.1f}): not acted on")
 
+    def judged(trial, shared, step_no, which=None):
+        # (diagnoses, stacks, profile, factors) of a trial model on ``which`` (default all
+        # stacks); a base stage the candidate shares (``shared``) is re-fitted from the bias stacks
+        step_seed = seed + 1000 * step_no
+        got = diagnose_all(trial, step_seed, which)
+        factors = {}
+        if shared:
+            factors = (read_noise_factors(stacks, got, trial, model, z_min=z_min) if shared == "read noise"
+                       else row_noise_factors(stacks, got, trial, z_min=z_min))
+        if not factors:
+            return got, stacks, trial, factors
+        refit_stacks, refitted = (apply_read_noise_factors(stacks, trial, factors, model) if shared == "read noise"
+                                  else apply_row_noise_factors(stacks, trial, factors))
+        labels_in = {st.label for st in (which or stacks)}
+        return diagnose_all(refitted, step_seed, [st for st in refit_stacks if st.label in labels_in]), refit_stacks, refitted, factors
+
     diags, diags_seed = diagnose_all(current, seed), seed
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
     tried: set[str] = set()
@@ -310,18 +341,23 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                     say(f"step {step_no}: {token} suggested by {evidence.statistic}, but its estimate adds nothing")
                     continue
                 trial = current.with_effect(token, params)
-                new_diags = diagnose_all(trial, seed + 1000 * step_no)
-                trial_stacks, factors = stacks, {}
                 shared = _shares_noise(token)  # judged with its variance taken out of the base stage it shares
-                if shared:
-                    factors = (read_noise_factors(stacks, new_diags, trial, model, z_min=z_min) if shared == "read noise"
-                               else row_noise_factors(stacks, new_diags, trial, z_min=z_min))
-                    if factors:
-                        trial_stacks, trial = (apply_read_noise_factors(stacks, trial, factors, model) if shared == "read noise"
-                                               else apply_row_noise_factors(stacks, trial, factors))
-                        new_diags = diagnose_all(trial, seed + 1000 * step_no, trial_stacks)
-                        say(f"step {step_no}: {token} judged with the {shared} re-fitted ("
-                            + ", ".join(f"{label} x{f:.3f}" for label, f in factors.items()) + ")")
+
+                # its evidence first, on the stack it comes from (and the bias stacks a re-fit
+                # reads): most candidates fail there, and the whole battery is not run for them
+                screen_stacks = _screen(by_label[label]) + ([st for st in stacks if st.kind == "bias"] if shared else [])
+                screen = judged(trial, shared, step_no, list({st.label: st for st in screen_stacks}.values()))[0]
+                err_before, err_after = _evidence_error(token, evidence, diags[label][0], screen[label][0])
+                if err_after > ACCEPT_FACTOR * err_before:
+                    after = next(r for r in screen[label][0] if r.statistic == evidence.statistic)
+                    trials.append((Step(token, params, False, evidence.to_dict(), label, err_before, err_after, after.z,
+                                        before_b, {}, round=step_no, kind="measured" if _measured(token) else "physical",
+                                        evidence_after=after.to_dict(), note="screened"), trial, None, stacks, {}))
+                    continue
+                new_diags, trial_stacks, trial, factors = judged(trial, shared, step_no)
+                if factors:
+                    say(f"step {step_no}: {token} judged with the {shared} re-fitted ("
+                        + ", ".join(f"{label} x{f:.3f}" for label, f in factors.items()) + ")")
                 after = next(r for r in new_diags[label][0] if r.statistic == evidence.statistic)
                 after_b = _battery(new_diags)
                 err_before, err_after = _evidence_error(token, evidence, diags[label][0], new_diags[label][0])
@@ -344,15 +380,17 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                     step.accepted, step.note = False, f"acceptable, but {chosen[0].effect} explains more"
                 else:
                     tried.add(step.effect)
-                    step.note = "rejected"
+                    step.note = ("rejected (its evidence did not improve by a fifth on its stack; the battery was not run)"
+                                 if step.note == "screened" else "rejected")
             else:
                 tried.add(step.effect)
                 step.note = "added" + (f" (best of {len(trials)} tried)" if len(trials) > 1 else "")
             result.steps.append(step)
             ev = step.evidence
+            battery = (f", battery {step.battery_before['mean_rel_error']:.3f} -> {step.battery_after['mean_rel_error']:.3f}"
+                       if step.battery_after else "")
             say(f"step {step_no}: {step.effect} ({ev['statistic']} z={ev['z']:.1f}): error {step.error_before:.3f} -> "
-                f"{step.error_after:.3f}, battery {step.battery_before['mean_rel_error']:.3f} -> "
-                f"{step.battery_after['mean_rel_error']:.3f}: {step.note}")
+                f"{step.error_after:.3f}{battery}: {step.note}")
         if chosen is None:
             continue
         chosen[0].signature = step_signature(chosen[0].evidence["statistic"], by_label[chosen[0].stack].frames_dn,

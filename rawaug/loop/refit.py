@@ -13,21 +13,87 @@ a cut below half the calibrated sigma is not made: the added effect's estimate i
 and moves the profile's read-noise relations by a
 least-squares line through ``log(factor)`` against ``log(K)``, so that the profile a user
 trains with carries the same correction. Units: DN.
+
+The variance taken out also diluted the tails calibration fitted the Tukey lambda to (the
+part taken out, column noise or a smooth field, is near-Gaussian), so the re-fitted read
+noise gets the heavier lambda whose sum with that Gaussian part has the calibrated tail: the
+fraction beyond 5 robust sigmas (``shape_for_variance``). A re-fit that kept lambda thinned
+the tails: at a factor of 0.83, 10x fewer pixels beyond 5 sigmas than measured
+(``benchmarks/bench_loop.py``), which the loop then took for impulses or telegraph pixels.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
+from scipy import optimize
 
 from ..augment import parse_model
-from ..distributions import tukey_lambda_variance
+from ..distributions import tukey_lambda_survival, tukey_lambda_variance
 from ..relations import LogLinear
-from ..statistics import repaired, sensor_row_means
+from ..statistics import _MAD_TO_SIGMA, repaired, sensor_row_means
 from .diagnose import synthesis_fixed
 
 MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated value
+LAMBDA_RANGE = (-0.24, 0.1349)  # heavy-tailed Tukey lambdas (lighter ones come from coarse codes or clipping)
+TAIL_Z = 5.0  # robust sigmas (1.4826 MAD): where the battery's ``tail_mass`` counts the tail
+_NODES, _WEIGHTS = np.polynomial.hermite_e.hermegauss(48)
+_WEIGHTS = _WEIGHTS / _WEIGHTS.sum()
+
+
+def _tail(lam: float, share: float) -> float:
+    """P(|X| > TAIL_Z robust sigmas) for X = a T + G, T standard Tukey ``lam``, G Gaussian,
+    the read-noise part holding ``share`` of the variance (a^2 v(lam) = share, G the rest)."""
+    a = math.sqrt(share / tukey_lambda_variance(lam))
+    g = math.sqrt(max(1.0 - share, 0.0)) * _NODES
+
+    def survival(t):
+        return float(np.sum(_WEIGHTS * tukey_lambda_survival((t - g) / a, lam) * (t - g >= 0)
+                            + _WEIGHTS * (1.0 - tukey_lambda_survival((g - t) / a, lam)) * (t - g < 0)))
+
+    mad = optimize.brentq(lambda m: survival(m) - 0.25, 1e-6, 50.0, xtol=1e-9)
+    return 2.0 * survival(TAIL_Z * _MAD_TO_SIGMA * mad)
+
+
+@functools.lru_cache(maxsize=4096)
+def _shape(lam: float, factor: float) -> float:
+    lo, hi = LAMBDA_RANGE
+    if factor < 1.0:  # the read part keeps factor^2 of the variance, a Gaussian part the rest
+        target = _tail(lam, 1.0)
+        f = lambda x: _tail(x, factor**2) - target  # noqa: E731
+    else:  # the read part takes back variance a Gaussian part held
+        target = _tail(lam, 1.0 / factor**2)
+        f = lambda x: _tail(x, 1.0) - target  # noqa: E731
+    if f(lo) <= 0:
+        return lo
+    if f(hi) >= 0:
+        return hi
+    return float(optimize.brentq(f, lo, hi, xtol=1e-5))
+
+
+def shape_for_variance(lam: float, factor: float) -> float:
+    """The Tukey lambda of a read-noise component whose variance becomes ``factor``^2 times
+    its own, the difference moved to (factor < 1) or from (factor > 1) a near-Gaussian
+    component, such that the frames keep their tail: the fraction of values beyond
+    ``TAIL_Z`` robust sigmas. Heavy tails only (lambda in ``LAMBDA_RANGE``)."""
+    if factor == 1.0 or not LAMBDA_RANGE[0] < lam < LAMBDA_RANGE[1]:
+        return float(lam)
+    return _shape(round(float(lam), 6), round(float(factor), 6))
+
+
+def _read_noise_update(fixed: dict, factor: float) -> dict:
+    """The read-noise parameters of a synthesis with ``fixed`` after its variance becomes
+    ``factor``^2 times: sigma_g scaled; the Tukey lambda of ``shape_for_variance`` with the
+    scale that gives that variance."""
+    out = {"sigma_g": float(fixed["sigma_g"]) * factor} if "sigma_g" in fixed else {}
+    if "sigma_tl" in fixed and "lambda" in fixed:
+        lam = float(fixed["lambda"])
+        new = shape_for_variance(lam, factor)
+        out["lambda"] = new
+        out["sigma_tl"] = float(fixed["sigma_tl"]) * factor * math.sqrt(tukey_lambda_variance(lam) / tukey_lambda_variance(new))
+    return out
 ROW_MIN_FACTOR = 0.1  # sigma_r may fall further: a strong tone can hold most of a sensor's row variance
 
 
@@ -71,9 +137,10 @@ def _shift(rel: LogLinear | None, slope: float, intercept: float, k_ref: float) 
                                segments=segments, floor_dn=floor)
 
 
-def _scaled_stacks(stacks, profile, factors: dict, keys: tuple[str, ...]):
-    """(stacks with the sigmas ``keys`` of their base scaled by their gain's factor, the
-    line (slope, intercept, K_ref) through log(factor) against log(K) over the bias stacks)."""
+def _scaled_stacks(stacks, profile, factors: dict, update):
+    """(stacks with their base updated by ``update(fixed, factor)`` (the new parameters) at
+    their gain's factor, the line (slope, intercept, K_ref) through log(factor) against
+    log(K) over the bias stacks)."""
     by_k = {stack.k: factors.get(stack.label, 1.0) for stack in stacks if stack.kind == "bias"}
     out = []
     for stack in stacks:
@@ -81,9 +148,8 @@ def _scaled_stacks(stacks, profile, factors: dict, keys: tuple[str, ...]):
         if f == 1.0:
             out.append(stack)
             continue
-        fixed = synthesis_fixed(profile, stack)
         base = dict(stack.base)
-        base.update({key: float(fixed[key]) * f for key in keys if key in fixed})
+        base.update(update(synthesis_fixed(profile, stack), f))
         out.append(dataclasses.replace(stack, base=base))
     # a dark or flat stack takes its offsets from its bias stack: from the re-fitted one
     renewed = {id(old): new for old, new in zip(stacks, out) if old.kind == "bias" and new is not old}
@@ -102,9 +168,25 @@ def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
     factor): every stack of that bias stack's gain gets the new sigmas in its ``base``, and
     the profile's read-noise relations move by the line through log(factor) against log(K)
     over all bias stacks (factor 1 where nothing was re-fitted)."""
-    out, line = _scaled_stacks(stacks, profile, factors, ("sigma_g", "sigma_tl"))
-    return out, dataclasses.replace(profile, tukey_scale=_shift(profile.tukey_scale, *line),
-                                    gaussian_scale=_shift(profile.gaussian_scale, *line))
+    out, line = _scaled_stacks(stacks, profile, factors, _read_noise_update)
+    profile = dataclasses.replace(profile, gaussian_scale=_shift(profile.gaussian_scale, *line))
+    if profile.tukey_scale is None:
+        return out, profile
+    # the Tukey pair at each K of the shape table, by the line's factor there; the scale's
+    # relation moves by the line through the log of its own factors at those K
+    slope, intercept, k_ref = line
+    ks = np.array(profile.tukey_shape.k, dtype=np.float64)
+    f = np.exp(slope * np.log(ks) + intercept)
+    lams = [shape_for_variance(float(v), float(fk)) for v, fk in zip(profile.tukey_shape.values, f)]
+    scale_f = [fk * math.sqrt(tukey_lambda_variance(float(v)) / tukey_lambda_variance(new))
+               for v, fk, new in zip(profile.tukey_shape.values, f, lams)]
+    if ks.size >= 2 and np.ptp(np.log(ks)) > 0:
+        s_slope, s_intercept = np.polyfit(np.log(ks), np.log(scale_f), 1)
+    else:
+        s_slope, s_intercept = 0.0, float(np.log(scale_f).mean())
+    shape = dataclasses.replace(profile.tukey_shape, values=tuple(lams))
+    return out, dataclasses.replace(profile, tukey_shape=shape,
+                                    tukey_scale=_shift(profile.tukey_scale, float(s_slope), float(s_intercept), k_ref))
 
 
 def _row_variance(frames) -> float:
@@ -144,5 +226,6 @@ def apply_row_noise_factors(stacks, profile, factors: dict):
     """(stacks, profile) with sigma_r scaled by ``factors`` (bias stack label -> factor), as
     ``apply_read_noise_factors`` does for the read noise: every stack of that gain, and the
     profile's row-noise relation by the line through log(factor) against log(K)."""
-    out, line = _scaled_stacks(stacks, profile, factors, ("sigma_r",))
+    out, line = _scaled_stacks(stacks, profile, factors,
+                               lambda fixed, f: {"sigma_r": float(fixed["sigma_r"]) * f} if "sigma_r" in fixed else {})
     return out, dataclasses.replace(profile, row_scale=_shift(profile.row_scale, *line))

@@ -50,7 +50,7 @@ def steps_table(steps) -> str:
         if isinstance(ev, dict):
             ev = f"{ev['statistic']} z={ev['z']:.1f} ({s.get('stack', '')})"
         name = s.get("effect") or f"{s.get('relation')}: {s.get('structure')}"
-        battery = f" {s['battery_after']['mean_rel_error']:.3f} |" if frames else ""
+        battery = (f" {s['battery_after']['mean_rel_error']:.3f} |" if s.get("battery_after") else " - |") if frames else ""
         kept = "yes" if s.get("accepted", True) else "no"
         if s.get("note") and not s.get("accepted", True):
             kept += f" ({s['note']})"
