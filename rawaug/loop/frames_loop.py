@@ -120,11 +120,6 @@ def _without(step, profile, stacks, refits, model):
     return reduced, stacks
 
 
-def _screen(stack) -> list:
-    """The stacks a trial's evidence on ``stack`` needs: it, and the bias stack whose offsets it takes."""
-    return [stack] + ([stack.offsets_of] if stack.offsets_of is not None else [])
-
-
 def _significant(diags) -> set:
     """(stack label, statistic) of every significant residual."""
     return {(label, r.statistic) for label, (res, _) in diags.items() for r in res if r.significant}
@@ -220,32 +215,30 @@ def diagnose_stacks(prof, labels: list, which: list, step_seed: int, *, model=No
                     z_min: float = 6.0, rel_min: float = 0.1) -> dict:
     """{label: (residuals, syntheses)} of the stacks ``which`` against ``prof``.
 
-    A stack's seed is ``step_seed`` plus its place in ``labels`` (every stack of the loop), so
+    A stack's seed is ``step_seed`` plus its place in ``labels`` (every stack of the loop), and
+    the offsets a dark or flat takes from its bias stack are fitted with that bias stack's seed
+    (once, for every stack that takes them, whether or not the bias stack is in ``which``), so
     a subset gives each of its stacks the result the whole battery would (a trial's
-    screening), provided it holds the bias stack a dark or flat takes its offsets from. A bias
-    stack's offsets are fitted once, with its own seed, for it and every stack that takes
-    them. Stacks run on parallel threads (NumPy's partitions and FFTs release the GIL); the
-    outcome does not depend on them."""
+    screening). Stacks run on parallel threads (NumPy's partitions and FFTs release the GIL);
+    the outcome does not depend on them."""
     which = list(which)
     prof = NoiseProfile.load(prof)
-    index = {id(s): i for i, s in enumerate(which)}
-    place = [labels.index(s.label) for s in which]
-    shared = [i for i, s in enumerate(which) if any(t.offsets_of is s for t in which)]
-    pilot = lambda i: fitted_offsets(prof, which[i], step_seed + place[i], model)  # noqa: E731
+    sources = list({id(s.offsets_of): s.offsets_of for s in which if s.offsets_of is not None}.values())
+    pilot = lambda src: fitted_offsets(prof, src, step_seed + labels.index(src.label), model)  # noqa: E731
 
-    def job(i):
-        of = which[i].offsets_of if which[i].offsets_of is not None else which[i]
-        return diagnose(which[i], prof, model=model, n_synth=n_synth, seed=step_seed + place[i], z_min=z_min,
-                        rel_min=rel_min, offsets=offsets.get(index.get(id(of))))
+    def job(stack):
+        src = stack.offsets_of if stack.offsets_of is not None else stack
+        return diagnose(stack, prof, model=model, n_synth=n_synth, seed=step_seed + labels.index(stack.label), z_min=z_min,
+                        rel_min=rel_min, offsets=offsets.get(id(src)))
 
     workers = min(len(which), torch.get_num_threads())
     if workers < 2:
-        offsets = {i: pilot(i) for i in shared}
-        results = [job(i) for i in range(len(which))]
+        offsets = {id(src): pilot(src) for src in sources}
+        results = [job(s) for s in which]
     else:
         with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="rawaug-loop") as pool:
-            offsets = dict(zip(shared, pool.map(pilot, shared)))
-            results = list(pool.map(job, range(len(which))))
+            offsets = dict(zip([id(src) for src in sources], pool.map(pilot, sources)))
+            results = list(pool.map(job, which))
     return {s.label: r for s, r in zip(which, results)}
 
 
@@ -302,21 +295,33 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 say(f"step {step_no}: {evidence.statistic} ({label}, z={evidence.z:.1f}) not confirmed on "
                     f"{CONFIRM_FACTOR * n_synth} syntheses (z={check.z:.1f}): not acted on")
 
-    def judged(trial, shared, step_no, which=None):
+    def judged(trial, shared, step_no, which=None, known=None):
         # (diagnoses, stacks, profile, factors) of a trial model on ``which`` (default all
-        # stacks); a base stage the candidate shares (``shared``) is re-fitted from the bias stacks
+        # stacks); a base stage the candidate shares (``shared``) is re-fitted from the bias
+        # stacks. ``known``: {"model": ..., "refitted": ...} diagnoses made already (the
+        # screening's: the same seeds give the same results), filled in as it goes.
         step_seed = seed + 1000 * step_no
-        got = diagnose_all(trial, step_seed, which)
-        factors = {}
-        if shared:
-            factors = (read_noise_factors(stacks, got, trial, model, z_min=z_min) if shared == "read noise"
-                       else row_noise_factors(stacks, got, trial, z_min=z_min))
+        which = list(which or stacks)
+        known = known if known is not None else {}
+
+        def run(prof, part, key):
+            done = known.setdefault(key, {})
+            missing = [st for st in part if st.label not in done]
+            done.update(diagnose_all(prof, step_seed, missing) if missing else {})
+            return {st.label: done[st.label] for st in part}
+
+        if not shared:
+            return run(trial, which, "model"), stacks, trial, {}
+        # the re-fit reads the bias stacks only: the others are diagnosed once, with it or without
+        got = run(trial, [st for st in stacks if st.kind == "bias"], "model")
+        factors = (read_noise_factors(stacks, got, trial, model, z_min=z_min) if shared == "read noise"
+                   else row_noise_factors(stacks, got, trial, z_min=z_min))
         if not factors:
-            return got, stacks, trial, factors
+            return run(trial, which, "model"), stacks, trial, factors
         refit_stacks, refitted = (apply_read_noise_factors(stacks, trial, factors, model) if shared == "read noise"
                                   else apply_row_noise_factors(stacks, trial, factors))
-        labels_in = {st.label for st in (which or stacks)}
-        return diagnose_all(refitted, step_seed, [st for st in refit_stacks if st.label in labels_in]), refit_stacks, refitted, factors
+        labels_in = {st.label for st in which}
+        return run(refitted, [st for st in refit_stacks if st.label in labels_in], "refitted"), refit_stacks, refitted, factors
 
     diags, diags_seed = diagnose_all(current, seed), seed
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
@@ -345,8 +350,8 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
 
                 # its evidence first, on the stack it comes from (and the bias stacks a re-fit
                 # reads): most candidates fail there, and the whole battery is not run for them
-                screen_stacks = _screen(by_label[label]) + ([st for st in stacks if st.kind == "bias"] if shared else [])
-                screen = judged(trial, shared, step_no, list({st.label: st for st in screen_stacks}.values()))[0]
+                known: dict = {}  # the screening's diagnoses, reused by the whole battery's
+                screen = judged(trial, shared, step_no, [by_label[label]], known)[0]
                 err_before, err_after = _evidence_error(token, evidence, diags[label][0], screen[label][0])
                 if err_after > ACCEPT_FACTOR * err_before:
                     after = next(r for r in screen[label][0] if r.statistic == evidence.statistic)
@@ -354,7 +359,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                                         before_b, {}, round=step_no, kind="measured" if _measured(token) else "physical",
                                         evidence_after=after.to_dict(), note="screened"), trial, None, stacks, {}))
                     continue
-                new_diags, trial_stacks, trial, factors = judged(trial, shared, step_no)
+                new_diags, trial_stacks, trial, factors = judged(trial, shared, step_no, known=known)
                 if factors:
                     say(f"step {step_no}: {token} judged with the {shared} re-fitted ("
                         + ", ".join(f"{label} x{f:.3f}" for label, f in factors.items()) + ")")
