@@ -22,7 +22,7 @@ from scipy import stats as sstats
 
 from .engine.layout import COLUMN_SET, READ_MAP_BLOCKS, ROW_SET, XTALK_LAGS
 
-_MAD_TO_SIGMA = 1.482602218505602
+MAD_TO_SIGMA = 1.482602218505602
 _LOW_BAND = 16  # low-frequency band: the lowest 1/16 of the frequencies
 
 
@@ -33,7 +33,7 @@ def _centered(frames):
 def _robust_scale(x, axis):
     """1.4826 MAD along ``axis`` (falls back to the std where the MAD is 0: coarse codes)."""
     med = np.median(x, axis=axis, keepdims=True)
-    mad = _MAD_TO_SIGMA * np.median(np.abs(x - med), axis=axis, keepdims=True)
+    mad = MAD_TO_SIGMA * np.median(np.abs(x - med), axis=axis, keepdims=True)
     std = x.std(axis=axis, keepdims=True)
     return med, np.where(mad > 0, mad, std) + 1e-12
 
@@ -707,7 +707,7 @@ def frame_noise_spread(frames, level_dn=None):
     r = temporal_highpass(np.asarray(frames, dtype=np.float64))
     flat = r.reshape(r.shape[0], -1)
     mad = np.median(np.abs(flat - np.median(flat, axis=1, keepdims=True)), axis=1)
-    return float(np.std(np.log(np.maximum(1.482602218505602 * mad, 1e-12) ** 2), ddof=1))
+    return float(np.std(np.log(np.maximum(MAD_TO_SIGMA * mad, 1e-12) ** 2), ddof=1))
 
 
 def read_noise_spread(frames, level_dn=None):

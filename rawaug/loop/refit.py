@@ -33,10 +33,11 @@ from scipy import optimize
 from ..augment import parse_model
 from ..distributions import tukey_lambda_survival, tukey_lambda_variance
 from ..relations import LogLinear
-from ..statistics import _MAD_TO_SIGMA, repaired, sensor_row_means
+from ..statistics import MAD_TO_SIGMA, repaired, sensor_row_means
 from .diagnose import synthesis_fixed
 
 MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated value
+ROW_MIN_FACTOR = 0.1  # sigma_r may fall further: a strong tone can hold most of a sensor's row variance
 LAMBDA_RANGE = (-0.24, 0.1349)  # heavy-tailed Tukey lambdas (lighter ones come from coarse codes or clipping)
 TAIL_Z = 5.0  # robust sigmas (1.4826 MAD): where the battery's ``tail_mass`` counts the tail
 _NODES, _WEIGHTS = np.polynomial.hermite_e.hermegauss(48)
@@ -54,7 +55,7 @@ def _tail(lam: float, share: float) -> float:
                             + _WEIGHTS * (1.0 - tukey_lambda_survival((g - t) / a, lam)) * (t - g < 0)))
 
     mad = optimize.brentq(lambda m: survival(m) - 0.25, 1e-6, 50.0, xtol=1e-9)
-    return 2.0 * survival(TAIL_Z * _MAD_TO_SIGMA * mad)
+    return 2.0 * survival(TAIL_Z * MAD_TO_SIGMA * mad)
 
 
 @functools.lru_cache(maxsize=4096)
@@ -88,13 +89,14 @@ def _read_noise_update(fixed: dict, factor: float) -> dict:
     ``factor``^2 times: sigma_g scaled; the Tukey lambda of ``shape_for_variance`` with the
     scale that gives that variance."""
     out = {"sigma_g": float(fixed["sigma_g"]) * factor} if "sigma_g" in fixed else {}
-    if "sigma_tl" in fixed and "lambda" in fixed:
+    if "sigma_tl" in fixed and "lambda" not in fixed:
+        out["sigma_tl"] = float(fixed["sigma_tl"]) * factor
+    elif "sigma_tl" in fixed:
         lam = float(fixed["lambda"])
         new = shape_for_variance(lam, factor)
         out["lambda"] = new
         out["sigma_tl"] = float(fixed["sigma_tl"]) * factor * math.sqrt(tukey_lambda_variance(lam) / tukey_lambda_variance(new))
     return out
-ROW_MIN_FACTOR = 0.1  # sigma_r may fall further: a strong tone can hold most of a sensor's row variance
 
 
 def _read_variance(fixed: dict, tokens) -> float:

@@ -174,15 +174,25 @@ def step_signature(statistic: str, frames, before, after) -> dict:
 FLOOR = 1e-9  # log curves: values below count as this
 
 
+def _nearer_tail(fractions) -> np.ndarray:
+    """Each bin's cumulative fraction from the nearer end of the histogram: the fraction of
+    values at or below it left of the middle, at or above it right of it (the tails)."""
+    y = np.asarray(fractions, dtype=np.float64)
+    return np.minimum(np.cumsum(y), np.cumsum(y[::-1])[::-1])
+
+
 def distance(sig: dict, which: str) -> float:
     """Mean absolute difference between the model's curve ``which`` and the measured one, in
     decades for log curves, in the curve's unit otherwise; spectra are on log-spaced frequency
-    bins, so each octave weighs alike. A histogram's fractions count from one of its values
-    (``floor``, 1 / n): a measured bin that holds none, where the syntheses average a fraction
-    of one, agrees with them (a sparse tail: hot pixels), while one the model leaves empty and
-    the frames fill does not."""
+    bins, so each octave weighs alike. A histogram of values (not of codes one by one) is
+    compared by its cumulative tails (``_nearer_tail``), what a tail statistic counts: bin by
+    bin, a sparse tail of a few values per bin is Poisson noise (an impulse model whose tail
+    matched the frames' measured farther off there than none did). Fractions count from one
+    of the histogram's values (``floor``, 1 / n)."""
     floor = max(FLOOR, float(sig.get("floor", 0.0)))
-    f = (lambda v: np.log10(np.maximum(np.asarray(v, dtype=np.float64), floor))) if sig["log_y"] else np.asarray
+    tails = sig["kind"].endswith("histogram") and sig["kind"] != "code_histogram"
+    prepare = _nearer_tail if tails else (lambda v: np.asarray(v, dtype=np.float64))
+    f = (lambda v: np.log10(np.maximum(prepare(v), floor))) if sig["log_y"] else prepare
     d = np.abs(f(sig[which]) - f(sig["measured"]))
     d = d[np.isfinite(d)]
     return float(d.mean()) if d.size else float("nan")
