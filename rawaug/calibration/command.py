@@ -148,7 +148,8 @@ class _FrameSource:
                 if len(self.quant_steps) <= 1 or entry is self._last_bias:
                     self.notes += frame_anomalies(frame)
                     self.spectrum = (centered_spectrum(frame.mosaic, 512), f"{Path(entry.path).name}, ISO {entry.iso:g}")
-            self.bar.update(1)
+            if self.bar is not None:
+                self.bar.update(1)
             return frame.packed_dn()
 
         return load
@@ -246,14 +247,9 @@ def visit_frames(source, options: CalibrationOptions | None, on_frame) -> str:
     options = options or CalibrationOptions()
     entries, where = frame_entries(Path(source))
     overrides = {"cfa": options.cfa, "black_level": options.black_level, "white_level": options.white_level}
-    frames = _FrameSource(overrides, _NoBar(), on_frame)
+    frames = _FrameSource(overrides, None, on_frame)
     frames.read_rest(entries)
     return where
-
-
-class _NoBar:
-    def update(self, _n):
-        pass
 
 
 def run(args) -> int:

@@ -84,26 +84,22 @@ def shape_for_variance(lam: float, factor: float) -> float:
     return _shape(round(float(lam), 6), round(float(factor), 6))
 
 
+def _tukey_pair(sigma_tl: float, lam: float, factor: float) -> tuple[float, float]:
+    """(sigma_tl, lambda) of a Tukey read noise whose variance becomes ``factor``^2 times, its
+    lambda from ``shape_for_variance``."""
+    new = shape_for_variance(lam, factor)
+    return sigma_tl * factor * math.sqrt(tukey_lambda_variance(lam) / tukey_lambda_variance(new)), new
+
+
 def _read_noise_update(fixed: dict, factor: float) -> dict:
     """The read-noise parameters of a synthesis with ``fixed`` after its variance becomes
-    ``factor``^2 times: sigma_g scaled; the Tukey lambda of ``shape_for_variance`` with the
-    scale that gives that variance."""
+    ``factor``^2 times: sigma_g scaled; the Tukey pair of ``_tukey_pair``."""
     out = {"sigma_g": float(fixed["sigma_g"]) * factor} if "sigma_g" in fixed else {}
     if "sigma_tl" in fixed and "lambda" not in fixed:
         out["sigma_tl"] = float(fixed["sigma_tl"]) * factor
     elif "sigma_tl" in fixed:
-        lam = float(fixed["lambda"])
-        new = shape_for_variance(lam, factor)
-        out["lambda"] = new
-        out["sigma_tl"] = float(fixed["sigma_tl"]) * factor * math.sqrt(tukey_lambda_variance(lam) / tukey_lambda_variance(new))
+        out["sigma_tl"], out["lambda"] = _tukey_pair(float(fixed["sigma_tl"]), float(fixed["lambda"]), factor)
     return out
-
-
-def _read_variance(fixed: dict, tokens) -> float:
-    """Variance (DN^2) of the base read-noise component of a synthesis with ``fixed``."""
-    if "G*" in tokens and "sigma_tl" in fixed:
-        return float(fixed["sigma_tl"]) ** 2 * tukey_lambda_variance(float(fixed["lambda"]))
-    return float(fixed["sigma_g"]) ** 2
 
 
 def read_noise_factors(stacks, diags, profile, model=None, z_min: float = 6.0) -> dict:
@@ -179,9 +175,8 @@ def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
     slope, intercept, k_ref = line
     ks = np.array(profile.tukey_shape.k, dtype=np.float64)
     f = np.exp(slope * np.log(ks) + intercept)
-    lams = [shape_for_variance(float(v), float(fk)) for v, fk in zip(profile.tukey_shape.values, f)]
-    scale_f = [fk * math.sqrt(tukey_lambda_variance(float(v)) / tukey_lambda_variance(new))
-               for v, fk, new in zip(profile.tukey_shape.values, f, lams)]
+    pairs = [_tukey_pair(1.0, float(v), float(fk)) for v, fk in zip(profile.tukey_shape.values, f)]
+    scale_f, lams = [a for a, _ in pairs], [b for _, b in pairs]
     if ks.size >= 2 and np.ptp(np.log(ks)) > 0:
         s_slope, s_intercept = np.polyfit(np.log(ks), np.log(scale_f), 1)
     else:
