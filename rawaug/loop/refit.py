@@ -102,6 +102,13 @@ def _read_noise_update(fixed: dict, factor: float) -> dict:
     return out
 
 
+def _read_variance(fixed: dict, tokens) -> float:
+    """Variance (DN^2) of the base read-noise component of a synthesis with ``fixed``."""
+    if "G*" in tokens and "sigma_tl" in fixed:
+        return float(fixed["sigma_tl"]) ** 2 * tukey_lambda_variance(float(fixed["lambda"]))
+    return float(fixed["sigma_g"]) ** 2
+
+
 def read_noise_factors(stacks, diags, profile, model=None, z_min: float = 6.0) -> dict:
     """{bias stack label: factor on the read-noise sigma} where the model's temporal noise
     exceeds the measured one by more than ``z_min`` spreads (statistically significant; a
