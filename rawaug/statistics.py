@@ -30,12 +30,25 @@ def _centered(frames):
     return frames - frames.mean(axis=(2, 3), keepdims=True)
 
 
+def median(x, axis=None, keepdims: bool = False):
+    """``np.median`` of finite values, by a sort: NumPy's vectorized sort is 2-5x faster than
+    its partition on a stack's pixels (integer codes most of all), with the same values."""
+    x = np.asarray(x)
+    v = np.sort(x, axis=None) if axis is None else np.sort(np.moveaxis(x, axis, -1), axis=-1)
+    n = v.shape[-1]
+    out = 0.5 * (v[..., (n - 1) // 2] + v[..., n // 2])
+    if keepdims:
+        out = np.expand_dims(out, tuple(range(x.ndim)) if axis is None else axis)
+    return out
+
+
 def _robust_scale(x, axis):
     """1.4826 MAD along ``axis`` (falls back to the std where the MAD is 0: coarse codes)."""
-    med = np.median(x, axis=axis, keepdims=True)
-    mad = MAD_TO_SIGMA * np.median(np.abs(x - med), axis=axis, keepdims=True)
-    std = x.std(axis=axis, keepdims=True)
-    return med, np.where(mad > 0, mad, std) + 1e-12
+    med = median(x, axis=axis, keepdims=True)
+    mad = MAD_TO_SIGMA * median(np.abs(x - med), axis=axis, keepdims=True)
+    if np.all(mad > 0):
+        return med, mad + 1e-12
+    return med, np.where(mad > 0, mad, x.std(axis=axis, keepdims=True)) + 1e-12
 
 
 def _rms(values):
@@ -254,7 +267,11 @@ def written_codes(values: np.ndarray) -> np.ndarray:
     long empty run separates two populations (a stuck column far above the noise): neither
     is a missing code."""
     v = np.asarray(values).astype(np.int64).ravel()
-    counts = np.bincount(v - v.min())
+    return _written(np.bincount(v - v.min()))
+
+
+def _written(counts):
+    """``written_codes`` from the counts of the codes from the lowest up."""
     occupied = np.flatnonzero(counts)
     written = np.ones(counts.size, dtype=bool)
     for a, b in zip(occupied[:-1], occupied[1:]):
@@ -263,16 +280,28 @@ def written_codes(values: np.ndarray) -> np.ndarray:
     return written
 
 
+def code_percentiles(counts, q):
+    """``np.percentile`` (linear) of whole codes given as their counts from the lowest up: the
+    percentiles' offsets from the lowest code."""
+    cum = np.cumsum(counts)
+    pos = np.asarray(q, dtype=np.float64) / 100.0 * (cum[-1] - 1)
+    below = np.floor(pos)
+    a = np.searchsorted(cum, below, side="right")  # the code of sorted value i: the first whose cumulative count exceeds i
+    b = np.searchsorted(cum, np.minimum(below + 1, cum[-1] - 1), side="right")
+    return a + (pos - below) * (b - a)
+
+
 def missing_codes(frames, level_dn=None):
     """Histogram comb: fraction of integer codes between the 0.5 and 99.5 percentiles that
     are missing (values rounded to whole DN; ``written_codes``: an empty code in a gap
     between populated codes, not one in a sparse tail)."""
-    v = np.rint(frames).ravel()
-    lo, hi = np.percentile(v, [0.5, 99.5])
+    v = np.rint(frames).astype(np.int64).ravel()
+    counts = np.bincount(v - v.min())
+    lo, hi = code_percentiles(counts, (0.5, 99.5))
     if hi - lo < 3:
         return 0.0
-    written = written_codes(v)
-    start = int(lo - v.min())
+    written = _written(counts)
+    start = int(lo)
     return float((~written[start : start + int(hi - lo) + 1]).mean())
 
 
@@ -475,12 +504,12 @@ def temporal_variance_cells(frames):
     frames = np.asarray(frames, dtype=np.float64)
     _, _, h, w = frames.shape
     var = np.mean(temporal_highpass(frames) ** 2, axis=0)
-    keep = var <= FLICKER * max(float(np.median(var)), 1e-12)
-    rows = np.eye(READ_MAP_BLOCKS)[block_index(h)]  # (h, B) one-hot: the row block of each row
-    cols = np.eye(READ_MAP_BLOCKS)[block_index(w)]
-    total = np.einsum("chw,hi,wj->cij", np.where(keep, var, 0.0), rows, cols)
-    count = np.einsum("chw,hi,wj->cij", keep.astype(np.float64), rows, cols)
-    return total / np.maximum(count, 1.0)
+    keep = var <= FLICKER * max(float(median(var)), 1e-12)
+    b = READ_MAP_BLOCKS
+    cell = (np.arange(4)[:, None, None] * b + block_index(h)[:, None]) * b + block_index(w)  # (4, h, w) cell of each pixel
+    total = np.bincount(cell.ravel(), np.where(keep, var, 0.0).ravel(), minlength=4 * b * b)
+    count = np.bincount(cell.ravel(), keep.ravel(), minlength=4 * b * b)
+    return (total / np.maximum(count, 1.0)).reshape(4, b, b)
 
 
 FLICKER_P = 1e-6  # a white pixel's chance of being counted as flickering
@@ -527,7 +556,7 @@ def two_state_pixels(frames):
     frames = np.asarray(frames, dtype=np.float64)
     n = frames.shape[0]
     values = frames.reshape(n, -1).T
-    var = max(float(np.median(values.var(axis=1, ddof=1))), 1e-12)
+    var = max(float(median(values.var(axis=1, ddof=1))), 1e-12)
     return (*two_state(values, flicker_threshold(n) * var), var)
 
 
@@ -551,7 +580,7 @@ def flickering_columns(frames):
     m = sensor_col_means(np.asarray(frames, dtype=np.float64))  # (N, 2w)
     m = m - m.mean(axis=0, keepdims=True) - m.mean(axis=1, keepdims=True) + m.mean()
     values = m.T
-    var = max(float(np.median(values.var(axis=1, ddof=1))), 1e-12)
+    var = max(float(median(values.var(axis=1, ddof=1))), 1e-12)
     return two_state(values, flicker_threshold(values.shape[1]) * var)
 
 
@@ -569,7 +598,7 @@ def spike_scale(frames):
     f = np.asarray(frames, dtype=np.float64)
     n = f.shape[0]
     var = f.var(axis=0, ddof=1)
-    return np.sqrt(np.median(var.reshape(f.shape[1], -1), axis=1) / (sstats.chi2.median(n - 1) / (n - 1)))
+    return np.sqrt(median(var.reshape(f.shape[1], -1), axis=1) / (sstats.chi2.median(n - 1) / (n - 1)))
 
 
 def spikes(frames):
@@ -593,7 +622,7 @@ def spikes(frames):
     v = np.sort(f[(slice(None),) + cand], axis=0)  # (N, candidates)
     others = v[:-1]
     spread = others.std(axis=0, ddof=1)
-    hit = (v[-1] - np.median(others, axis=0)) > SPIKE_Z * np.maximum(np.maximum(scale[cand[0], 0, 0], spread), 1e-9)
+    hit = (v[-1] - median(others, axis=0)) > SPIKE_Z * np.maximum(np.maximum(scale[cand[0], 0, 0], spread), 1e-9)
     sel = tuple(c[hit] for c in cand)
     frame = f[(slice(None),) + sel].argmax(axis=0)
     mask[(frame,) + sel] = True
@@ -617,7 +646,7 @@ def spike_outliers(frames):
     if not significant_spikes(int(bright.sum()), n_dark):
         return np.zeros(f.shape, dtype=bool)
     out = np.zeros(f.shape, dtype=bool)
-    out[bright] = beyond_dark((f - np.median(f, axis=0))[bright], n_dark)
+    out[bright] = beyond_dark((f - median(f, axis=0))[bright], n_dark)
     return out
 
 
@@ -706,7 +735,7 @@ def frame_noise_spread(frames, level_dn=None):
     sqrt(2 / pixels) for a read noise of one level."""
     r = temporal_highpass(np.asarray(frames, dtype=np.float64))
     flat = r.reshape(r.shape[0], -1)
-    mad = np.median(np.abs(flat - np.median(flat, axis=1, keepdims=True)), axis=1)
+    mad = median(np.abs(flat - median(flat, axis=1, keepdims=True)), axis=1)
     return float(np.std(np.log(np.maximum(MAD_TO_SIGMA * mad, 1e-12) ** 2), ddof=1))
 
 

@@ -321,3 +321,39 @@ def test_single_frame_spikes_are_left_out_of_the_read_noise_fit_and_heavy_tails_
     assert p.extra["spikes"] == 0
     assert abs(q.extra["spikes"] - 1e-3 * hit[0].size * 6) < 5 * math.sqrt(1e-3 * hit[0].size * 6), q.extra["spikes"]
     assert abs(q.lam - p.lam) < 0.02 and q.sigma_tl == pytest.approx(p.sigma_tl, rel=0.02), (p.lam, q.lam, p.sigma_tl, q.sigma_tl)
+
+
+def test_pair_tile_stats_match_a_tile_by_tile_reference():
+    # the one-pass kernel against NumPy on each tile: whole codes with ties, clips at both
+    # ends (a pixel equal in both frames), a tile equal in both frames, tiles cut at the edge
+    from rawaug.calibration.kernels import pair_tile_stats
+
+    rng = np.random.default_rng(5)
+    tile = 8
+    a = np.rint(rng.normal(50, 4, (4, 30, 41)))
+    b = np.rint(rng.normal(50, 4, (4, 30, 41)))
+    a[0, :4, :4] = b[0, :4, :4] = 90.0  # held at white in both frames
+    a[1, 9, 9] = b[1, 9, 9] = 0.0  # a dead pixel
+    b[2, 8:16, 8:16] = a[2, 8:16, 8:16]  # a whole tile equal in both
+    ch, mean, var, lo, hi, (lo_same, frac_lo), (hi_same, frac_hi) = pair_tile_stats(a, b, tile)
+    i = 0
+    for c in range(4):
+        for ty in range(30 // tile):
+            for tx in range(41 // tile):
+                ta = a[c, ty * tile:(ty + 1) * tile, tx * tile:(tx + 1) * tile].ravel()
+                tb = b[c, ty * tile:(ty + 1) * tile, tx * tile:(tx + 1) * tile].ravel()
+                same = ta == tb
+                assert ch[i] == c
+                assert mean[i] == pytest.approx(0.5 * (ta.mean() + tb.mean()), abs=1e-12)
+                assert var[i] == pytest.approx(np.var(ta - tb, ddof=1) / 2, abs=1e-12)
+                assert lo[i] == (np.minimum(ta, tb)[~same].min() if (~same).any() else np.inf)
+                assert hi[i] == (np.maximum(ta, tb)[~same].max() if (~same).any() else -np.inf)
+                assert lo_same[i] == (ta[same].min() if same.any() else np.inf)
+                assert hi_same[i] == (ta[same].max() if same.any() else -np.inf)
+                assert frac_lo[i] == (np.sum(same & (ta == lo_same[i])) / ta.size)
+                assert frac_hi[i] == (np.sum(same & (ta == hi_same[i])) / ta.size)
+                i += 1
+    assert i == mean.size
+    assert lo_same[2 * 15 + 1 * 5 + 1] == a[2, 8:16, 8:16].min() and frac_lo.max() > 0
+    with pytest.raises(ValueError, match="smaller than one 32x32 tile"):
+        pair_tile_stats(a[:, :20], b[:, :20], 32)

@@ -20,6 +20,7 @@ from scipy import stats
 
 from ..statistics import SPIKE_Z, beyond_dark, significant_spikes, stuck_outliers, written_codes
 from .joint import IsoParameters
+from .kernels import pair_tile_stats, pixel_extremes
 
 # Packed channels read out from the same sensor row (see rawaug.bayer).
 SENSOR_ROWS = ((0, 1), (2, 3))
@@ -100,7 +101,11 @@ def estimate_row_noise(bias_dn: np.ndarray) -> RowNoiseEstimate:
     row-corrected residual. Without that subtraction sigma_r would be biased upward when
     it is small.
     """
-    bias = _centered(_packed(bias_dn, "bias_dn"))  # defect lines NaN: left out
+    return _row_noise(_centered(_packed(bias_dn, "bias_dn")))  # defect lines NaN: left out
+
+
+def _row_noise(bias) -> RowNoiseEstimate:
+    """``estimate_row_noise`` of a frame already centered (defect lines NaN)."""
     rows = _row_means(bias)  # (2, h), NaN on a sensor row that is a defect line
     n = int(np.median(np.isfinite(bias[[0, 1]]).sum(axis=(0, 2))))  # pixels per row mean
     residual = bias - rows[[0, 0, 1, 1]][:, :, None]
@@ -336,35 +341,6 @@ class GainEstimate:
 STUCK_TILE = 0.01  # a tile with more of its pixels equal in both frames at a clip is clipped there
 
 
-def _tile_stats(a, b, tile):
-    """Per tile of each channel: mean of the pair, half the variance of the pair difference
-    (the single-frame variance), the lowest and highest value of the pixels that differ
-    between the two frames, and the lowest and highest value with the fraction of the tile's
-    pixels equal in both frames at them. Flat (channel, mean, var, min, max, (min, fraction),
-    (max, fraction)) arrays over tiles; a pixel equal in both frames may be a dead pixel, which
-    does not make a tile clipped."""
-    c, h, w = a.shape
-    th, tw = h // tile, w // tile
-    if th == 0 or tw == 0:
-        raise ValueError(f"flat frames of packed size {h}x{w} are smaller than one {tile}x{tile} tile")
-    a = a[:, : th * tile, : tw * tile].reshape(c, th, tile, tw, tile)
-    b = b[:, : th * tile, : tw * tile].reshape(c, th, tile, tw, tile)
-    mean = 0.5 * (a.mean(axis=(2, 4)) + b.mean(axis=(2, 4)))
-    diff = a - b
-    var = diff.var(axis=(2, 4), ddof=1) / 2.0  # var(a - b) = 2 var(single frame)
-    same = diff == 0
-    low, high = np.minimum(a, b), np.maximum(a, b)
-    lo = np.where(same, np.inf, low).min(axis=(2, 4))
-    hi = np.where(same, -np.inf, high).max(axis=(2, 4))
-    lo_same = np.where(same, a, np.inf).min(axis=(2, 4))
-    hi_same = np.where(same, a, -np.inf).max(axis=(2, 4))
-    frac_lo = (same & (a == lo_same[:, :, None, :, None])).mean(axis=(2, 4))
-    frac_hi = (same & (a == hi_same[:, :, None, :, None])).mean(axis=(2, 4))
-    chan = np.broadcast_to(np.arange(c)[:, None, None], mean.shape)
-    return (chan.ravel(), mean.ravel(), var.ravel(), lo.ravel(), hi.ravel(), (lo_same.ravel(), frac_lo.ravel()),
-            (hi_same.ravel(), frac_hi.ravel()))
-
-
 def _robust_poly(x, y, n_per_tile, degree=1, iterations=8):
     """Weighted polynomial fit of y on x (coefficients from the highest power) with Huber
     reweighting; a tile variance has standard error ~ y * sqrt(2 / (n - 1)). Returns
@@ -439,13 +415,13 @@ def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = N
     for i, pair in enumerate(pairs):
         if not isinstance(pair, (tuple, list)) or len(pair) != 2:
             raise ValueError(f"flat pair {i} must be a (frame_a, frame_b) pair, got {type(pair).__name__}")
-        a = _packed(pair[0], f"flat pair {i} frame a").astype(np.float64)
-        b = _packed(pair[1], f"flat pair {i} frame b").astype(np.float64)
+        a = np.asarray(_packed(pair[0], f"flat pair {i} frame a"), dtype=np.float64)
+        b = np.asarray(_packed(pair[1], f"flat pair {i} frame b"), dtype=np.float64)
         if a.shape != b.shape:
             raise ValueError(f"flat pair {i}: frames differ in size: {a.shape} vs {b.shape}")
         sat = saturation_dn if saturation_dn is not None else _clip_level(a, b, high=True)
         low = black_clip_dn if black_clip_dn is not None else _clip_level(a, b, high=False)
-        ch, m, v, lo, hi, (lo_same, frac_lo), (hi_same, frac_hi) = _tile_stats(a, b, tile)
+        ch, m, v, lo, hi, (lo_same, frac_lo), (hi_same, frac_hi) = pair_tile_stats(a, b, tile)
         ok = np.ones(m.size, bool)
         if sat is not None:  # a moving pixel at the clip, or more than a few pixels held there
             ok &= (hi < sat) & ~((hi_same >= sat) & (frac_hi > STUCK_TILE))
@@ -528,19 +504,6 @@ def _load(item, what):
     return np.asarray(array)
 
 
-def _extremes(state, r, i):
-    """(highest, second highest, frame of the highest) of each pixel over the frames so far,
-    float32, updated with frame ``i``'s values ``r`` (a new state when ``state`` is None)."""
-    if state is None:
-        return r.astype(np.float32), np.full(r.shape, -np.inf, np.float32), np.full(r.shape, i, np.int32)
-    top, second, frame = state
-    r = r.astype(np.float32)
-    frame[r > top] = i
-    np.maximum(second, np.minimum(r, top), out=second)  # the old top where r beats it, else the larger of second and r
-    np.maximum(top, r, out=top)
-    return top, second, frame
-
-
 def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | None = 200_000,
                   saturation_dn: float | None = None, black_clip_dn: float | None = None,
                   tile: int = 32, seed: int = 0, progress=None) -> IsoParameters:
@@ -574,16 +537,19 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         shapes.append(bias.shape)
         if bias.shape != shapes[0]:
             raise ValueError(f"ISO {iso:g}: bias frames differ in size: {shapes[0]} vs {bias.shape} (frame {i})")
-        row = estimate_row_noise(bias)
+        without = _without_defects(bias)  # the defect lines found once per frame
+        color = _mean(without, (1, 2), keepdims=True)  # estimate_color_bias
+        centered = without - color
+        row = _row_noise(centered)  # estimate_row_noise
         rows.append(row)
-        biases.append(estimate_color_bias(bias))
-        r = row_corrected(bias, row.row_means).ravel()
+        biases.append(color.ravel())
+        r = (centered - row.row_means[[0, 0, 1, 1]][:, :, None]).ravel()  # row_corrected
         where = np.flatnonzero(np.isfinite(r))  # off the defect lines
         idx = sample_indices(where.size, per_frame, seed + i)
         where = where if idx is None else where[idx]
         samples.append((where, r[where]))
         if len(bias_frames) >= 3:  # each pixel's two highest and two lowest values, and their frames
-            extremes = [_extremes(e, v, i) for e, v in zip(extremes or (None, None), (r, -r))]
+            extremes = [pixel_extremes(e, r, i, sign) for e, sign in zip(extremes or (None, None), (1.0, -1.0))]
         if first_bias is None:
             first_bias, lo, hi = bias, bias.astype(np.float32), bias.astype(np.float32)
         else:
