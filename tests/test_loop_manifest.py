@@ -165,7 +165,18 @@ def jittery_gain(dn, rng, kind="bias", **_):
     return dn * (1.0 + rng.normal(0.0, 0.01))
 
 
-MEASURED = {"CodeMap", "LowFreq", "ReadDist"}  # the measured fallbacks; every other effect is physical
+def settling_clamp(dn, rng, **_):
+    """A black clamp that settles after the frame starts (made outside rawaug): the first sensor
+    rows read high, 5 exp(-Y / 3) DN on sensor row Y, and the first sensor columns 3 exp(-X / 2)
+    DN, the same in every frame: fixed line offsets no random line pattern describes."""
+    _, h, w = dn.shape
+    rows, cols = 5.0 * np.exp(-np.arange(2 * h) / 3.0), 3.0 * np.exp(-np.arange(2 * w) / 2.0)
+    row = np.stack([rows[0::2], rows[0::2], rows[1::2], rows[1::2]])[:, :, None]  # R, G1 on even sensor rows
+    col = np.stack([cols[0::2], cols[1::2], cols[1::2], cols[0::2]])[:, None, :]  # R, G2 on even sensor columns
+    return dn + row + col
+
+
+MEASURED = {"CodeMap", "LowFreq", "ReadDist", "LineMap"}  # the measured fallbacks; every other effect is physical
 
 
 # case -> (planted rawaug effect, its parameters, what the frames undergo besides, what the loop should add)
@@ -190,6 +201,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "impulses": (None, None, charge_bursts, ["Spikes"]),
          "column flicker": (None, None, column_traps, ["ColRTS"]),
          "gain jitter": (None, None, jittery_gain, ["FrameGain"]),
+         "settling clamp": (None, None, settling_clamp, ["LineMap"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series

@@ -69,6 +69,7 @@ _DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
 _DOFF = L.COLUMN["dark_offset"]
 _RG = L.COLUMN["read_gain"]
 _FG = L.COLUMN["frame_gain"]
+_LMR, _LMOY, _LMOX, _LMLH, _LMLW = (L.COLUMN[n] for n in ("lmap_record", "lmap_oy", "lmap_ox", "lmap_lh", "lmap_lw"))
 _SPD, _SPM, _SPL = L.COLUMN["spike_density"], L.COLUMN["spike_median"], L.COLUMN["spike_log_std"]
 _SPIKE_WHERE, _SPIKE_SIZE = L.STREAM["spike_where"], L.STREAM["spike_size"]
 _CRD, _CRM, _CRL, _CRH = L.COLUMN["crts_density"], L.COLUMN["crts_median"], L.COLUMN["crts_log_std"], L.COLUMN["crts_high"]
@@ -247,6 +248,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             line += v[_RF] * symmetric(normal, draw(keys[_ROW_PATTERN], (sensor * 2 + row_set) * h + y))
         if stages & L.LINES:
             line += defect_line_at(normal, keys[_LINES_ROW], (sensor * 2 + row_set) * h + y, v[_LRD], v[_LM], v[_LLS], v[_LNEG])
+        lmrec, lmox, lmlw = 0, 0, 1
+        if stages & L.LINE_MAP:  # measured line profiles: the row's offset here, the column's below (a larger input repeats them)
+            lmrec, lmox, lmlw = int(v[_LMR]), int(v[_LMOX]), int(v[_LMLW])
+            line += grids[lmrec, c, (y + int(v[_LMOY])) % int(v[_LMLH])]
         table = read_tables[read_index[b]]
         key_fine, key_rest, key_coarse = keys[_SHOT], keys[_SHOT_REST], keys[_SHOT_COARSE]
         record = int(v[_FR])
@@ -352,6 +357,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += diagonal_banding_at(keys[_DIAG_BAND], v, b, 2 * y + row_set, 2 * x + col_set)
             if stages & L.LINES:
                 s += defect_line_at(normal, keys[_LINES_COL], (sensor * 2 + col_set) * w + x, v[_LCD], v[_LM], v[_LLS], v[_LNEG])
+            if stages & L.LINE_MAP:
+                s += grids[lmrec, 4 + c, (x + lmox) % lmlw]
             if stages & L.QUANT:
                 s += (unit(draw(keys[_QUANT], g)) - 0.5) * v[_Q]
             if stages & L.LOW_FREQ:

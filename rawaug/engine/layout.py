@@ -47,6 +47,7 @@ SPIKES = 1 << 36  # impulsive noise: single-frame events at random pixels (cosmi
 COL_RTS = 1 << 37  # column telegraph noise: sparse sensor columns with two offsets, a state per frame
 FRAME_NOISE = 1 << 38  # frame-to-frame read-noise level: the base read noise of a frame times its own factor
 FRAME_GAIN = 1 << 39  # frame-to-frame gain: the photo signal of a frame times its own factor, after shot noise
+LINE_MAP = 1 << 40  # measured fallback: fixed row and column offset profiles of the measured frame
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -96,6 +97,8 @@ COLUMNS = (
     "crts_density", "crts_median", "crts_log_std", "crts_high",  # column telegraph: share of sensor columns, step (DN), spread, share high
     "read_gain",  # frame-to-frame read-noise level: this frame's factor on the base read noise
     "frame_gain",  # frame-to-frame gain: this frame's factor on the photo signal
+    "lmap_record", "lmap_gh", "lmap_gw", "lmap_oy", "lmap_ox", "lmap_h", "lmap_w",  # line profiles: grids record, window
+    "lmap_lh", "lmap_lw",  # ... and the measured profiles' lengths (packed rows, packed columns)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

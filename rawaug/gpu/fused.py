@@ -45,6 +45,7 @@ C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_
 C_DOFF = _column("dark_offset")
 C_RG = _column("read_gain")
 C_FG = _column("frame_gain")
+C_LMR, C_LMOY, C_LMOX, C_LMLH, C_LMLW = (_column(n) for n in ("lmap_record", "lmap_oy", "lmap_ox", "lmap_lh", "lmap_lw"))
 C_SPD, C_SPM, C_SPL = _column("spike_density"), _column("spike_median"), _column("spike_log_std")
 C_CRD, C_CRM, C_CRL, C_CRH = _column("crts_density"), _column("crts_median"), _column("crts_log_std"), _column("crts_high")
 C_DBX0, C_DBY0, C_DBA0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0")
@@ -312,6 +313,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 262144:  # defect lines: the sensor column's offset here, the row's below
         s += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64),
                           _col(v, C_LCD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
+    if FLAGS & 1099511627776:  # measured line profiles: the column's offset here, the row's below (a larger input repeats them)
+        lm = grids_ptr + _col(v, C_LMR).to(tl.int64) * GH.to(tl.int64) * GW.to(tl.int64)
+        lx = (x + _col(v, C_LMOX).to(tl.int64)) % _col(v, C_LMLW).to(tl.int64)
+        s += tl.load(lm + (4 + c).to(tl.int64) * GW.to(tl.int64) + lx, mask=live, other=0.0)
     if FLAGS & 512:  # U
         s += (unit(draw(_key(keys_ptr, K_QUANT), g)) - 0.5) * _col(v, C_Q)
     if FLAGS & 32768:  # measured low-frequency field: a per-frame normal grid, bilinear
@@ -345,6 +350,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 262144:  # defect lines: the sensor row's offset
         line += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_ROW), ((sensor * 2 + row_set) * H + y).to(tl.uint64),
                              _col(v, C_LRD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
+    if FLAGS & 1099511627776:  # measured line profiles: the row's offset
+        lm = grids_ptr + _col(v, C_LMR).to(tl.int64) * GH.to(tl.int64) * GW.to(tl.int64)
+        ly = (y + _col(v, C_LMOY).to(tl.int64)) % _col(v, C_LMLH).to(tl.int64)
+        line += tl.load(lm + c.to(tl.int64) * GW.to(tl.int64) + ly, mask=live, other=0.0)
     if FLAGS & 1024:  # C
         line += tl.load(v + C_B0 + c)
     if FLAGS & 2048:  # BLE

@@ -49,6 +49,8 @@ from .signatures import step_signature
 ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
 CONFIRM_FACTOR = 3  # a residual that would call for an effect is confirmed on 3x the syntheses, with fresh seeds
 BATTERY_GROWTH = 1.25  # ... and may not raise the battery's mean relative error by more than a quarter
+ROW_REFIT_Z = 3.0  # a candidate that shares the row noise has it re-fitted where the model's row variance is 3
+# spreads above the measured: the candidate says calibration gave it that variance, and 2h row means resolve less
 
 
 @dataclass
@@ -315,7 +317,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         # the re-fit reads the bias stacks only: the others are diagnosed once, with it or without
         got = run(trial, [st for st in stacks if st.kind == "bias"], "model")
         factors = (read_noise_factors(stacks, got, trial, model, z_min=z_min) if shared == "read noise"
-                   else row_noise_factors(stacks, got, trial, z_min=z_min))
+                   else row_noise_factors(stacks, got, trial, z_min=ROW_REFIT_Z))
         if not factors:
             return run(trial, which, "model"), stacks, trial, factors
         refit_stacks, refitted = (apply_read_noise_factors(stacks, trial, factors, model) if shared == "read noise"

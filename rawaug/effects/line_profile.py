@@ -1,0 +1,149 @@
+"""Measured fixed line profiles (LineMap), a measured fallback: the fixed offsets of the
+sensor rows and columns that no physical effect explains, reproduced as measured.
+
+Not a named physical effect: a reset transient (the first rows of every frame high, decaying),
+a clamp that settles along the frame, a column pattern of a readout that no random pattern
+describes. ``RowFix`` and ``Col`` draw fixed line offsets as white noise of one level; a
+profile with structure (a ramp, a decay, a few lines apart) is not theirs. The loop tries
+this component only when no physical effect explains a line residual, and the report lists
+it as reproduced by measurement.
+
+Stage (DN, with the line offsets): ``s -> s + row_dn[c, y] + col_dn[c, x]`` per packed
+channel ``c``, packed row ``y`` and column ``x`` of the measured frame; an input smaller than
+it is a window at an offset drawn per sample (as ``FPN`` shading), a larger one repeats it.
+
+Profile entry (per-K records, DN; frame size in packed pixels)::
+
+    LineMap: {k: [K, ...], row_dn: [[[H values] x 4], ...], col_dn: [[[W values] x 4], ...],
+              frame_h: H, frame_w: W}
+
+Estimated by ``estimate`` from bias and dark stacks (a fixed offset is in every frame; a
+flat's line means hold its light's pattern too), per K the mean over them of: the stack mean's row and column profiles of each channel less the model's
+(the mean over its syntheses), each with the values below the threshold of SureShrink
+(Donoho & Johnstone 1995: Stein's unbiased risk, for the spread of one stack's profile
+about the model's) set to 0, so a sparse transient is kept and noise is not copied.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..engine import layout as L
+from .base import BANDING, NoiseEffect, register
+from .k_records import all_zero, frame_size, grid_columns, validate_records
+
+STATISTICS = ("row_excess", "col_excess", "fixed_row_excess", "fixed_col_excess", "row_tone", "col_tone")
+MEASURED = True
+SIGNED = True  # offsets of either sign, which calibration counted as row noise: suggested by a line statistic the model overshoots too
+SHARES_ROW_NOISE = True  # calibration's sigma_r holds the fixed rows' variance: judged with the row noise re-fitted
+DECIMALS = 4  # DN stored in the profile
+
+
+@register
+class LineProfile(NoiseEffect):
+    token = "LineMap"
+    order = BANDING + 5
+    flag = L.LINE_MAP
+    columns = ("lmap_record", "lmap_gh", "lmap_gw", "lmap_oy", "lmap_ox", "lmap_h", "lmap_w", "lmap_lh", "lmap_lw")
+
+    def draw(self, ctx):
+        p = self.profile.effects[self.token]
+        out = grid_columns(ctx, self.token, p, "lmap")
+        out["lmap_lh"] = torch.full_like(ctx.k, float(p["frame_h"]))
+        out["lmap_lw"] = torch.full_like(ctx.k, float(p["frame_w"]))
+        return out
+
+    def tables(self):
+        return {"grids": profile_grids(self.profile.effects[self.token])}
+
+    @classmethod
+    def validate_params(cls, params):
+        validate_records(cls.token, params, ("row_dn", "col_dn"))
+        size = frame_size(cls.token, params)
+        if size is None:
+            raise ValueError("effect 'LineMap' needs frame_h and frame_w (packed pixels of the measured profiles)")
+        for key, n in (("row_dn", size[0]), ("col_dn", size[1])):
+            for r, rec in enumerate(params[key]):
+                arr = np.asarray(rec, dtype=np.float64) if isinstance(rec, (list, tuple)) else None
+                if arr is None or arr.shape != (4, n) or not np.all(np.isfinite(arr)):
+                    raise ValueError(f"effect 'LineMap': {key} record {r} must be 4 channels x {n} finite values (DN), "
+                                     f"got {rec!r:.80}")
+
+
+def profile_grids(params) -> torch.Tensor:
+    """(records, 8, max(H, W)) table the kernels read: rows 0-3 each channel's row profile,
+    rows 4-7 its column profile (zero-padded), DN."""
+    h, w = params["frame_h"], params["frame_w"]
+    out = torch.zeros(len(params["k"]), 8, max(h, w), dtype=torch.float64)
+    out[:, :4, :h] = torch.tensor(params["row_dn"], dtype=torch.float64)
+    out[:, 4:, :w] = torch.tensor(params["col_dn"], dtype=torch.float64)
+    return out
+
+
+def line_profiles(frames) -> tuple[np.ndarray, np.ndarray]:
+    """((4, h) row, (4, w) column) profiles of a stack's mean (N, 4, h, w; DN), each channel's
+    mean removed (the colour bias is another stage's)."""
+    m = np.asarray(frames, dtype=np.float64).mean(axis=0)
+    rows, cols = m.mean(axis=2), m.mean(axis=1)
+    return rows - rows.mean(axis=1, keepdims=True), cols - cols.mean(axis=1, keepdims=True)
+
+
+def sure_threshold(x, sigma: float) -> np.ndarray:
+    """``x`` (values with white noise of std ``sigma``) with the values at or below a threshold
+    set to 0: the threshold in [0, max |x|] that minimizes Stein's unbiased risk estimate of
+    soft thresholding, ``n sigma^2 - 2 sigma^2 #{|x| <= t} + sum min(x^2, t^2)``, or, where
+    ``x`` holds too little energy above the noise for that estimate, ``sigma sqrt(2 ln n)``
+    (SureShrink's hybrid rule); the values above it are kept as they are (soft thresholding
+    would pull a transient's peak down by t)."""
+    x = np.asarray(x, dtype=np.float64)
+    if sigma <= 0:
+        return x.copy()
+    a = np.sort(np.abs(x))
+    n = a.size
+    candidates = np.concatenate([[0.0], a])
+    below = np.arange(n + 1)  # #{|x| <= t} at t = candidates (ties aside)
+    kept = np.concatenate([[0.0], np.cumsum(a**2)])  # sum of x^2 at or below t
+    risk = n * sigma**2 - 2 * sigma**2 * below + kept + (n - below) * candidates**2
+    t = candidates[int(np.argmin(risk))]
+    if (np.sum(x**2) / sigma**2 - n) / n <= np.log2(max(n, 2)) ** 1.5 / np.sqrt(n):  # sparse: SURE is unreliable
+        t = sigma * np.sqrt(2.0 * np.log(max(n, 2)))  # the universal threshold (SureShrink's hybrid rule)
+    return np.where(np.abs(x) > t, x, 0.0)
+
+
+def estimate(frames, synthesized, k: float, kind: str = "bias", **_) -> dict:
+    """LineMap record at gain ``k`` from a bias or dark stack (N, 4, h, w; DN) against
+    syntheses of it (at least 3)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if kind == "flat" or len(synthesized) < 3:
+        raise ValueError("LineMap is measured on bias and dark stacks, against >= 3 syntheses")
+    measured = line_profiles(frames)
+    synth = [line_profiles(s) for s in synthesized]
+    out = {"k": [float(k)], "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3])}
+    for axis, key in enumerate(("row_dn", "col_dn")):
+        parts = np.array([s[axis] for s in synth])  # (S, 4, n)
+        model = parts.mean(axis=0)
+        # the spread of one stack's profile about the model's, and that of the model's mean
+        sigma = np.sqrt(parts.var(axis=0, ddof=1).mean(axis=1) * (1.0 + 1.0 / len(parts)))
+        out[key] = [[[round(float(v), DECIMALS) for v in sure_threshold(measured[axis][c] - model[c], sigma[c])]
+                     for c in range(4)]]
+    return out
+
+
+def combine(records: list[dict]) -> dict:
+    """One record per gain: the stacks at one K averaged; the frame size of the first
+    (a camera's frames share one; records of another size are left out)."""
+    first = records[0]
+    same = [r for r in records if (r["frame_h"], r["frame_w"]) == (first["frame_h"], first["frame_w"])]
+    by_k: dict = {}
+    for r in same:
+        by_k.setdefault(float(r["k"][0]), []).append(r)
+    ks = sorted(by_k)
+    out: dict = {"k": ks, "frame_h": first["frame_h"], "frame_w": first["frame_w"]}
+    for key in ("row_dn", "col_dn"):
+        out[key] = [np.round(np.mean([r[key][0] for r in by_k[k]], axis=0), DECIMALS).tolist() for k in ks]
+    return out
+
+
+def empty(params) -> bool:
+    """True when every offset is 0: it would add nothing."""
+    return all_zero(params, ("row_dn", "col_dn"))
