@@ -176,3 +176,21 @@ def test_low_light_ratio_scales_the_noise_back():
     noise = (aug(x) - x).numpy().ravel()
     expected = 2.0 * 200.0 / SPAN
     assert abs(noise.std() / expected - 1) < 5 * math.sqrt(1 / (2 * noise.size))
+
+
+def test_median_and_code_percentiles_equal_numpy():
+    # the sort-based median and the percentiles from code counts are speed-ups: the same values
+    from rawaug.statistics import code_percentiles, median
+
+    rng = np.random.default_rng(8)
+    for shape, axis in (((7,), None), ((6, 9), 1), ((6, 9), 0), ((3, 4, 10), 2), ((3, 4, 5), None), ((5, 2, 3), 0)):
+        x = np.rint(rng.normal(0, 2, shape)) * rng.integers(1, 4)  # whole codes: many ties
+        for keepdims in (False, True):
+            want = np.median(x, axis=axis, keepdims=keepdims)
+            got = median(x, axis=axis, keepdims=keepdims)
+            assert np.shape(got) == np.shape(want) and np.array_equal(got, want), (shape, axis, keepdims)
+    for n in (1, 2, 17, 999):
+        v = np.rint(rng.normal(0, 5, n)) - 3
+        counts = np.bincount((v - v.min()).astype(int))
+        np.testing.assert_allclose(code_percentiles(counts, (0.5, 37.0, 99.5)) + v.min(), np.percentile(v, [0.5, 37.0, 99.5]),
+                                   rtol=0, atol=1e-9)

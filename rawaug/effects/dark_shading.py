@@ -145,9 +145,13 @@ def white_fixed_var(frames, shape: tuple | None = None) -> float:
     return _white_var(frames, shading_grid(frames, shape))
 
 
-def estimate(frames, synthesized, k: float, seed: int = 11, **_) -> dict:
+def estimate(frames, synthesized, k: float, seed: int = 11, kind: str = "bias", **_) -> dict:
     """Dark-shading record at gain ``k`` from measured frames (N, 4, h, w) in DN and
-    stacks of the same shape synthesized by the current model."""
+    stacks of the same shape synthesized by the current model: bias and dark stacks only (a
+    dark offset pattern; in a flat, the light's shot noise dwarfs it -- a pair's mean map
+    made a white pattern of 4-6 DN out of it -- and the light's own shading is not dark)."""
+    if kind == "flat":
+        raise ValueError("FPN is measured on bias and dark stacks")
     frames = np.asarray(frames, dtype=np.float64)
     grid = shading_grid(frames)  # removed before the white part is measured
     sigma = 0.0

@@ -18,10 +18,11 @@ Profile entry (per-K records, DN; frame size in packed pixels)::
               frame_h: H, frame_w: W}
 
 Estimated by ``estimate`` from bias and dark stacks (a fixed offset is in every frame; a
-flat's line means hold its light's pattern too), per K the mean over them of: the stack mean's row and column profiles of each channel less the model's
-(the mean over its syntheses), each with the values below the threshold of SureShrink
-(Donoho & Johnstone 1995: Stein's unbiased risk, for the spread of one stack's profile
-about the model's) set to 0, so a sparse transient is kept and noise is not copied.
+flat's line means hold its light's pattern too): each channel's row and column profile of
+the stack mean less the model's (the mean over its syntheses), pooled over the stacks of one
+K by ``combine`` (weights 1 / noise^2, the noise being the spread of one stack's profile about
+the model's), then the values below SureShrink's threshold (Donoho & Johnstone 1995: Stein's
+unbiased risk) set to 0, so a sparse transient is kept and noise is not copied.
 """
 from __future__ import annotations
 
@@ -64,7 +65,10 @@ class LineProfile(NoiseEffect):
             raise ValueError("effect 'LineMap' needs frame_h and frame_w (packed pixels of the measured profiles)")
         for key, n in (("row_dn", size[0]), ("col_dn", size[1])):
             for r, rec in enumerate(params[key]):
-                arr = np.asarray(rec, dtype=np.float64) if isinstance(rec, (list, tuple)) else None
+                try:
+                    arr = np.asarray(rec, dtype=np.float64) if isinstance(rec, (list, tuple)) else None
+                except (TypeError, ValueError):  # ragged or not numbers
+                    arr = None
                 if arr is None or arr.shape != (4, n) or not np.all(np.isfinite(arr)):
                     raise ValueError(f"effect 'LineMap': {key} record {r} must be 4 channels x {n} finite values (DN), "
                                      f"got {rec!r:.80}")
@@ -110,28 +114,39 @@ def sure_threshold(x, sigma: float) -> np.ndarray:
     return np.where(np.abs(x) > t, x, 0.0)
 
 
+AXES = (("row_dn", "row_excess_dn", "row_noise_dn"), ("col_dn", "col_excess_dn", "col_noise_dn"))
+
+
+def _thresholded(excess, noise) -> list:
+    """Each channel's profile (4, n) thresholded for its noise (4,) (``sure_threshold``), DN."""
+    return [[round(float(v), DECIMALS) for v in sure_threshold(np.asarray(excess[c]), float(noise[c]))] for c in range(4)]
+
+
 def estimate(frames, synthesized, k: float, kind: str = "bias", **_) -> dict:
     """LineMap record at gain ``k`` from a bias or dark stack (N, 4, h, w; DN) against
-    syntheses of it (at least 3)."""
+    syntheses of it (at least 3): the thresholded profiles, and (for ``combine``, which pools
+    the stacks of one K before thresholding) the profiles less the model's and their noise."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind == "flat" or len(synthesized) < 3:
         raise ValueError("LineMap is measured on bias and dark stacks, against >= 3 syntheses")
     measured = line_profiles(frames)
     synth = [line_profiles(s) for s in synthesized]
     out = {"k": [float(k)], "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3])}
-    for axis, key in enumerate(("row_dn", "col_dn")):
+    for axis, (key, excess_key, noise_key) in enumerate(AXES):
         parts = np.array([s[axis] for s in synth])  # (S, 4, n)
-        model = parts.mean(axis=0)
+        excess = measured[axis] - parts.mean(axis=0)
         # the spread of one stack's profile about the model's, and that of the model's mean
-        sigma = np.sqrt(parts.var(axis=0, ddof=1).mean(axis=1) * (1.0 + 1.0 / len(parts)))
-        out[key] = [[[round(float(v), DECIMALS) for v in sure_threshold(measured[axis][c] - model[c], sigma[c])]
-                     for c in range(4)]]
+        noise = np.sqrt(parts.var(axis=0, ddof=1).mean(axis=1) * (1.0 + 1.0 / len(parts)))
+        out[key] = [_thresholded(excess, noise)]
+        out[excess_key], out[noise_key] = [excess.tolist()], [noise.tolist()]
     return out
 
 
 def combine(records: list[dict]) -> dict:
-    """One record per gain: the stacks at one K averaged; the frame size of the first
-    (a camera's frames share one; records of another size are left out)."""
+    """One record per gain: the profiles less the model's of the stacks at one K averaged with
+    weights 1 / noise^2, then thresholded for the pooled noise (a transient's tail that one
+    stack's noise hides shows in several); the frame size of the first (a camera's frames
+    share one; records of another size are left out)."""
     first = records[0]
     same = [r for r in records if (r["frame_h"], r["frame_w"]) == (first["frame_h"], first["frame_w"])]
     by_k: dict = {}
@@ -139,8 +154,13 @@ def combine(records: list[dict]) -> dict:
         by_k.setdefault(float(r["k"][0]), []).append(r)
     ks = sorted(by_k)
     out: dict = {"k": ks, "frame_h": first["frame_h"], "frame_w": first["frame_w"]}
-    for key in ("row_dn", "col_dn"):
-        out[key] = [np.round(np.mean([r[key][0] for r in by_k[k]], axis=0), DECIMALS).tolist() for k in ks]
+    for key, excess_key, noise_key in AXES:
+        out[key] = []
+        for k in ks:
+            excess = np.array([r[excess_key][0] for r in by_k[k]])  # (stacks, 4, n)
+            weight = 1.0 / np.maximum(np.array([r[noise_key][0] for r in by_k[k]]), 1e-12) ** 2  # (stacks, 4)
+            pooled = np.sum(weight[:, :, None] * excess, axis=0) / weight.sum(axis=0)[:, None]
+            out[key].append(_thresholded(pooled, 1.0 / np.sqrt(weight.sum(axis=0))))
     return out
 
 
