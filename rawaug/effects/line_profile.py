@@ -37,6 +37,10 @@ STATISTICS = ("row_excess", "col_excess", "fixed_row_excess", "fixed_col_excess"
 MEASURED = True
 SIGNED = True  # offsets of either sign, which calibration counted as row noise: suggested by a line statistic the model overshoots too
 SHARES_ROW_NOISE = True  # calibration's sigma_r holds the fixed rows' variance: judged with the row noise re-fitted
+REFIT_Z = 3.0  # ... where the model's row variance is 3 spreads above the measured (the loop's z_min, 6, for the
+# others): the profile is the measured one, whose whole row variance calibration counted in sigma_r, so the
+# re-fit need not wait until 2h row means resolve it at 6 (at 6, the reset_transient probe kept row_excess at
+# ISO 3200, z -6.9; for RowDrift, 3 cut sigma_r too far on the row_flicker probe)
 DECIMALS = 4  # DN stored in the profile
 
 

@@ -49,8 +49,6 @@ from .signatures import step_signature
 ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
 CONFIRM_FACTOR = 3  # a residual that would call for an effect is confirmed on 3x the syntheses, with fresh seeds
 BATTERY_GROWTH = 1.25  # ... and may not raise the battery's mean relative error by more than a quarter
-ROW_REFIT_Z = 3.0  # a candidate that shares the row noise has it re-fitted where the model's row variance is 3
-# spreads above the measured: the candidate says calibration gave it that variance, and 2h row means resolve less
 
 
 @dataclass
@@ -297,11 +295,12 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 say(f"step {step_no}: {evidence.statistic} ({label}, z={evidence.z:.1f}) not confirmed on "
                     f"{CONFIRM_FACTOR * n_synth} syntheses (z={check.z:.1f}): not acted on")
 
-    def judged(trial, shared, step_no, which=None, known=None):
+    def judged(trial, shared, step_no, which=None, known=None, refit_z=None):
         # (diagnoses, stacks, profile, factors) of a trial model on ``which`` (default all
         # stacks); a base stage the candidate shares (``shared``) is re-fitted from the bias
         # stacks. ``known``: {"model": ..., "refitted": ...} diagnoses made already (the
         # screening's: the same seeds give the same results), filled in as it goes.
+        # ``refit_z``: the row re-fit's threshold in spreads (default ``z_min``; a candidate's own ``REFIT_Z``).
         step_seed = seed + 1000 * step_no
         which = list(which or stacks)
         known = known if known is not None else {}
@@ -317,7 +316,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         # the re-fit reads the bias stacks only: the others are diagnosed once, with it or without
         got = run(trial, [st for st in stacks if st.kind == "bias"], "model")
         factors = (read_noise_factors(stacks, got, trial, model, z_min=z_min) if shared == "read noise"
-                   else row_noise_factors(stacks, got, trial, z_min=ROW_REFIT_Z))
+                   else row_noise_factors(stacks, got, trial, z_min=refit_z or z_min))
         if not factors:
             return run(trial, which, "model"), stacks, trial, factors
         refit_stacks, refitted = (apply_read_noise_factors(stacks, trial, factors, model) if shared == "read noise"
@@ -353,7 +352,8 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 # its evidence first, on the stack it comes from (and the bias stacks a re-fit
                 # reads): most candidates fail there, and the whole battery is not run for them
                 known: dict = {}  # the screening's diagnoses, reused by the whole battery's
-                screen = judged(trial, shared, step_no, [by_label[label]], known)[0]
+                refit_z = getattr(CANDIDATES[token].module, "REFIT_Z", None)
+                screen = judged(trial, shared, step_no, [by_label[label]], known, refit_z)[0]
                 err_before, err_after = _evidence_error(token, evidence, diags[label][0], screen[label][0])
                 if err_after > ACCEPT_FACTOR * err_before:
                     after = next(r for r in screen[label][0] if r.statistic == evidence.statistic)
@@ -361,7 +361,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                                         before_b, {}, round=step_no, kind="measured" if _measured(token) else "physical",
                                         evidence_after=after.to_dict(), note="screened"), trial, None, stacks, {}))
                     continue
-                new_diags, trial_stacks, trial, factors = judged(trial, shared, step_no, known=known)
+                new_diags, trial_stacks, trial, factors = judged(trial, shared, step_no, known=known, refit_z=refit_z)
                 if factors:
                     say(f"step {step_no}: {token} judged with the {shared} re-fitted ("
                         + ", ".join(f"{label} x{f:.3f}" for label, f in factors.items()) + ")")
