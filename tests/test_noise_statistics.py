@@ -189,6 +189,8 @@ def test_median_and_code_percentiles_equal_numpy():
             want = np.median(x, axis=axis, keepdims=keepdims)
             got = median(x, axis=axis, keepdims=keepdims)
             assert np.shape(got) == np.shape(want) and np.array_equal(got, want), (shape, axis, keepdims)
+    x = np.array([[1.0, np.nan, 3.0], [4.0, 5.0, 6.0]])
+    assert np.array_equal(median(x, axis=1), np.median(x, axis=1), equal_nan=True)
     for n in (1, 2, 17, 999):
         v = np.rint(rng.normal(0, 5, n)) - 3
         counts = np.bincount((v - v.min()).astype(int))

@@ -20,9 +20,11 @@ Profile entry (per-K records, DN; frame size in packed pixels)::
 Estimated by ``estimate`` from bias and dark stacks (a fixed offset is in every frame; a
 flat's line means hold its light's pattern too): each channel's row and column profile of
 the stack mean less the model's (the mean over its syntheses), pooled over the stacks of one
-K by ``combine`` (weights 1 / noise^2, the noise being the spread of one stack's profile about
-the model's), then the values below SureShrink's threshold (Donoho & Johnstone 1995: Stein's
-unbiased risk) set to 0, so a sparse transient is kept and noise is not copied.
+K by ``combine`` (weights 1 / noise^2 per value, the noise being the spread of one stack's
+profile about the model's, or the line's own frame-to-frame spread where that is larger: a
+line that changes between frames is not a fixed offset), then the values below SureShrink's
+threshold (Donoho & Johnstone 1995: Stein's unbiased risk) set to 0, so a sparse transient
+is kept and noise is not copied.
 """
 from __future__ import annotations
 
@@ -96,34 +98,45 @@ def line_profiles(frames) -> tuple[np.ndarray, np.ndarray]:
     return rows - rows.mean(axis=1, keepdims=True), cols - cols.mean(axis=1, keepdims=True)
 
 
-def sure_threshold(x, sigma: float) -> np.ndarray:
-    """``x`` (values with white noise of std ``sigma``) with the values at or below a threshold
-    set to 0: the threshold in [0, max |x|] that minimizes Stein's unbiased risk estimate of
-    soft thresholding, ``n sigma^2 - 2 sigma^2 #{|x| <= t} + sum min(x^2, t^2)``, or, where
-    ``x`` holds too little energy above the noise for that estimate, ``sigma sqrt(2 ln n)``
-    (SureShrink's hybrid rule); the values above it are kept as they are (soft thresholding
-    would pull a transient's peak down by t)."""
+def sure_threshold(x, sigma) -> np.ndarray:
+    """``x`` (values with white noise of std ``sigma``: one number, or one per value) with the
+    values at or below a threshold set to 0. The threshold, in units of sigma, is the one in
+    [0, max |x / sigma|] that minimizes Stein's unbiased risk estimate of soft thresholding,
+    ``n - 2 #{|z| <= t} + sum min(z^2, t^2)`` for z = x / sigma, or, where z holds too little
+    energy above the noise for that estimate, ``sqrt(2 ln n)`` (SureShrink's hybrid rule); the
+    values above it are kept as they are (soft thresholding would pull a transient's peak down
+    by t)."""
     x = np.asarray(x, dtype=np.float64)
-    if sigma <= 0:
+    sigma = np.broadcast_to(np.asarray(sigma, dtype=np.float64), x.shape)
+    if np.all(sigma <= 0):
         return x.copy()
-    a = np.sort(np.abs(x))
+    z = x / np.maximum(sigma, 1e-12)
+    a = np.sort(np.abs(z))
     n = a.size
     candidates = np.concatenate([[0.0], a])
-    below = np.arange(n + 1)  # #{|x| <= t} at t = candidates (ties aside)
-    kept = np.concatenate([[0.0], np.cumsum(a**2)])  # sum of x^2 at or below t
-    risk = n * sigma**2 - 2 * sigma**2 * below + kept + (n - below) * candidates**2
+    below = np.arange(n + 1)  # #{|z| <= t} at t = candidates (ties aside)
+    kept = np.concatenate([[0.0], np.cumsum(a**2)])  # sum of z^2 at or below t
+    risk = n - 2 * below + kept + (n - below) * candidates**2
     t = candidates[int(np.argmin(risk))]
-    if (np.sum(x**2) / sigma**2 - n) / n <= np.log2(max(n, 2)) ** 1.5 / np.sqrt(n):  # sparse: SURE is unreliable
-        t = sigma * np.sqrt(2.0 * np.log(max(n, 2)))  # the universal threshold (SureShrink's hybrid rule)
-    return np.where(np.abs(x) > t, x, 0.0)
+    if (np.sum(z**2) - n) / n <= np.log2(max(n, 2)) ** 1.5 / np.sqrt(n):  # sparse: SURE is unreliable
+        t = np.sqrt(2.0 * np.log(max(n, 2)))  # the universal threshold (SureShrink's hybrid rule)
+    return np.where(np.abs(z) > t, x, 0.0)
 
 
 AXES = (("row_dn", "row_excess_dn", "row_noise_dn"), ("col_dn", "col_excess_dn", "col_noise_dn"))
 
 
 def _thresholded(excess, noise) -> list:
-    """Each channel's profile (4, n) thresholded for its noise (4,) (``sure_threshold``), DN."""
-    return [[round(float(v), DECIMALS) for v in sure_threshold(np.asarray(excess[c]), float(noise[c]))] for c in range(4)]
+    """Each channel's profile (4, n) thresholded for its noise (4, n) (``sure_threshold``), DN."""
+    return [[round(float(v), DECIMALS) for v in sure_threshold(np.asarray(excess[c]), np.asarray(noise[c]))] for c in range(4)]
+
+
+def frame_profiles(frames) -> tuple[np.ndarray, np.ndarray]:
+    """((N, 4, h) row, (N, 4, w) column) profiles of each frame (N, 4, h, w; DN), each frame's
+    channel means removed."""
+    f = np.asarray(frames, dtype=np.float64)
+    rows, cols = f.mean(axis=3), f.mean(axis=2)
+    return rows - rows.mean(axis=2, keepdims=True), cols - cols.mean(axis=2, keepdims=True)
 
 
 def estimate(frames, synthesized, k: float, kind: str = "bias", **_) -> dict:
@@ -133,14 +146,21 @@ def estimate(frames, synthesized, k: float, kind: str = "bias", **_) -> dict:
     frames = np.asarray(frames, dtype=np.float64)
     if kind == "flat" or len(synthesized) < 3:
         raise ValueError("LineMap is measured on bias and dark stacks, against >= 3 syntheses")
+    n = frames.shape[0]
     measured = line_profiles(frames)
+    per_frame = frame_profiles(frames) if n >= 2 else None
     synth = [line_profiles(s) for s in synthesized]
     out = {"k": [float(k)], "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3])}
     for axis, (key, excess_key, noise_key) in enumerate(AXES):
         parts = np.array([s[axis] for s in synth])  # (S, 4, n)
         excess = measured[axis] - parts.mean(axis=0)
-        # the spread of one stack's profile about the model's, and that of the model's mean
-        noise = np.sqrt(parts.var(axis=0, ddof=1).mean(axis=1) * (1.0 + 1.0 / len(parts)))
+        # per value: the spread of one stack's profile about the model's (and of the model's
+        # mean), or the measured line's own frame-to-frame spread over N frames where larger:
+        # a line that changes between frames (a telegraph column) is not a fixed offset
+        var = np.broadcast_to(parts.var(axis=0, ddof=1).mean(axis=1, keepdims=True) * (1.0 + 1.0 / len(parts)), excess.shape)
+        if per_frame is not None:
+            var = np.maximum(var, per_frame[axis].var(axis=0, ddof=1) / n)
+        noise = np.sqrt(var)
         out[key] = [_thresholded(excess, noise)]
         out[excess_key], out[noise_key] = [excess.tolist()], [noise.tolist()]
     return out
@@ -162,8 +182,8 @@ def combine(records: list[dict]) -> dict:
         out[key] = []
         for k in ks:
             excess = np.array([r[excess_key][0] for r in by_k[k]])  # (stacks, 4, n)
-            weight = 1.0 / np.maximum(np.array([r[noise_key][0] for r in by_k[k]]), 1e-12) ** 2  # (stacks, 4)
-            pooled = np.sum(weight[:, :, None] * excess, axis=0) / weight.sum(axis=0)[:, None]
+            weight = 1.0 / np.maximum(np.array([r[noise_key][0] for r in by_k[k]]), 1e-12) ** 2  # (stacks, 4, n)
+            pooled = np.sum(weight * excess, axis=0) / weight.sum(axis=0)
             out[key].append(_thresholded(pooled, 1.0 / np.sqrt(weight.sum(axis=0))))
     return out
 
