@@ -207,20 +207,103 @@ def noisy_frames(dn, rng, **_):
     return dn + rng.uniform(0.2, 2.0) * rng.normal(0.0, 1.5, dn.shape)
 
 
+# 2026-11-26: a fresh batch, written before the loop ran on any of them.
+
+def _raw_mask_to_packed(mask):
+    return np.stack([mask[0::2, 0::2], mask[0::2, 1::2], mask[1::2, 1::2], mask[1::2, 0::2]])  # R, G1, B, G2 (RGGB)
+
+
+def _thin(dn, keep, rng, k):
+    """A photo signal thinned to the fraction ``keep`` (binomially, so its shot noise stays Poisson)."""
+    electrons = np.maximum(np.rint(dn / k), 0).astype(np.int64)
+    return dn - k * rng.binomial(electrons, 1.0 - keep)
+
+
+def pdaf_pixels(dn, rng, kind="", k=1.0, **_):
+    """Phase-detection AF pixels: on every 12th sensor row every 8th sensor column is half masked and collects half the light (fixed), so flats show a grid of dim pixels and bias frames none."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    y, x = np.arange(2 * h)[:, None], np.arange(2 * w)[None, :]
+    af = _raw_mask_to_packed((y % 12 == 6) & (x % 8 == 3))
+    return np.where(af, _thin(dn, 0.5, rng, k), dn)
+
+
+def row_gain(dn, rng, **_):
+    """Row gain mismatch: each sensor row's gain off by 0.4 % rms (fixed: row drivers, transfer gates), so flats show a row pattern in proportion to the signal and bias frames none."""
+    g = 1.0 + np.random.default_rng(17).normal(0.0, 0.004, 2 * dn.shape[1])
+    return dn * np.stack([g[0::2], g[0::2], g[1::2], g[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
+def charge_sharing(dn, rng, kind="", **_):
+    """Charge diffusion: in flats each pixel's charge spreads 3 % to each of its four raw neighbours, so flat noise is correlated between neighbours and its variance falls below the Poisson one; bias frames show nothing."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    raw = np.empty((2 * h, 2 * w))
+    for i, (r, c) in enumerate(((0, 0), (0, 1), (1, 1), (1, 0))):
+        raw[r::2, c::2] = dn[i]
+    p = np.pad(raw, 1, mode="reflect")
+    raw = 0.88 * raw + 0.03 * (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:])
+    return _raw_mask_to_packed(raw)
+
+
+def lens_shading(dn, rng, kind="", k=1.0, **_):
+    """Lens vignetting in the flats: the light falls off towards the corners (cos^4 law, 25 % darker there); bias and dark frames untouched. Illumination, not sensor noise: nothing should be added."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    y, x = np.mgrid[0:2 * h, 0:2 * w]
+    r2 = ((y - h + 0.5) ** 2 + (x - w + 0.5) ** 2) / ((h - 0.5) ** 2 + (w - 0.5) ** 2)
+    keep = np.cos(np.arctan(r2 ** 0.5 * np.tan(np.arccos(0.75 ** 0.25)))) ** 4
+    return _thin(dn, _raw_mask_to_packed(keep), rng, k)
+
+
+def companded_raw(dn, rng, **_):
+    """Lossy raw compression (a companding curve): codes step by 1 DN below 1024 DN, by 2 DN up to 4096 DN and by 4 DN above, so flats show combs of missing codes and bias frames none."""
+    q = np.floor(dn + 0.5)
+    step = np.where(q < 1024, 1.0, np.where(q < 4096, 2.0, 4.0))
+    return step * np.floor(q / step + 0.5)
+
+
+def channel_black(dn, rng, **_):
+    """A black-level clamp per colour channel (four ADCs): each channel's black level moves by 0.8 DN rms from frame to frame, independently of the others."""
+    return dn + rng.normal(0.0, 0.8, (4, 1, 1))
+
+
+def ramp_jitter(dn, rng, **_):
+    """Ramp-ADC slope jitter: each sensor row of each frame is converted with a gain off by 0.2 % rms, so flats show row noise in proportion to the signal and bias frames none."""
+    g = 1.0 + rng.normal(0.0, 0.002, 2 * dn.shape[1])
+    return dn * np.stack([g[0::2], g[0::2], g[1::2], g[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
                                  leaky_columns, clamp_sag, gain_jitter, coarse_adc,
-                                 impulses, column_flicker, reset_transient, noisy_frames)}
+                                 impulses, column_flicker, reset_transient, noisy_frames,
+                                 pdaf_pixels, row_gain, charge_sharing, lens_shading, companded_raw, channel_black,
+                                 ramp_jitter)}
 CASES["none"] = None
-NOTHING_TO_ADD = {"none"}  # cameras whose right answer is to add nothing
+NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
 
-def run_case(name: str, seed: int) -> dict:
+# Session geometries: "small" is the default of write_manifest_camera; "issue" is the one issue 11's
+# test cameras were reported with (512 x 384 mosaics, 4 ISOs, 8 bias frames, 4 darks of 4 s,
+# flat pairs at five levels).
+GEOMETRIES = {
+    "small": {},
+    "issue": {"size": (192, 256), "isos": ((400, 0.375), (800, 0.75), (1600, 1.5), (3200, 3.0)), "n_bias": 8,
+              "flat_levels": (0.02, 0.05, 0.1, 0.2, 0.4)},
+}
+
+
+def run_case(name: str, seed: int, geometry: str = "small", keep: Path | None = None) -> dict:
     _WALK.clear()
     with tempfile.TemporaryDirectory() as tmp:
-        folder = Path(tmp)
-        manifest = write_manifest_camera(folder, BASE, post=CASES[name], seed=seed)
+        folder = Path(tmp) if keep is None else keep / name
+        folder.mkdir(parents=True, exist_ok=True)
+        manifest = write_manifest_camera(folder, BASE, post=CASES[name], seed=seed, **GEOMETRIES[geometry])
         with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             warnings.simplefilter("ignore")
             if cli(["loop", str(manifest), "--out", str(folder / "loop.yaml"), "--report", str(folder / "report"), "--n-synth", "8"]):
@@ -242,6 +325,11 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("cases", nargs="*", help=f"cases (default: all): {', '.join(CASES)}")
     parser.add_argument("--seed", type=int, default=0, help="camera session (frames and patterns)")
+    parser.add_argument("--geometry", choices=list(GEOMETRIES), default="small",
+                        help="small: 64 x 64 packed, 2 ISOs, 6 bias, 2 flat levels; issue: 512 x 384 mosaics, 4 ISOs, "
+                             "8 bias, 5 flat levels")
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="keep each camera's frames, profile and loop report in KEEP/CASE (default: a temporary folder)")
     args = parser.parse_args(argv)
     unknown = [c for c in args.cases if c not in CASES]
     if unknown:
@@ -249,7 +337,7 @@ def main(argv=None) -> int:
     print("| camera (effect made outside rawaug) | added | evidence error | still significant | fixed |\n|---|---|---|---|---|")
     results = []
     for name in args.cases or CASES:
-        r = run_case(name, args.seed)
+        r = run_case(name, args.seed, args.geometry, args.keep)
         results.append(r)
         print(f"| {name}: {(CASES[name].__doc__ or 'ELD model only').strip()} | {', '.join(r['added']) or '-'} | "
               f"{'; '.join(r['errors']) or '-'} | {', '.join(r['left']) or '-'} | {'yes' if r['fixed'] else 'no'} |", flush=True)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, column_noise, column_telegraph, dark_columns, dark_hot_pixels, dark_offset, frame_gain, frame_noise, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, dark_columns, dark_hot_pixels, dark_offset, frame_gain, frame_noise, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -463,6 +463,51 @@ def test_column_gain_estimate_round_trip_and_white_flats_get_almost_none():
         column_gain.estimate(meas, base, K)
 
 
+ROWGAIN = {"seed": 71, "fixed": 0.004, "frame": 0.003}
+
+
+def test_row_gain_scales_the_signal_per_sensor_row_fixed_and_per_frame():
+    level = 2000.0
+    assert np.array_equal(synth({"RowGain": ROWGAIN}, batch=2, model="G+P*"), synth({}, batch=2, model="G+P*"))  # no signal
+    f = synth({"RowGain": ROWGAIN}, batch=8, size=128, level_dn=level, model="G+P*")
+    rows = f.mean(axis=3) / level - 1.0  # (N, 4, h) relative row means
+    fixed, frame = rows.mean(axis=0), rows - rows.mean(axis=0)
+    # the two channels of a sensor row share its gains: R with G1, B with G2 (shot noise ~2e-4 per row mean)
+    assert np.corrcoef(fixed[0], fixed[1])[0, 1] > 0.9 and np.corrcoef(fixed[2], fixed[3])[0, 1] > 0.9
+    assert abs(np.corrcoef(fixed[0], fixed[2])[0, 1]) < 5 / math.sqrt(128)
+    shot = 1.0 / (level * 128)  # the relative variance shot noise leaves in one row mean
+    # per frame the shared gain is 0.003 beside a row mean's shot noise: correlation 9e-6 / (9e-6 + shot) ~ 0.70
+    r = 0.003**2 / (0.003**2 + shot)
+    assert abs(np.corrcoef(frame[:, 0].ravel(), frame[:, 1].ravel())[0, 1] - r) < 5 * (1 - r * r) / math.sqrt(8 * 128)
+    # 2 x 128 fixed gains (the stack mean keeps 1/8 of the per-frame part): std of a std of n normals ~1 / sqrt(2 n)
+    spread = math.sqrt(float(np.mean(fixed**2)) - (0.003**2 + shot) / 8)
+    assert abs(spread / 0.004 - 1.0) < 5 / math.sqrt(2 * 256), spread
+    # 8 frames x 2 x 128 per-frame gains, 7 degrees of freedom per row
+    spread = math.sqrt(float(np.mean(frame**2)) * 8 / 7 - shot)
+    assert abs(spread / 0.003 - 1.0) < 5 / math.sqrt(2 * 7 * 256), spread
+
+
+def test_row_gain_estimate_round_trip_and_white_flats_get_almost_none():
+    level = 2000.0
+    flat = {"model": "G+P*", "level_dn": level}
+    meas = synth({"RowGain": ROWGAIN}, batch=8, size=128, **flat)
+    base = [synth({}, batch=8, size=128, seed=s, **flat) for s in range(1, 5)]
+    est = row_gain.estimate(meas, base, K, level_dn=level)
+    # robust variances of 127 row differences per channel, two independent patterns: ~10 % in each part
+    assert abs(est["fixed"] / 0.004 - 1.0) < 0.3 and abs(est["frame"] / 0.003 - 1.0) < 0.3, est
+    assert est["weight"] == level**2
+    # two stacks at another level: combined by variance, weighted by level^2
+    both = row_gain.combine([est, {**est, "fixed": 0.0, "frame": 0.0, "weight": level**2 / 4}])
+    assert both["fixed"] == pytest.approx(est["fixed"] * math.sqrt(0.8)) and both["seed"] == 71
+    # white flats: the excess is chance, of the order of the shot noise a row mean keeps (~2e-4)
+    white = [row_gain.estimate(synth({}, batch=8, size=128, seed=s, **flat), base, K, level_dn=level) for s in range(20, 30)]
+    assert max(max(w["fixed"], w["frame"]) for w in white) < 0.001, white
+    with pytest.raises(ValueError, match="flat stack"):
+        row_gain.estimate(meas, base, K)
+    with pytest.raises(ValueError, match=">= 2 frames"):
+        row_gain.estimate(meas[:1], base, K, level_dn=level)
+
+
 def test_defect_lines_estimate_round_trip():
     # 2 frames of 4 x 512 x 512 packed: 1024 sensor rows and columns; offsets 40 DN (+-0.3 in
     # log), far above the 8-sigma detection threshold of a line mean (~0.35 DN here)
@@ -550,7 +595,8 @@ def test_gain_non_linearity_must_keep_the_output_rising():
         RawNoiseAugment(prof)
 
 
-XTALK = {"k": [K], "lag_0_1_dn": [1.0], "lag_1_1_dn": [-0.7], "lag_0_2_dn": [0.8], "lag_2_0_dn": [0.0]}
+XTALK = {"k": [K], "tap_0_0_dn": [1.0], "tap_0_1_dn": [0.6], "tap_1_1_dn": [-0.5], "tap_2_0_dn": [0.4], "tap_1_-1_dn": [0.0]}
+XTALK_TAPS_DN = [XTALK.get(key, [0.0])[0] for key in crosstalk.KEYS]
 
 
 def _raw(f):
@@ -563,30 +609,52 @@ def _raw(f):
 def test_crosstalk_covariance_at_each_lag():
     f = synth({"Xtalk": XTALK}, batch=8, size=64, sigma_g=0.0)
     raw = _raw(f)
-    amp = {lag: XTALK.get(f"lag_{lag[0]}_{lag[1]}_dn", [0.0])[0] for lag in XTALK_LAGS}
-    var = 2 * sum(a * a for a in amp.values())
-    assert abs(raw.var() / var - 1) < 5 * math.sqrt(2 / raw.size) * 3  # pixel variance 2 sum a^2 (lags correlate pixels)
+    var = sum(h * h for h in XTALK_TAPS_DN)
+    assert abs(raw.var() / var - 1) < 5 * math.sqrt(2 / raw.size) * 3  # pixel variance sum h^2 (taps correlate pixels)
     hh, ww = raw.shape[1:]
-    for (dy, dx), a in amp.items():
+    expected = crosstalk.autocovariance(XTALK_TAPS_DN)
+    # by hand: lag (1, 0) pairs taps (0, 1) and (1, 1); lag (2, 0) taps (0, 0) and (2, 0); lag (0, 1) taps (0, 0)-(0, 1) and (1, 0)-(1, 1)
+    assert expected[XTALK_LAGS.index((1, 0))] == pytest.approx(0.6 * -0.5)
+    assert expected[XTALK_LAGS.index((2, 0))] == pytest.approx(1.0 * 0.4)
+    assert expected[XTALK_LAGS.index((0, 1))] == pytest.approx(1.0 * 0.6)
+    for (dy, dx), c in zip(XTALK_LAGS, expected):
         x = raw[:, : hh - dy, max(0, -dx) : ww - max(0, dx)]
         y = raw[:, dy:, max(0, dx) : ww - max(0, -dx)]
         cov = float(np.mean(x * y))
         # the mean of n products of correlated normals has sd <= var / sqrt(n / 3) (neighbouring products share draws)
-        assert abs(cov - a * abs(a)) < 5 * var / math.sqrt(x.size / 3), ((dy, dx), cov, a * abs(a))
+        assert abs(cov - c) < 5 * var / math.sqrt(x.size / 3), ((dy, dx), cov, c)
+
+
+def test_crosstalk_kernel_of_least_variance():
+    # a coupling of the left and upper neighbours (1.5 DN plus 0.6 and 0.4 of theirs): one field
+    # through a kernel holds it with its own 3.42 DN^2; a field per lag needed 2 sum |c| = 5.58
+    true = [1.5, 0.9, 0.6, 0.0, 0.0, 0.0, 0.0]
+    cov = crosstalk.autocovariance(true)
+    assert cov == pytest.approx([1.35, 0.9, 0.0, 0.54, 0.0, 0.0])
+    h = crosstalk.kernel_for(cov)
+    assert crosstalk.autocovariance(h) == pytest.approx(cov, abs=0.01)
+    assert sum(x * x for x in h) <= sum(x * x for x in true) + 0.01
+    # one lag alone: two equal taps, variance 2c, the least any kernel can have
+    h = crosstalk.kernel_for([0.0, 0.0, 0.0, 0.0, 0.8, 0.0])
+    assert h[0] == pytest.approx(0.8**0.5, rel=1e-3) and h[crosstalk.KEYS.index("tap_0_2_dn")] == pytest.approx(0.8**0.5, rel=1e-3)
+    assert not np.any(crosstalk.kernel_for(np.zeros(6)))
 
 
 def test_crosstalk_estimate_round_trip_and_white_noise_gives_nothing():
     meas = synth({"Xtalk": XTALK}, batch=8, size=64, sigma_g=1.5)
     # the base model as calibrated: its white read noise holds all of the pixel variance
-    white_sigma = math.sqrt(1.5**2 + 2 * sum(v[0] ** 2 for key, v in XTALK.items() if key != "k"))
+    white_sigma = math.sqrt(1.5**2 + sum(h * h for h in XTALK_TAPS_DN))
     base = [synth({}, batch=8, size=64, seed=s, sigma_g=white_sigma) for s in range(1, 7)]
     est = crosstalk.estimate(meas, base, K)
-    for key in crosstalk.KEYS:
-        true = XTALK.get(key, [0.0])[0]
+    got = crosstalk.autocovariance([est[key][0] for key in crosstalk.KEYS])
+    for lag, c, true in zip(XTALK_LAGS, got, crosstalk.autocovariance(XTALK_TAPS_DN)):
         # the residual is high-passed (7x7 local mean out): covariances within a few per cent of the truth
-        assert abs(est[key][0] * abs(est[key][0]) - true * abs(true)) < 0.1 + 0.1 * true * true, (key, est[key], true)
+        assert abs(c - true) < 0.1 + 0.1 * abs(true), (lag, c, true)
+    # the kernel of least variance: no more than the planted one's
+    assert sum(est[key][0] ** 2 for key in crosstalk.KEYS) <= sum(h * h for h in XTALK_TAPS_DN) + 0.1
     white = crosstalk.estimate(synth({}, batch=8, size=64, seed=9, sigma_g=white_sigma), base, K)
-    assert sum(white[key][0] != 0.0 for key in crosstalk.KEYS) <= 1, white  # 3 sd per lag: P(any of 6) ~ 1.6 %
+    covs = crosstalk.autocovariance([white[key][0] for key in crosstalk.KEYS])
+    assert np.count_nonzero(np.abs(covs) > 1e-6) <= 1, white  # 3 sd per lag: P(any of 6) ~ 1.6 %
     with pytest.raises(ValueError, match="bias and dark"):
         crosstalk.estimate(meas, base, K, level_dn=100.0)
 
@@ -773,6 +841,10 @@ def test_effects_replay_bit_exactly():
     ("DarkOffset", {"k": [1.0, 2.0], "dn_per_s": [1.0]}, "one value per k"),
     ("ColGain", {"seed": 1, "sigma": 0.6}, r"sigma \(fraction of the signal\) must be in \[0, 0.5\), got 0.6"),
     ("ColGain", {"sigma": 0.01}, "seed"),
+    ("RowGain", {"seed": 1, "frame": 0.6}, r"frame \(fraction of the signal\) must be in \[0, 0.5\), got 0.6"),
+    ("RowGain", {"seed": 1}, "at least one of"),
+    ("RowGain", {"seed": 1, "fixed": 0.01, "sigma": 0.01}, r"unknown keys \['sigma'\]"),
+    ("RowGain", {"fixed": 0.01}, "seed"),
     ("DiagBand", {"k": [1.0], "freq_per_col": [[0.0]], "freq_per_row": [[0.0]], "amplitude_dn": [[1.0]]}, "not both 0, got"),
     ("DiagBand", {"k": [1.0], "freq_per_col": [[0.6]], "freq_per_row": [[0.1]], "amplitude_dn": [[1.0]]}, r"freq_per_col in \[0, 0.5\]"),
     ("DiagBand", {"k": [1.0], "freq_per_col": [[0.1, 0.2]], "freq_per_row": [[0.1]], "amplitude_dn": [[1.0]]}, "equal lists"),
@@ -789,8 +861,9 @@ def test_effects_replay_bit_exactly():
     ("ColBand", {"k": [1.0], "freq_per_col": [[0.0]], "amplitude_dn": [[1.0]]}, r"freq_per_col \(cycles per sensor column\) must be in \(0, 0.5\], got 0.0"),
     ("ColBand", {"k": [1.0], "freq_per_col": [[0.1]], "amplitude_dn": [[-1.0]]}, "amplitude_dn must be >= 0, got -1.0"),
     ("ColBand", {"k": [1.0], "freq_per_row": [[0.1]], "amplitude_dn": [[1.0]]}, "freq_per_col"),
-    ("Xtalk", {"k": [1.0], "lag_0_1_dn": [1.0], "lag_3_0_dn": [1.0]}, r"unknown keys \['lag_3_0_dn'\]"),
-    ("Xtalk", {"k": [1.0], "lag_0_1_dn": [float("nan")]}, "finite"),
+    ("Xtalk", {"k": [1.0], "tap_0_1_dn": [1.0], "tap_3_0_dn": [1.0]}, r"unknown keys \['tap_3_0_dn'\]"),
+    ("Xtalk", {"k": [1.0], "lag_0_1_dn": [1.0]}, "no longer an amplitude per lag: run rawaug loop again"),
+    ("Xtalk", {"k": [1.0], "tap_0_1_dn": [float("nan")]}, "finite"),
 ])
 def test_bad_effect_params_raise(token, params, match):
     with pytest.raises(ValueError, match=match):
@@ -852,7 +925,7 @@ def test_shared_pixel_noise_is_shared_by_a_tile_and_estimated():
     # Xtalk reads the pairs in different tiles: a shared readout leaves it (nearly) nothing; read
     # from all pairs, lags (0, 1), (1, 0), (1, 1), (1, -1) would get 0.72 DN^2 (|a| 0.85)
     xt = crosstalk.estimate(f, base, K)
-    assert all(abs(v[0]) < 0.3 for key, v in xt.items() if key != "k"), xt
+    assert np.all(np.abs(crosstalk.autocovariance([xt[key][0] for key in crosstalk.KEYS])) < 0.09), xt
 
 
 RTS = {"seed": 41, "density": 0.02, "high": 0.4, "log_std": 0.3, "k": [K], "median_dn": [20.0]}

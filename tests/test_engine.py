@@ -29,6 +29,7 @@ LOOP_EFFECTS = {
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
     "PRNU": {"seed": 17, "sigma": 0.02},
     "ColGain": {"seed": 67, "sigma": 0.01},
+    "RowGain": {"seed": 71, "fixed": 0.01, "frame": 0.02},
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2]},
     "Glow": {"k": [1.0, 3.0], "rate_e_per_s": [[[0.0, 1.0, 4.0, 9.0], [0.5, 2.0, 6.0, 20.0], [0.0, 0.0, 1.0, 3.0]],
                                                [[1.0, 1.0, 2.0, 5.0], [0.0, 2.0, 3.0, 10.0], [0.0, 1.0, 1.0, 2.0]]],
@@ -43,7 +44,8 @@ LOOP_EFFECTS = {
     "ColBand": {"k": [1.0, 3.0], "freq_per_col": [[0.093], [0.5, 0.21]], "amplitude_dn": [[1.1], [0.7, 0.3]]},  # Nyquist too
     "DiagBand": {"k": [1.0, 3.0], "freq_per_col": [[0.11], [0.3, 0.05]], "freq_per_row": [[0.23], [-0.17, 0.41]],
                  "amplitude_dn": [[0.9], [0.5, 0.4]]},
-    "Xtalk": {"k": [1.0, 3.0], "lag_0_1_dn": [0.5, -0.8], "lag_1_-1_dn": [0.3, 0.0], "lag_2_0_dn": [0.6, 0.4]},
+    "Xtalk": {"k": [1.0, 3.0], "tap_0_0_dn": [0.7, 1.0], "tap_0_1_dn": [0.5, -0.8], "tap_1_-1_dn": [0.3, 0.0],
+              "tap_2_0_dn": [0.6, 0.4]},
     "ReadMap": {"k": [1.0, 3.0], "channel_dn": [[0.0, 2.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0]],
                 "row_block_dn": [[0.0] * 4 + [1.5] * 4, [0.3] * 8], "col_block_dn": [[0.0, 0.7] * 4, [0.0] * 7 + [2.0]],
                 "frame_h": 40, "frame_w": 64},  # larger than the test inputs' 24 rows: a window per sample

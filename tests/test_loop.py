@@ -4,6 +4,7 @@ from importlib import resources
 from pathlib import Path
 
 import json
+import math
 import numpy as np
 import pytest
 
@@ -52,7 +53,7 @@ def two_level_read_noise():
     return {"ReadDist": {"k": [K], "quantiles_dn": [[q.tolist()] * 4]}}
 
 
-XTALK = {"Xtalk": {"k": [K], "lag_0_1_dn": [1.2], "lag_1_-1_dn": [-0.8]}}  # a shared readout, opposite coupling on a diagonal
+XTALK = {"Xtalk": {"k": [K], "tap_0_0_dn": [1.2], "tap_0_1_dn": [1.2], "tap_1_-1_dn": [-0.53]}}  # coupled readout, opposite on a diagonal
 BAND = {"Band": {"k": [K], "freq_per_row": [[0.137]], "amplitude_dn": [[1.0]]}}  # interference during readout
 COLBAND = {"ColBand": {"k": [K], "freq_per_col": [[0.181]], "amplitude_dn": [[1.0]]}}  # ... along a serially read row
 DIAGBAND = {"DiagBand": {"k": [K], "freq_per_col": [[0.137]], "freq_per_row": [[0.291]], "amplitude_dn": [[1.0]]}}  # ... not line-locked
@@ -458,3 +459,26 @@ def test_a_histogram_curve_is_compared_by_its_tails():
         closer["bins"] += distance({**sig, "kind": "code_histogram"}, "after") < distance({**sig, "kind": "code_histogram"}, "before")
     assert closer["tails"] == 200, closer
     assert closer["bins"] < 200, closer  # what the bin-by-bin comparison (codes keep it) would have said
+
+
+def test_illumination_shape_recovers_the_light_and_leaves_uniform_flats_alone():
+    """A flat is synthesized under its light's measured shape: a smooth light is recovered to
+    the noise of a 28-term fit; under uniform light the James-Stein shrinkage takes out what
+    the fit holds of the noise (40 seeds)."""
+    from rawaug.loop.illumination import TERMS, illumination_shape
+
+    h, w = 96, 128
+    fit_noise = math.sqrt((TERMS - 1) / (h * w)) * 0.01  # rms of an unshrunk fit's noise at 1 % pixel noise
+    y, x = np.mgrid[0:h, 0:w] / np.array([h - 1, w - 1])[:, None, None] - 0.5
+    light = (1.0 - 0.5 * (x**2 + y**2)) * (1.05 - 0.1 * (x + 0.5))  # vignetting and a lamp's gradient (degree 3)
+    shape = illumination_shape(1000.0 * light[None] * (1.0 + 0.01 * np.random.default_rng(1).normal(size=(4, h, w))))
+    truth = light / light.mean()
+    assert np.sqrt(np.mean((shape - truth) ** 2)) < 1.5 * fit_noise and np.abs(shape - truth).max() < 6 * fit_noise
+    assert shape.mean(axis=(1, 2)) == pytest.approx(np.ones(4))
+    uniform = [np.sqrt(np.mean((illumination_shape(1000.0 * (1.0 + 0.01 * np.random.default_rng(s).normal(size=(4, h, w))))
+                                - 1.0) ** 2)) for s in range(40)]
+    # the shrunk fit keeps a fraction of the noise an unshrunk one would (0.14 on average, 0.40 at most, measured)
+    assert np.mean(uniform) < 0.3 * fit_noise and max(uniform) < fit_noise, (np.mean(uniform) / fit_noise, max(uniform) / fit_noise)
+    assert np.array_equal(illumination_shape(np.ones((4, 8, 8))), np.ones((4, 8, 8)))  # too few pixels: no shape
+    with pytest.raises(ValueError, match=r"mean frame \(4, h, w\)"):
+        illumination_shape(np.ones((3, 32, 32)))

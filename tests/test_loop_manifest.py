@@ -176,6 +176,35 @@ def settling_clamp(dn, rng, **_):
     return dn + row + col
 
 
+def _raw_to_packed(raw):
+    return np.stack([raw[0::2, 0::2], raw[0::2, 1::2], raw[1::2, 1::2], raw[1::2, 0::2]])  # R, G1, B, G2 (RGGB)
+
+
+def uneven_light(dn, rng, kind="bias", k=1.0, **_):
+    """Flats under uneven light (made outside rawaug): a lamp 12 % brighter on the left than on
+    the right and a lens falling off to 80 % in the corners (cos^4), red falling off faster (a
+    lens's colour shading); bias and dark frames untouched. The light, not the sensor: nothing
+    should be added."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    y, x = np.mgrid[0:2 * h, 0:2 * w] / np.array([2 * h - 1, 2 * w - 1])[:, None, None] - 0.5
+    r2 = (y**2 + x**2) / 0.5
+    light = _raw_to_packed((1.06 - 0.12 * (x + 0.5)) * (1.0 - 0.2 * r2) ** 1.0)
+    light[0] *= 1.0 - 0.08 * _raw_to_packed(r2)[0]  # red
+    light /= light.max()  # thinning takes light away: the brightest pixel keeps all of it
+    electrons = np.maximum(np.rint(dn / k), 0).astype(np.int64)
+    return dn - k * rng.binomial(electrons, 1.0 - light)  # thinned: the shot noise stays Poisson
+
+
+def row_driver_gains(dn, rng, **_):
+    """Row gain mismatch (made outside rawaug): each sensor row's gain off by 0.5 % rms (fixed)
+    and by 0.2 % rms from frame to frame; bias frames show nothing."""
+    h = dn.shape[1]
+    g = 1.0 + np.random.default_rng(29).normal(0.0, 0.005, 2 * h) + rng.normal(0.0, 0.002, 2 * h)
+    return dn * np.stack([g[0::2], g[0::2], g[1::2], g[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist", "LineMap"}  # the measured fallbacks; every other effect is physical
 
 
@@ -202,6 +231,8 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "column flicker": (None, None, column_traps, ["ColRTS"]),
          "gain jitter": (None, None, jittery_gain, ["FrameGain"]),
          "settling clamp": (None, None, settling_clamp, ["LineMap"]),
+         "uneven light": (None, None, uneven_light, []),
+         "row gain": (None, None, row_driver_gains, ["RowGain"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
@@ -224,7 +255,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
 SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
-              "leaky columns", "black drift", "impulses", "column flicker", "gain jitter"}
+              "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

@@ -52,12 +52,13 @@ def to_mosaic(packed: np.ndarray, cfa: str) -> np.ndarray:
 
 def write_manifest_camera(folder, profile: NoiseProfile, *, post=None, seed: int = 0, isos=((800, 0.75), (3200, 3.0)),
                           n_bias: int = 6, n_dark: int = 4, dark_exposures=(4.0,), flat_levels=(0.02, 0.1), lights: bool = False,
-                          size: int = 64, cfa: str = "RGGB", n_flat: int = 2):
+                          size: int | tuple[int, int] = 64, cfa: str = "RGGB", n_flat: int = 2):
     """A virtual camera's calibration frames as a manifest (``folder/manifest.csv``) of 16-bit
     mosaics: at each (ISO, K DN/e-) of ``isos``, ``n_bias`` bias frames, ``n_dark`` dark frames
     per exposure of ``dark_exposures`` (s) and ``n_flat`` flats (a pair by default) at ``flat_levels`` (fraction of
     white; exposure in seconds = level, or with ``lights`` all at 0.5 s under a relative light
-    = level, listed in the manifest's ``light`` column), ``size`` x ``size`` per packed channel.
+    = level, listed in the manifest's ``light`` column), ``size`` x ``size`` per packed channel (or
+    ``size = (height, width)``).
     The noise is ``profile``'s (``G*+P*+R`` at its median sigmas, lambda 0.05, and every effect
     it holds, one sensor instance), then ``post(dn, rng, kind=, exposure=, k=)``: a change to
     the black-subtracted DN that no rawaug stage makes (an undeclared effect of your own).
@@ -66,6 +67,7 @@ def write_manifest_camera(folder, profile: NoiseProfile, *, post=None, seed: int
     from pathlib import Path
 
     folder = Path(folder)
+    height, width = (size, size) if np.isscalar(size) else size
     rng = np.random.default_rng(5 + seed)
     rows = []
     for i, (iso, k) in enumerate(isos):
@@ -77,7 +79,7 @@ def write_manifest_camera(folder, profile: NoiseProfile, *, post=None, seed: int
                      "exposure_s": exposure, "sensor": 0}  # one camera: one sensor in every frame
             aug = RawNoiseAugment(profile, model="G*+P*+R", ratio=1.0, fixed=fixed, rank_seeding=False,
                                   generator=torch.Generator().manual_seed(1000 * i + 10 * j + len(rows) + 100_003 * seed))
-            dn = aug(torch.full((1, 4, size, size), level)).numpy()[0] * profile.span_dn
+            dn = aug(torch.full((1, 4, height, width), level)).numpy()[0] * profile.span_dn
             dn = post(dn, rng, kind=kind, exposure=exposure, k=k) if post else dn
             packed = np.clip(np.rint(dn + profile.black_level), 0, profile.white_level)
             name = f"{kind}_{iso}_{exposure:g}_{level:g}_{j}.npy"

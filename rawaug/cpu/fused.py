@@ -64,6 +64,8 @@ _CBF0, _CBA0 = L.COLUMN["cband_f0"], L.COLUMN["cband_a0"]
 _DHD, _DHE, _DHL = L.COLUMN["dhot_density"], L.COLUMN["dhot_e"], L.COLUMN["dhot_log_std"]
 _DHOT_WHERE, _DHOT_SIZE = L.STREAM["dhot_where"], L.STREAM["dhot_size"]
 _CGS, _COLGAIN_PATTERN = L.COLUMN["colgain_sigma"], L.STREAM["colgain_pattern"]
+_RGF, _RGT = L.COLUMN["rowgain_fixed"], L.COLUMN["rowgain_frame"]
+_ROWGAIN_PATTERN, _ROWGAIN_FRAME = L.STREAM["rowgain_pattern"], L.STREAM["rowgain_frame"]
 _DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_log_std"]
 _DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
 _DOFF = L.COLUMN["dark_offset"]
@@ -91,8 +93,8 @@ _DEAD_WHERE, _DEAD_LEVEL = L.STREAM["dead_where"], L.STREAM["dead_level"]
 _DR0, _OCT = L.COLUMN["drift_a0"], L.DRIFT_OCTAVES
 _ROW_DRIFT, _ROW_DRIFT_PHASE = L.STREAM["row_drift"], L.STREAM["row_drift_phase"]
 _XTALK = L.STREAM["xtalk"]
-_XT_DY = np.array([lag[0] for lag in L.XTALK_LAGS], dtype=np.int64)
-_XT_DX = np.array([lag[1] for lag in L.XTALK_LAGS], dtype=np.int64)
+_XT_DY = np.array([tap[0] for tap in L.XTALK_TAPS], dtype=np.int64)
+_XT_DX = np.array([tap[1] for tap in L.XTALK_TAPS], dtype=np.int64)
 _XT_PAD = L.XTALK_PAD
 _ROW_SET = np.array(L.ROW_SET, dtype=np.int64)
 _COL_SET = np.array(L.COLUMN_SET, dtype=np.int64)
@@ -177,16 +179,15 @@ def row_drift_at(normal, key, key_phase, v, b, ry):
 @njit(inline="always")
 def crosstalk_at(normal, key, v, b, ry, rx, rh, rw):
     """Correlated read noise (DN) at raw pixel (ry, rx) of a raw frame rh x rw of sample b:
-    for each lag (dy, dx), |a| g(ry, rx) + a g(ry - dy, rx - dx) of a per-frame normal field g
-    of its own (counter over the frame padded by XTALK_PAD), so pixels one lag apart share a."""
+    sum over the taps (dy, dx) of XTALK_TAPS of h g(ry - dy, rx - dx), g one per-frame
+    standard normal field (counter over the frame padded by XTALK_PAD on every side)."""
     out = 0.0
+    base = b * (rh + 2 * _XT_PAD)
     for i in range(_XT_DY.shape[0]):
-        a = v[_XT0 + i]
-        if a != 0.0:
-            base = (b * _XT_DY.shape[0] + i) * (rh + 2 * _XT_PAD)
-            here = (base + ry + _XT_PAD) * (rw + 2 * _XT_PAD) + rx + _XT_PAD
-            there = (base + ry - _XT_DY[i] + _XT_PAD) * (rw + 2 * _XT_PAD) + rx - _XT_DX[i] + _XT_PAD
-            out += abs(a) * symmetric(normal, draw(key, here)) + a * symmetric(normal, draw(key, there))
+        h = v[_XT0 + i]
+        if h != 0.0:
+            out += h * symmetric(normal, draw(key, (base + ry - _XT_DY[i] + _XT_PAD) * (rw + 2 * _XT_PAD)
+                                              + rx - _XT_DX[i] + _XT_PAD))
     return out
 
 
@@ -274,6 +275,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             rmox = int(v[_RMOX])
             rm_row = v[_RMC0 + c] ** 2 + v[_RMY0 + min((y + int(v[_RMOY])) * _NB // rmh, _NB - 1)] ** 2
         read_gain = v[_RG] if stages & L.FRAME_NOISE else 1.0  # this frame's factor on the base read noise
+        row_gain = 1.0  # the sensor row's gain on the photo signal: its fixed part and this frame's
+        if stages & L.ROW_GAIN:
+            row_gain += (v[_RGF] * symmetric(normal, draw(keys[_ROWGAIN_PATTERN], (sensor * 2 + row_set) * h + y))
+                         + v[_RGT] * symmetric(normal, draw(keys[_ROWGAIN_FRAME], (b * 2 + row_set) * h + y)))
         g0 = r * w
         p0 = ((sensor * 4 + c) * h + y) * w
         for x in range(w):
@@ -321,6 +326,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s *= v[_FG]
             if stages & L.COL_GAIN:  # the sensor column's amplifier gain on the photo signal and its shot noise
                 s *= 1.0 + v[_CGS] * symmetric(normal, draw(keys[_COLGAIN_PATTERN], (sensor * 2 + col_set) * w + x))
+            if stages & L.ROW_GAIN:  # the sensor row's gain on the photo signal and its shot noise
+                s *= row_gain
             if stages & L.FPN:
                 s += v[_FS] * symmetric(normal, draw(keys[_FPN_PATTERN], p)) + shading_at(grids, record, fy0, x + fox, fh, fw, fgh, fgw)
             if stages & L.HOT:

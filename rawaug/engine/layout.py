@@ -28,7 +28,7 @@ READ_TABLE = 1 << 17  # measured fallback: read noise from a measured quantile t
 LINES = 1 << 18  # defect lines: sparse sensor rows and columns with a large fixed offset
 GLOW = 1 << 19  # amplifier glow: a smooth dark-current map (electrons per second), before shot noise
 NONLIN = 1 << 20  # gain non-linearity: the photo signal compressed after shot noise, before read noise
-XTALK = 1 << 21  # correlated read noise: pixels XTALK_LAGS apart share part of their read noise
+XTALK = 1 << 21  # correlated read noise: one white field per frame through a small readout kernel (XTALK_TAPS)
 BAND = 1 << 22  # periodic banding: tones along the sensor rows, a random phase in every frame
 ROW_FIX = 1 << 23  # fixed row pattern: one offset per sensor row, the same in every frame
 ROW_CHANNEL = 1 << 24  # row noise of each channel's own: one offset per packed row and frame
@@ -48,6 +48,7 @@ COL_RTS = 1 << 37  # column telegraph noise: sparse sensor columns with two offs
 FRAME_NOISE = 1 << 38  # frame-to-frame read-noise level: the base read noise of a frame times its own factor
 FRAME_GAIN = 1 << 39  # frame-to-frame gain: the photo signal of a frame times its own factor, after shot noise
 LINE_MAP = 1 << 40  # measured fallback: fixed row and column offset profiles of the measured frame
+ROW_GAIN = 1 << 41  # row gain: each sensor row's gain on the photo signal, fixed and new in every frame
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -74,7 +75,7 @@ COLUMNS = (
     "glow_s", "glow_record", "glow_oy", "glow_ox", "glow_h", "glow_w", "glow_gh", "glow_gw",  # exposure, grid, window
     "nl_c",  # gain non-linearity: compression per DN of signal
     "sensor",  # sensor instance of the fixed patterns (an integer; 0: the profile's own)
-    "xt_0", "xt_1", "xt_2", "xt_3", "xt_4", "xt_5",  # correlated read noise: signed amplitude (DN) at each of XTALK_LAGS
+    *(f"xt_{i}" for i in range(7)),  # correlated read noise: the kernel's tap (DN) at each of XTALK_TAPS
     "band_f0", "band_f1", "band_f2", "band_a0", "band_a1", "band_a2",  # banding tones: cycles per sensor row, amplitude (DN)
     "rowfix_sigma",  # fixed row pattern: std of the sensor-row offsets (DN)
     "rowch_sigma",  # row noise of each channel's own (DN)
@@ -99,6 +100,7 @@ COLUMNS = (
     "frame_gain",  # frame-to-frame gain: this frame's factor on the photo signal
     "lmap_record", "lmap_gh", "lmap_gw", "lmap_oy", "lmap_ox", "lmap_h", "lmap_w",  # line profiles: grids record, window
     "lmap_lh", "lmap_lw",  # ... and the measured profiles' lengths (packed rows, packed columns)
+    "rowgain_fixed", "rowgain_frame",  # row gain: std of the sensor rows' relative gains, fixed and per frame
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -113,7 +115,7 @@ STREAMS = (
     "lines_row", "lines_col", "xtalk", "band", "row_pattern", "row_channel", "read_map", "shared",
     "rts_where", "rts_size", "rts_state", "dead_where", "dead_level", "row_drift", "row_drift_phase",
     "col_band", "dhot_where", "dhot_size", "colgain_pattern", "diag_band", "dcol_where", "dcol_size",
-    "spike_where", "spike_size", "crts_where", "crts_size", "crts_state",
+    "spike_where", "spike_size", "crts_where", "crts_size", "crts_state", "rowgain_pattern", "rowgain_frame",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)
@@ -122,6 +124,7 @@ N_STREAMS = len(STREAMS)
 # neighbours, both diagonals (a 2x2 shared-pixel readout) and the next pixel of the same
 # colour along each axis.
 XTALK_LAGS = ((0, 1), (1, 0), (1, 1), (1, -1), (0, 2), (2, 0))
+XTALK_TAPS = ((0, 0),) + XTALK_LAGS  # the correlated read noise's kernel: the pixel itself and the lags behind it
 BAND_TONES = 3  # banding tones a profile may hold (along the rows; as many along the columns)
 XTALK_PAD = 2  # raw pixels of margin in the draw index, so that a lag's neighbour index is never negative
 

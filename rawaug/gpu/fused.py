@@ -41,6 +41,7 @@ C_BF0, C_BA0 = _column("band_f0"), _column("band_a0")
 C_CBF0, C_CBA0 = _column("cband_f0"), _column("cband_a0")
 C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_log_std")
 C_CGS = _column("colgain_sigma")
+C_RGF, C_RGT = _column("rowgain_fixed"), _column("rowgain_frame")
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DOFF = _column("dark_offset")
 C_RG = _column("read_gain")
@@ -61,9 +62,8 @@ NDL = tl.constexpr(L.DEAD_LEVELS)
 C_DR0 = _column("drift_a0")
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
-XT_N = tl.constexpr(len(L.XTALK_LAGS))
-XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5 = (
-    tl.constexpr(d) for lag in L.XTALK_LAGS for d in lag)
+XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5, XT_DY6, XT_DX6 = (
+    tl.constexpr(d) for tap in L.XTALK_TAPS for d in tap)
 C_SENSOR = _column("sensor")
 C_HD, C_HM, C_HL = _column("hot_density"), _column("hot_median"), _column("hot_log_std")
 C_Q, C_B0, C_BS, C_BC, C_CL = (_column("step_dn"), _column("bias_r"), _column("ble_sigma"),
@@ -81,6 +81,7 @@ K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
+K_ROWGAIN, K_ROWGAIN_FRAME = S["rowgain_pattern"], S["rowgain_frame"]
 K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
 K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
 K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["crts_state"]
@@ -157,13 +158,11 @@ def _drift_octave(key, key_phase, normal_ptr, v, j: tl.constexpr, b, ry):
 
 
 @triton.jit
-def _xtalk_lag(key, v, i: tl.constexpr, dy: tl.constexpr, dx: tl.constexpr, b, ry, rx, RH, RW):
-    """As one lag of ``rawaug.cpu.fused.crosstalk_at``: |a| g(ry, rx) + a g(ry - dy, rx - dx)."""
-    a = _col(v, C_XT0 + i)
-    base = (b.to(tl.int64) * XT_N + i) * (RH + 2 * XT_PAD)
-    here = ((base + ry + XT_PAD) * (RW + 2 * XT_PAD) + rx + XT_PAD).to(tl.uint64)
+def _xtalk_tap(key, v, i: tl.constexpr, dy: tl.constexpr, dx: tl.constexpr, b, ry, rx, RH, RW):
+    """As one tap of ``rawaug.cpu.fused.crosstalk_at``: h g(ry - dy, rx - dx)."""
+    base = b.to(tl.int64) * (RH + 2 * XT_PAD)
     there = ((base + ry - dy + XT_PAD) * (RW + 2 * XT_PAD) + rx - dx + XT_PAD).to(tl.uint64)
-    return tl.abs(a) * _normal(draw(key, here)) + a * _normal(draw(key, there))
+    return _col(v, C_XT0 + i) * _normal(draw(key, there))
 
 
 @triton.jit
@@ -235,6 +234,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s *= _col(v, C_FG)
     if FLAGS & 4294967296:  # column gain: the sensor column's amplifier gain on the photo signal and its shot noise
         s *= 1.0 + _col(v, C_CGS) * _normal(draw(_key(keys_ptr, K_COLGAIN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
+    if FLAGS & 2199023255552:  # row gain: the sensor row's gain on the photo signal and its shot noise, fixed and this frame's
+        s *= (1.0 + _col(v, C_RGF) * _normal(draw(_key(keys_ptr, K_ROWGAIN), ((sensor * 2 + row_set) * H + y).to(tl.uint64)))
+              + _col(v, C_RGT) * _normal(draw(_key(keys_ptr, K_ROWGAIN_FRAME), ((b.to(tl.int64) * 2 + row_set) * H + y).to(tl.uint64))))
     if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading, a window (fpn_oy, fpn_ox) of fpn_h x fpn_w
         fh = _col(v, C_FH)
         fw = _col(v, C_FW)
@@ -266,15 +268,16 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += read_gain * _col(v, C_TL) * (sign * tukey_upper(t, _col(v, C_LAM).to(tl.float32))).to(tl.float64)
     elif FLAGS & 64:  # G
         s += read_gain * _col(v, C_G) * _normal(draw(_key(keys_ptr, K_READ), g))
-    if FLAGS & 2097152:  # correlated read noise: one per-frame raw normal field per lag
+    if FLAGS & 2097152:  # correlated read noise: one per-frame raw normal field through the kernel's taps
         kx = _key(keys_ptr, K_XTALK)
         ry = 2 * y + row_set
         rx = 2 * x + col_set
         RH = 2 * H.to(tl.int64)
         RW = 2 * W.to(tl.int64)
-        s += _xtalk_lag(kx, v, 0, XT_DY0, XT_DX0, b, ry, rx, RH, RW) + _xtalk_lag(kx, v, 1, XT_DY1, XT_DX1, b, ry, rx, RH, RW)
-        s += _xtalk_lag(kx, v, 2, XT_DY2, XT_DX2, b, ry, rx, RH, RW) + _xtalk_lag(kx, v, 3, XT_DY3, XT_DX3, b, ry, rx, RH, RW)
-        s += _xtalk_lag(kx, v, 4, XT_DY4, XT_DX4, b, ry, rx, RH, RW) + _xtalk_lag(kx, v, 5, XT_DY5, XT_DX5, b, ry, rx, RH, RW)
+        s += _xtalk_tap(kx, v, 0, XT_DY0, XT_DX0, b, ry, rx, RH, RW) + _xtalk_tap(kx, v, 1, XT_DY1, XT_DX1, b, ry, rx, RH, RW)
+        s += _xtalk_tap(kx, v, 2, XT_DY2, XT_DX2, b, ry, rx, RH, RW) + _xtalk_tap(kx, v, 3, XT_DY3, XT_DX3, b, ry, rx, RH, RW)
+        s += _xtalk_tap(kx, v, 4, XT_DY4, XT_DX4, b, ry, rx, RH, RW) + _xtalk_tap(kx, v, 5, XT_DY5, XT_DX5, b, ry, rx, RH, RW)
+        s += _xtalk_tap(kx, v, 6, XT_DY6, XT_DX6, b, ry, rx, RH, RW)
     if FLAGS & 67108864:  # shared-pixel readout: one value per frame and packed position (the tile's four pixels)
         s += _col(v, C_SH) * _normal(draw(_key(keys_ptr, K_SHARED), ((b.to(tl.int64) * H + y) * W + x).to(tl.uint64)))
     if FLAGS & 33554432:  # read-noise map: extra white read noise of the pixel's channel, row block and column block

@@ -24,6 +24,7 @@ from ..effects.k_records import value_at_k
 from ..profile import NoiseProfile
 from .registry import effects_for
 from ..statistics import STATISTICS, frame_statistics, repaired
+from .illumination import illumination_shape
 
 
 @dataclass
@@ -136,6 +137,21 @@ class FrameStack:
         return frame_statistics(frames, self.kind, self.statistics_level, self.statistic_names)
 
     @functools.cached_property
+    def illumination(self) -> np.ndarray | None:
+        """(4, h, w) relative shape of a flat's light (``illumination_shape``; mean 1 per
+        channel), of its mean frame less its bias stack's (or its offsets); None but for flats."""
+        if self.kind != "flat":
+            return None
+        mean = repaired(self.frames_dn).mean(axis=0)
+        if self.offsets_of is not None:
+            black = repaired(self.offsets_of.frames_dn).mean(axis=0)
+        else:
+            offsets = (self.offsets_dn if self.offsets_dn is not None
+                       else self.series.offsets_dn if self.series is not None else np.zeros(4))
+            black = np.asarray(offsets, dtype=np.float64)[:, None, None]
+        return illumination_shape(mean - black)
+
+    @functools.cached_property
     def integer(self) -> bool:
         """Whole-number codes (a real raw file): syntheses are then rounded, not dithered."""
         return bool(np.all(self.frames_dn == np.rint(self.frames_dn)))
@@ -223,8 +239,10 @@ def clean_level(profile: NoiseProfile, stack: FrameStack):
 def _one(profile, stack, tokens, fixed, generator) -> np.ndarray:
     """One synthesized stack like ``stack``, DN."""
     n, _, h, w = stack.frames_dn.shape
-    level = np.broadcast_to(np.asarray(clean_level(profile, stack), dtype=np.float64), (4,))
-    clean = torch.from_numpy(level / profile.span_dn).float().view(1, 4, 1, 1).expand(n, 4, h, w).contiguous()
+    level = np.broadcast_to(np.asarray(clean_level(profile, stack), dtype=np.float64), (4,))[:, None, None]
+    if stack.illumination is not None:  # a flat as it was taken: under its light's measured shape
+        level = level * stack.illumination
+    clean = torch.from_numpy(level / profile.span_dn).float().expand(n, 4, h, w).contiguous()
     aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed={**fixed, "sensor": 0}, generator=generator,
                           rank_seeding=False)  # one sensor: the frames of a stack share its fixed patterns
     with torch.no_grad():
