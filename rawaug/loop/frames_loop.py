@@ -41,14 +41,16 @@ from ..effects.k_records import merge_records
 from ..profile import NoiseProfile
 from ..relations import KTable
 from ..statistics import repaired
-from .diagnose import FrameStack, Residual, battery_error, diagnose, fitted_offsets
-from .refit import apply_read_noise_factors, apply_row_noise_factors, read_noise_factors, row_noise_factors
+from .diagnose import FrameStack, Residual, battery_error, diagnose, fitted_offsets, synthesis_fixed
+from .refit import (apply_read_noise_factors, apply_read_shapes, apply_row_noise_factors, read_noise_factors,
+                    read_shape_updates, row_noise_factors)
 from .registry import CANDIDATES
 from .signatures import step_signature
 
 ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
 CONFIRM_FACTOR = 3  # a residual that would call for an effect is confirmed on 3x the syntheses, with fresh seeds
 BATTERY_GROWTH = 1.25  # ... and may not raise the battery's mean relative error by more than a quarter
+SHAPE_STEPS = 4  # read-noise shape re-fits after an added effect, each from the tails of the last ones' syntheses
 
 
 @dataclass
@@ -110,10 +112,13 @@ def _battery(diags) -> dict:
 
 def _without(step, profile, stacks, refits, model):
     """(profile, stacks) without an added effect: the re-fit of the base stage it was judged
-    with (``_shares_noise``) undone, by the inverse factors."""
+    with (``_shares_noise``) undone, by the inverse factors (and the read noise's shape
+    restored to its lambdas before the trial's shape re-fit)."""
     reduced = profile.without_effect(step.effect)
     for refit in refits:
         if refit.get("after") == step.effect and refit.get("what") and refit.get("kept"):
+            if refit.get("lambdas_before"):  # the shape re-fit it was judged with, undone first
+                stacks, reduced = apply_read_shapes(stacks, reduced, refit["lambdas_before"])
             inverse = {label: 1.0 / f for label, f in refit["factors"].items()}
             stacks, reduced = (apply_read_noise_factors(stacks, reduced, inverse, model) if refit["what"] == "read noise"
                                else apply_row_noise_factors(stacks, reduced, inverse))
@@ -321,8 +326,27 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             return run(trial, which, "model"), stacks, trial, factors
         refit_stacks, refitted = (apply_read_noise_factors(stacks, trial, factors, model) if shared == "read noise"
                                   else apply_row_noise_factors(stacks, trial, factors))
+        key = "refitted"
+        if shared == "read noise":  # its tails too: calibration's lambda held those of the part it takes over
+            history: dict = {}
+            bias = lambda part: [st for st in part if st.kind == "bias"]  # noqa: E731
+            got = run(refitted, bias(refit_stacks), key)
+            for attempt in range(SHAPE_STEPS):
+                # as after an added effect: a step is taken where it improves the bias stacks' battery
+                lambdas = read_shape_updates(refit_stacks, got, refitted, model, z_min=z_min, history=history)
+                if not lambdas:
+                    break
+                shape_stacks, shaped = apply_read_shapes(refit_stacks, refitted, lambdas)
+                shape_got = run(shaped, bias(shape_stacks), f"shaped {attempt}")
+                if not (_battery(shape_got)["mean_rel_error"] <= _battery(got)["mean_rel_error"]
+                        and _battery(shape_got)["n_significant"] <= _battery(got)["n_significant"]):
+                    break
+                if "lambdas_before" not in known:  # what taking the candidate out restores (``_without``)
+                    known["lambdas_before"] = {st.label: float(synthesis_fixed(refitted, st)["lambda"])
+                                               for st in refit_stacks if st.label in lambdas}
+                refit_stacks, refitted, got, key = shape_stacks, shaped, shape_got, f"shaped {attempt}"
         labels_in = {st.label for st in which}
-        return run(refitted, [st for st in refit_stacks if st.label in labels_in], "refitted"), refit_stacks, refitted, factors
+        return run(refitted, [st for st in refit_stacks if st.label in labels_in], key), refit_stacks, refitted, factors
 
     diags, diags_seed = diagnose_all(current, seed), seed
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
@@ -359,7 +383,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                     after = next(r for r in screen[label][0] if r.statistic == evidence.statistic)
                     trials.append((Step(token, params, False, evidence.to_dict(), label, err_before, err_after, after.z,
                                         before_b, {}, round=step_no, kind="measured" if _measured(token) else "physical",
-                                        evidence_after=after.to_dict(), note="screened"), trial, None, stacks, {}))
+                                        evidence_after=after.to_dict(), note="screened"), trial, None, stacks, {}, {}))
                     continue
                 new_diags, trial_stacks, trial, factors = judged(trial, shared, step_no, known=known, refit_z=refit_z)
                 if factors:
@@ -376,7 +400,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 step = Step(token, params, ok, evidence.to_dict(), label, err_before, err_after, after.z, before_b,
                             after_b, round=step_no, kind="measured" if _measured(token) else "physical",
                             evidence_after=after.to_dict())
-                trials.append((step, trial, new_diags, trial_stacks, factors))
+                trials.append((step, trial, new_diags, trial_stacks, factors, known.get("lambdas_before", {})))
             if any(t[0].accepted for t in trials):
                 break
         acceptable = [t for t in trials if t[0].accepted]
@@ -407,27 +431,50 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             stacks = chosen[3]
             by_label = {st.label: st for st in stacks}
             result.refits.append({"after": chosen[0].effect, "round": step_no, "factors": chosen[4], "kept": True,
+                                  **({"lambdas_before": chosen[5]} if chosen[5] else {}),
                                   "what": _shares_noise(chosen[0].effect),
                                   "battery_before": chosen[0].battery_before, "battery_after": chosen[0].battery_after})
         tried = {t for t in tried if t in current.effects}  # estimates depend on the model: retry the rejected
         checks.clear()
         result.unconfirmed.clear()  # confirmations belong to a model
+        # the base read noise re-fitted: its variance where the model's bias frames came out noisier
+        # (the added effect shares their temporal noise), then its shape where the model's tails
+        # are the heavier; the two are kept or dropped together, as one re-fit of the read noise
+        step_seed = seed + 1000 * step_no + 500
         factors = read_noise_factors(stacks, diags, current, model, z_min=z_min)
-        if factors:  # the added effect shares the bias frames' temporal noise with the read noise
+        new_stacks, refitted, new_diags = stacks, current, diags
+        if factors:
             new_stacks, refitted = apply_read_noise_factors(stacks, current, factors, model)
-            new_diags = diagnose_all(refitted, seed + 1000 * step_no + 500, new_stacks)
+            new_diags = diagnose_all(refitted, step_seed, new_stacks)
+        shaped, history = [], {}
+        for attempt in range(SHAPE_STEPS):
+            # each step from the tails the last ones' syntheses have (a secant after the first:
+            # its model of the tail takes the added variance as homogeneous, which a map is not,
+            # and as the only tail, which telegraph pixels are not); a step that does not improve
+            # the battery ends them
+            lambdas = read_shape_updates(new_stacks, new_diags, refitted, model, z_min=z_min, history=history)
+            if not lambdas:
+                break
+            shape_stacks, shape_prof = apply_read_shapes(new_stacks, refitted, lambdas)
+            shape_diags = diagnose_all(shape_prof, step_seed + 100 + attempt, shape_stacks)
+            if not (_battery(shape_diags)["mean_rel_error"] <= _battery(new_diags)["mean_rel_error"]
+                    and _battery(shape_diags)["n_significant"] <= _battery(new_diags)["n_significant"]):
+                break
+            shaped.append(lambdas)
+            new_stacks, refitted, new_diags, step_seed = shape_stacks, shape_prof, shape_diags, step_seed + 100 + attempt
+        if factors or shaped:
             before_b, after_b = _battery(diags), _battery(new_diags)
             kept = (after_b["mean_rel_error"] <= before_b["mean_rel_error"]
                     and after_b["n_significant"] <= before_b["n_significant"])
-            result.refits.append({"after": chosen[0].effect, "round": step_no, "factors": factors, "kept": kept,
-                                  "battery_before": before_b, "battery_after": after_b})
+            result.refits.append({"after": chosen[0].effect, "round": step_no, "factors": factors, "lambdas": shaped,
+                                  "kept": kept, "battery_before": before_b, "battery_after": after_b})
             say(f"step {step_no}: read noise re-fitted after {chosen[0].effect} ("
-                + ", ".join(f"{label} x{f:.3f}" for label, f in factors.items())
+                + ", ".join([f"{label} x{f:.3f}" for label, f in factors.items()]
+                            + [f"{label} lambda {lam:.3f}" for lambdas in shaped for label, lam in lambdas.items()])
                 + f"): battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f}: "
                 + ("kept" if kept else "dropped"))
             if kept:
-                current, diags, stacks = refitted, new_diags, new_stacks
-                diags_seed = seed + 1000 * step_no + 500
+                current, diags, stacks, diags_seed = refitted, new_diags, new_stacks, step_seed
                 by_label = {st.label: st for st in stacks}
     while True:  # backward elimination
         kept = [s for s in result.steps if s.accepted]

@@ -40,6 +40,7 @@ MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated val
 ROW_MIN_FACTOR = 0.1  # sigma_r may fall further: a strong tone can hold most of a sensor's row variance
 LAMBDA_RANGE = (-0.24, 0.1349)  # heavy-tailed Tukey lambdas (lighter ones come from coarse codes or clipping)
 TAIL_Z = 5.0  # robust sigmas (1.4826 MAD): where the battery's ``tail_mass`` counts the tail
+SECANT_DAMPING = 0.6  # share of a secant step in lambda the shape re-fit takes
 _NODES, _WEIGHTS = np.polynomial.hermite_e.hermegauss(48)
 _WEIGHTS = _WEIGHTS / _WEIGHTS.sum()
 
@@ -191,6 +192,90 @@ def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
     shape = dataclasses.replace(profile.tukey_shape, values=tuple(lams))
     return out, dataclasses.replace(profile, tukey_shape=shape,
                                     tukey_scale=_shift(profile.tukey_scale, float(s_slope), float(s_intercept), k_ref))
+
+
+def read_shape_updates(stacks, diags, profile, model=None, z_min: float = 6.0, history: dict | None = None) -> dict:
+    """{bias stack label: Tukey lambda} where the model's tail (``tail_mass``: the fraction
+    beyond 5 robust sigmas of each frame and channel) exceeds the measured one by more than
+    ``z_min`` spreads: the lighter lambda whose tail, with the base read noise holding its
+    share of the pixel variance (``_tail``), is the measured fraction of the model's; with
+    ``history`` (label -> (lambda, the model's tail) of the last step, updated here), the
+    secant in log(tail) through the last two steps (other effects' tails, telegraph pixels
+    say, make the analytic step fall short).
+
+    Calibration fits lambda to the pooled bias frames: where the channels or regions read
+    with noise of different levels (what ``ReadMap`` adds), their mixture has heavier tails
+    than any of them, and the tail-keeping variance re-fit makes them heavier still; the
+    battery's tail is read per frame and channel. Only lighter: a tail the model lacks is
+    left to the effects that make one (impulses, telegraph pixels, hot pixels)."""
+    if "G*" not in parse_model(model or profile.richest_model) or profile.tukey_scale is None:
+        return {}
+    out = {}
+    for stack in stacks:
+        if stack.kind != "bias":
+            continue
+        res = {r.statistic: r for r in diags[stack.label][0]}
+        tail, pixel = res.get("tail_mass"), res.get("pixel_std")
+        if tail is None or pixel is None or tail.z >= -z_min or not tail.synth_mean > 0 or not pixel.synth_mean > 0:
+            continue
+        fixed = synthesis_fixed(profile, stack)
+        lam = float(fixed["lambda"])
+        if not LAMBDA_RANGE[0] <= lam < LAMBDA_RANGE[1]:
+            continue
+        hi = LAMBDA_RANGE[1]
+        last = (history or {}).get(stack.label)
+        if last is not None and last[0] < lam and 0 < tail.measured and 0 < tail.synth_mean < last[1]:
+            slope = (lam - last[0]) / (math.log(tail.synth_mean) - math.log(last[1]))  # lambda per log(tail), < 0
+            # damped: towards the Gaussian the tail falls faster than a line in log(tail) says
+            new = min(lam + SECANT_DAMPING * slope * (math.log(tail.measured) - math.log(tail.synth_mean)), hi)
+        else:
+            share = min(_read_variance(fixed, ("G*",)) / pixel.synth_mean**2, 1.0)
+            target = _tail(lam, share) * max(tail.measured, 0.0) / tail.synth_mean
+            f = lambda x: _tail(x, share) - target  # noqa: E731  (falls as lambda rises towards the Gaussian's)
+            new = hi if f(hi) >= 0 else float(optimize.brentq(f, lam, hi, xtol=1e-4))
+        if history is not None:
+            history[stack.label] = (lam, float(tail.synth_mean))
+        out[stack.label] = new
+    return out
+
+
+def apply_read_shapes(stacks, profile, lambdas: dict):
+    """(stacks, profile) with the Tukey lambda of each bias stack of ``lambdas`` (label ->
+    lambda) and of every stack of its gain, the variance kept (sigma_TL scaled); the profile's
+    shape table takes the new lambda at the record nearest that gain, and its scale relation
+    moves by the line through the log of the scale factors against log(K) (factor 1 at the
+    gains left alone)."""
+    by_k = {}
+    for stack in stacks:
+        if stack.kind == "bias" and stack.label in lambdas:
+            fixed = synthesis_fixed(profile, stack)
+            old, new = float(fixed["lambda"]), float(lambdas[stack.label])
+            by_k[stack.k] = (new, math.sqrt(tukey_lambda_variance(old) / tukey_lambda_variance(new)))
+    out = []
+    for stack in stacks:
+        if stack.k not in by_k:
+            out.append(stack)
+            continue
+        fixed = synthesis_fixed(profile, stack)
+        lam, f = by_k[stack.k]
+        out.append(dataclasses.replace(stack, base={**stack.base, "lambda": lam, "sigma_tl": float(fixed["sigma_tl"]) * f}))
+    renewed = {id(old): new for old, new in zip(stacks, out) if old.kind == "bias" and new is not old}
+    out = [dataclasses.replace(s, offsets_of=renewed[id(s.offsets_of)]) if id(s.offsets_of) in renewed else s for s in out]
+    if not by_k:
+        return out, profile
+    table = profile.tukey_shape
+    values = list(table.values)
+    for k, (lam, _) in by_k.items():
+        values[int(np.argmin(np.abs(np.log(np.asarray(table.k, dtype=np.float64)) - math.log(k))))] = lam
+    ks = np.array(sorted({s.k for s in stacks if s.kind == "bias"}))
+    logf = np.log([by_k[k][1] if k in by_k else 1.0 for k in ks])
+    if ks.size >= 2 and np.ptp(np.log(ks)) > 0:
+        slope, intercept = np.polyfit(np.log(ks), logf, 1)
+    else:
+        slope, intercept = 0.0, float(logf.mean())
+    return out, dataclasses.replace(profile, tukey_shape=dataclasses.replace(table, values=tuple(values)),
+                                    tukey_scale=_shift(profile.tukey_scale, float(slope), float(intercept),
+                                                       float(np.exp(np.log(ks).mean()))))
 
 
 def _row_variance(frames) -> float:

@@ -78,11 +78,17 @@ def outcome_summary(result) -> str:
         lines.append("Reproduced by measurement (no physical effect explained these residuals): "
                      + ", ".join(f"`{t}`" for t in result.reproduced_by_measurement) + ".")
     for refit in getattr(result, "refits", []):
-        if refit["kept"]:
-            what = refit.get("what") or "read noise"
+        if not refit["kept"]:
+            continue
+        what = refit.get("what") or "read noise"
+        if refit.get("factors"):
             lines.append(f"After `{refit['after']}` was added, the base {what} was re-fitted (it had counted "
                          f"the temporal noise `{refit['after']}` now explains): sigma x "
                          + ", ".join(f"{f:.3f} ({label})" for label, f in refit["factors"].items()) + ".")
+        for lambdas in refit.get("lambdas", []):
+            lines.append(f"After `{refit['after']}` was added, the model's read-noise tail exceeded the measured one: "
+                         "the base read noise's Tukey lambda was re-fitted, its variance kept: "
+                         + ", ".join(f"{lam:.3f} ({label})" for label, lam in lambdas.items()) + ".")
     for gone in getattr(result, "removed", []):
         lines.append(f"`{gone['effect']}` was added, then removed: beside " + ", ".join(f"`{t}`" for t in gone["beside"])
                      + " no residual is significant without it (battery "
