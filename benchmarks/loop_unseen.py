@@ -8,7 +8,7 @@ after, and what stayed significant. A camera counts as fixed when the loop added
 whose evidence error fell to half or less and nothing significant was left; a camera whose
 right answer is to add nothing (``NOTHING_TO_ADD``) when nothing was added and nothing left.
 
-    python benchmarks/loop_unseen.py [CASE ...] [--seed S]
+    python benchmarks/loop_unseen.py [CASE ...] [--seed S] [--sessions N] [--geometry small|issue] [--keep DIR]
 """
 from __future__ import annotations
 
@@ -328,12 +328,18 @@ def main(argv=None) -> int:
     parser.add_argument("--geometry", choices=list(GEOMETRIES), default="small",
                         help="small: 64 x 64 packed, 2 ISOs, 6 bias, 2 flat levels; issue: 512 x 384 mosaics, 4 ISOs, "
                              "8 bias, 5 flat levels")
+    parser.add_argument("--sessions", type=int, default=1,
+                        help="run each camera in sessions SEED .. SEED + N - 1 and count how often it is fixed")
     parser.add_argument("--keep", type=Path, default=None,
                         help="keep each camera's frames, profile and loop report in KEEP/CASE (default: a temporary folder)")
     args = parser.parse_args(argv)
     unknown = [c for c in args.cases if c not in CASES]
     if unknown:
         parser.error(f"unknown cases {unknown}; known: {list(CASES)}")
+    if args.sessions < 1:
+        parser.error(f"--sessions must be >= 1, got {args.sessions}")
+    if args.sessions > 1:
+        return count_sessions(args.cases or list(CASES), args.seed, args.sessions, args.geometry)
     print("| camera (effect made outside rawaug) | added | evidence error | still significant | fixed |\n|---|---|---|---|---|")
     results = []
     for name in args.cases or CASES:
@@ -342,6 +348,16 @@ def main(argv=None) -> int:
         print(f"| {name}: {(CASES[name].__doc__ or 'ELD model only').strip()} | {', '.join(r['added']) or '-'} | "
               f"{'; '.join(r['errors']) or '-'} | {', '.join(r['left']) or '-'} | {'yes' if r['fixed'] else 'no'} |", flush=True)
     print(f"\nfixed (or, for {', '.join(sorted(NOTHING_TO_ADD))}, nothing added): {sum(r['fixed'] for r in results)} of {len(results)}")
+    return 0
+
+
+def count_sessions(cases, first: int, n: int, geometry: str) -> int:
+    """Each case in sessions first .. first + n - 1: how often it was fixed, and what was added where not."""
+    print("| camera | sessions | fixed | where not: session (added; still significant) |\n|---|---|---|---|")
+    for name in cases:
+        runs = [(seed, run_case(name, seed, geometry)) for seed in range(first, first + n)]
+        misses = "; ".join(f"{seed} ({', '.join(r['added']) or '-'}; {', '.join(r['left']) or '-'})" for seed, r in runs if not r["fixed"])
+        print(f"| {name} | {first}-{first + n - 1} | {sum(r['fixed'] for _, r in runs)} of {n} | {misses or '-'} |", flush=True)
     return 0
 
 

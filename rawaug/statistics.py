@@ -44,7 +44,7 @@ def median(x, axis=None, keepdims: bool = False):
     return out
 
 
-def _robust_scale(x, axis):
+def robust_scale(x, axis):
     """1.4826 MAD along ``axis`` (falls back to the std where the MAD is 0: coarse codes)."""
     med = median(x, axis=axis, keepdims=True)
     mad = MAD_TO_SIGMA * median(np.abs(x - med), axis=axis, keepdims=True)
@@ -69,7 +69,7 @@ def line_mean_variance(c, axis):
     shading does not count; offsets that differ line to line do; a few defect lines (a
     stuck column, a dead row) do not: they are outliers, not line noise. Shape (...)."""
     d = np.diff(c.mean(axis=axis), axis=-1)
-    _, scale = _robust_scale(d, axis=-1)
+    _, scale = robust_scale(d, axis=-1)
     return scale[..., 0] ** 2 / 2.0
 
 
@@ -107,8 +107,8 @@ def _defects(means):
 
     size = [1] * (means.ndim - 1) + [5]
     resid = means - median_filter(means, size=size, mode="mirror")  # an edge line is judged by its inner neighbours
-    _, scale = _robust_scale(resid, axis=-1)
-    _, step = _robust_scale(np.diff(means, axis=-1), axis=-1)
+    _, scale = robust_scale(resid, axis=-1)
+    _, step = robust_scale(np.diff(means, axis=-1), axis=-1)
     return np.abs(resid) > DEFECT_Z * np.maximum(scale, step / np.sqrt(2.0)), resid
 
 
@@ -236,7 +236,7 @@ def psd2d_lowfreq(frames, level_dn=None):
 
 def tail_mass(frames, level_dn=None):
     """Fraction of pixels beyond 5 robust sigma from their frame-channel median."""
-    med, scale = _robust_scale(frames.reshape(frames.shape[0], 4, -1), axis=2)
+    med, scale = robust_scale(frames.reshape(frames.shape[0], 4, -1), axis=2)
     z = np.abs(frames.reshape(frames.shape[0], 4, -1) - med) / scale
     return float((z > 5.0).mean())
 
@@ -245,7 +245,7 @@ def hot_fraction(frames, level_dn=None):
     """Fraction of pixels whose stack mean lies 8 robust sigma above the channel median
     (hot or stuck-high pixels). With one frame, the frame itself."""
     mean_map = frames.mean(axis=0).reshape(4, -1)
-    med, scale = _robust_scale(mean_map, axis=1)
+    med, scale = robust_scale(mean_map, axis=1)
     return float(((mean_map - med) / scale > 8.0).mean())
 
 
@@ -333,7 +333,7 @@ def fixed_std(frames, level_dn=None):
     """Robust std (1.4826 MAD) over pixels of the stack-mean map, per channel (DN): white
     fixed pattern plus temporal noise / sqrt(N); a few hot pixels do not move it."""
     m = _mean_map(frames).reshape(4, -1)
-    _, scale = _robust_scale(m, axis=1)
+    _, scale = robust_scale(m, axis=1)
     return _rms(scale)
 
 
@@ -704,7 +704,7 @@ def stuck_outliers(lo, hi, frame):
     of noise estimates as EMVA 1288 leaves out defect pixels. Stuck pixels within the noise
     (read noise well under a DN sticks by chance) stay in."""
     frame = np.asarray(frame, dtype=np.float64)
-    med, scale = _robust_scale(frame.reshape(4, -1), axis=1)
+    med, scale = robust_scale(frame.reshape(4, -1), axis=1)
     far = np.abs(frame - med[:, :, None]) > STUCK_OUTLIER * scale[:, :, None]
     return stuck_from_range(np.asarray(lo), np.asarray(hi)).reshape(frame.shape) & far
 
@@ -901,7 +901,7 @@ def pixel_fixed_std(frames, level_dn=None):
     uneven illumination of a flat) do not count; a white fixed pattern and temporal noise /
     sqrt(N) do."""
     d = np.diff(frames.mean(axis=0), axis=2).reshape(4, -1)
-    _, scale = _robust_scale(d, axis=1)
+    _, scale = robust_scale(d, axis=1)
     return _rms(scale) / np.sqrt(2.0)
 
 

@@ -482,3 +482,33 @@ def test_illumination_shape_recovers_the_light_and_leaves_uniform_flats_alone():
     assert np.array_equal(illumination_shape(np.ones((4, 8, 8))), np.ones((4, 8, 8)))  # too few pixels: no shape
     with pytest.raises(ValueError, match=r"mean frame \(4, h, w\)"):
         illumination_shape(np.ones((3, 32, 32)))
+
+
+def test_read_shape_refit_lightens_a_tail_the_model_overshoots_and_never_adds_one():
+    """Where the model's read noise has heavier tails than the frames (tail_mass z < -6), the
+    re-fit takes a lighter Tukey lambda at the same variance; a model whose tails are lighter
+    than the frames' is left alone (a missing tail is for an effect to explain)."""
+    from rawaug.distributions import tukey_lambda_variance as var
+    from rawaug.loop.diagnose import diagnose, synthesis_fixed
+    from rawaug.loop.refit import apply_read_shapes, read_shape_updates
+
+    def base(lam):  # read noise of 2 DN rms whatever the shape
+        return {"lambda": lam, "sigma_tl": 2.0 / math.sqrt(var(lam))}
+
+    template = FrameStack(np.zeros((8, 4, 96, 96)), K, base=base(0.05))
+    frames = np.rint(synthesize(BASE, template, 1, 5)[0].astype(np.float64))  # whole codes: a raw file's
+    heavy = FrameStack(frames, K, base=base(-0.15), label="bias")
+    res, _ = diagnose(heavy, BASE, n_synth=8, seed=1)
+    assert next(r for r in res if r.statistic == "tail_mass").z < -6
+    lam = read_shape_updates([heavy], {"bias": (res, None)}, BASE)["bias"]
+    assert 0.0 < lam < 0.11, lam  # the truth: 0.05
+    (fitted,), prof = apply_read_shapes([heavy], BASE, {"bias": lam})
+    fixed = synthesis_fixed(prof, fitted)
+    assert fixed["lambda"] == lam and fixed["sigma_tl"] ** 2 * var(lam) == pytest.approx(4.0)
+    assert prof.tukey_shape.nearest(K) == lam
+    res, _ = diagnose(fitted, prof, n_synth=8, seed=1)
+    assert not next(r for r in res if r.statistic == "tail_mass").significant
+    light = FrameStack(frames, K, base=base(0.13), label="bias")  # lighter than the frames: no re-fit
+    res, _ = diagnose(light, BASE, n_synth=8, seed=1)
+    assert next(r for r in res if r.statistic == "tail_mass").z > 0
+    assert read_shape_updates([light], {"bias": (res, None)}, BASE) == {}

@@ -33,7 +33,7 @@ from scipy import optimize
 from ..augment import parse_model
 from ..distributions import tukey_lambda_survival, tukey_lambda_variance
 from ..relations import LogLinear
-from ..statistics import MAD_TO_SIGMA, repaired, sensor_row_means
+from ..statistics import MAD_TO_SIGMA, robust_scale, repaired, sensor_row_means
 from .diagnose import synthesis_fixed
 
 MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated value
@@ -45,18 +45,22 @@ _NODES, _WEIGHTS = np.polynomial.hermite_e.hermegauss(48)
 _WEIGHTS = _WEIGHTS / _WEIGHTS.sum()
 
 
-def _tail(lam: float, share: float) -> float:
-    """P(|X| > TAIL_Z robust sigmas) for X = a T + G, T standard Tukey ``lam``, G Gaussian,
-    the read-noise part holding ``share`` of the variance (a^2 v(lam) = share, G the rest)."""
+def _survival(lam: float, share: float, t: float) -> float:
+    """P(X > t) for X = a T + G of unit variance, T standard Tukey ``lam``, G Gaussian, the
+    read-noise part holding ``share`` of the variance (a^2 v(lam) = share, G the rest)."""
     a = math.sqrt(share / tukey_lambda_variance(lam))
     g = math.sqrt(max(1.0 - share, 0.0)) * _NODES
+    return float(np.sum(_WEIGHTS * tukey_lambda_survival((t - g) / a, lam) * (t - g >= 0)
+                        + _WEIGHTS * (1.0 - tukey_lambda_survival((g - t) / a, lam)) * (t - g < 0)))
 
-    def survival(t):
-        return float(np.sum(_WEIGHTS * tukey_lambda_survival((t - g) / a, lam) * (t - g >= 0)
-                            + _WEIGHTS * (1.0 - tukey_lambda_survival((g - t) / a, lam)) * (t - g < 0)))
 
-    mad = optimize.brentq(lambda m: survival(m) - 0.25, 1e-6, 50.0, xtol=1e-9)
-    return 2.0 * survival(TAIL_Z * MAD_TO_SIGMA * mad)
+def _tail(lam: float, share: float, t: float | None = None) -> float:
+    """P(|X| > TAIL_Z robust sigmas) for X of ``_survival``; with ``t``, P(|X| > t) (X in units
+    of its standard deviation)."""
+    if t is None:
+        mad = optimize.brentq(lambda m: _survival(lam, share, m) - 0.25, 1e-6, 50.0, xtol=1e-9)
+        t = TAIL_Z * MAD_TO_SIGMA * mad
+    return 2.0 * _survival(lam, share, t)
 
 
 @functools.lru_cache(maxsize=4096)
@@ -229,9 +233,13 @@ def read_shape_updates(stacks, diags, profile, model=None, z_min: float = 6.0, h
             # damped: towards the Gaussian the tail falls faster than a line in log(tail) says
             new = min(lam + SECANT_DAMPING * slope * (math.log(tail.measured) - math.log(tail.synth_mean)), hi)
         else:
+            # the tail where the statistic counts it: TAIL_Z x the frames' robust scale (a MAD of
+            # whole codes moves in steps of half a DN: at 2 DN of noise that is 3.5 sigmas, not 5)
             share = min(_read_variance(fixed, ("G*",)) / pixel.synth_mean**2, 1.0)
-            target = _tail(lam, share) * max(tail.measured, 0.0) / tail.synth_mean
-            f = lambda x: _tail(x, share) - target  # noqa: E731  (falls as lambda rises towards the Gaussian's)
+            f = np.asarray(stack.frames_dn, dtype=np.float64)
+            t = TAIL_Z * float(np.median(robust_scale(f.reshape(f.shape[0], 4, -1), axis=2)[1])) / pixel.synth_mean
+            target = _tail(lam, share, t) * max(tail.measured, 0.0) / tail.synth_mean
+            f = lambda x: _tail(x, share, t) - target  # noqa: E731  (falls as lambda rises towards the Gaussian's)
             new = hi if f(hi) >= 0 else float(optimize.brentq(f, lam, hi, xtol=1e-4))
         if history is not None:
             history[stack.label] = (lam, float(tail.synth_mean))
