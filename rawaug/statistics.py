@@ -483,7 +483,8 @@ def tile_corr(frames, level_dn=None):
 def neighbour_corr(frames, level_dn=None):
     """Rms over the raw lags of ``XTALK_LAGS`` of the correlation of the temporal residual
     (``temporal_mosaic``): about 1 / sqrt(pixels) for independent pixels, more where
-    neighbouring pixels share noise (crosstalk, a shared readout)."""
+    neighbouring pixels share noise (crosstalk, a shared readout; in flats, where shot noise
+    dominates, photo charge that diffuses to the neighbours)."""
     var, cov = lag_covariances(frames)
     return _rms(cov / max(var, 1e-12))
 
@@ -992,7 +993,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("fixed_std", fixed_std, min_frames=2, mad_of_mean=True),
         Statistic("fixed_col_excess", fixed_col_excess, min_frames=2),
         Statistic("fixed_row_excess", fixed_row_excess, min_frames=2),
-        Statistic("neighbour_corr", neighbour_corr, min_frames=2, kind="bias"),
+        Statistic("neighbour_corr", neighbour_corr, min_frames=2),  # in flats: charge shared between pixels (diffusion)
         Statistic("read_noise_spread", read_noise_spread, min_frames=2, kind="bias"),
         Statistic("frame_noise_spread", frame_noise_spread, min_frames=3, kind="bias"),
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),

@@ -125,6 +125,28 @@ def _without(step, profile, stacks, refits, model):
     return reduced, stacks
 
 
+def _shape_search(stacks, prof, diags, diagnose_fn, model, z_min):
+    """The read noise's shape re-fitted where the model's tail overshoots (``read_shape_updates``):
+    up to SHAPE_STEPS steps of its search, each diagnosed by ``diagnose_fn(profile, stacks,
+    step)`` ({label: (residuals, syntheses)} of at least the bias stacks); of the states tried,
+    the start included, the one of least mean relative error among those no worse than the start
+    in it and in the count of significant residuals. Returns (stacks, profile, diags, step or
+    None: the last step taken, [lambdas of each step taken])."""
+    states = [(stacks, prof, diags, None, [])]
+    history: dict = {}
+    for step in range(SHAPE_STEPS):
+        s, p, d, _, taken = states[-1]
+        lambdas = read_shape_updates(s, d, p, model, z_min=z_min, history=history)
+        if not lambdas:
+            break
+        s2, p2 = apply_read_shapes(s, p, lambdas)
+        states.append((s2, p2, diagnose_fn(p2, s2, step), step, taken + [lambdas]))
+    start = _battery(diags)
+    fine = [st for st in states if _battery(st[2])["mean_rel_error"] <= start["mean_rel_error"]
+            and _battery(st[2])["n_significant"] <= start["n_significant"]]
+    return min(fine, key=lambda st: (_battery(st[2])["mean_rel_error"], _battery(st[2])["n_significant"]))
+
+
 def _significant(diags) -> set:
     """(stack label, statistic) of every significant residual."""
     return {(label, r.statistic) for label, (res, _) in diags.items() for r in res if r.significant}
@@ -328,23 +350,14 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                                   else apply_row_noise_factors(stacks, trial, factors))
         key = "refitted"
         if shared == "read noise":  # its tails too: calibration's lambda held those of the part it takes over
-            history: dict = {}
-            bias = lambda part: [st for st in part if st.kind == "bias"]  # noqa: E731
-            got = run(refitted, bias(refit_stacks), key)
-            for attempt in range(SHAPE_STEPS):
-                # as after an added effect: a step is taken where it improves the bias stacks' battery
-                lambdas = read_shape_updates(refit_stacks, got, refitted, model, z_min=z_min, history=history)
-                if not lambdas:
-                    break
-                shape_stacks, shaped = apply_read_shapes(refit_stacks, refitted, lambdas)
-                shape_got = run(shaped, bias(shape_stacks), f"shaped {attempt}")
-                if not (_battery(shape_got)["mean_rel_error"] <= _battery(got)["mean_rel_error"]
-                        and _battery(shape_got)["n_significant"] <= _battery(got)["n_significant"]):
-                    break
-                if "lambdas_before" not in known:  # what taking the candidate out restores (``_without``)
-                    known["lambdas_before"] = {st.label: float(synthesis_fixed(refitted, st)["lambda"])
-                                               for st in refit_stacks if st.label in lambdas}
-                refit_stacks, refitted, got, key = shape_stacks, shaped, shape_got, f"shaped {attempt}"
+            bias = [st for st in refit_stacks if st.kind == "bias"]
+            shaped_stacks, shaped, _, step, taken = _shape_search(
+                refit_stacks, refitted, run(refitted, bias, key),
+                lambda p, part, i: run(p, [st for st in part if st.kind == "bias"], f"shaped {i}"), model, z_min)
+            if taken:  # what taking the candidate out restores (``_without``)
+                known["lambdas_before"] = {st.label: float(synthesis_fixed(refitted, st)["lambda"])
+                                           for st in bias if any(st.label in lambdas for lambdas in taken)}
+                refit_stacks, refitted, key = shaped_stacks, shaped, f"shaped {step}"
         labels_in = {st.label for st in which}
         return run(refitted, [st for st in refit_stacks if st.label in labels_in], key), refit_stacks, refitted, factors
 
@@ -446,22 +459,10 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         if factors:
             new_stacks, refitted = apply_read_noise_factors(stacks, current, factors, model)
             new_diags = diagnose_all(refitted, step_seed, new_stacks)
-        shaped, history = [], {}
-        for attempt in range(SHAPE_STEPS):
-            # each step from the tails the last ones' syntheses have (a secant after the first:
-            # its model of the tail takes the added variance as homogeneous, which a map is not,
-            # and as the only tail, which telegraph pixels are not); a step that does not improve
-            # the battery ends them
-            lambdas = read_shape_updates(new_stacks, new_diags, refitted, model, z_min=z_min, history=history)
-            if not lambdas:
-                break
-            shape_stacks, shape_prof = apply_read_shapes(new_stacks, refitted, lambdas)
-            shape_diags = diagnose_all(shape_prof, step_seed + 100 + attempt, shape_stacks)
-            if not (_battery(shape_diags)["mean_rel_error"] <= _battery(new_diags)["mean_rel_error"]
-                    and _battery(shape_diags)["n_significant"] <= _battery(new_diags)["n_significant"]):
-                break
-            shaped.append(lambdas)
-            new_stacks, refitted, new_diags, step_seed = shape_stacks, shape_prof, shape_diags, step_seed + 100 + attempt
+        new_stacks, refitted, new_diags, shape_step, shaped = _shape_search(
+            new_stacks, refitted, new_diags, lambda p, part, i: diagnose_all(p, step_seed + 100 + i, part), model, z_min)
+        if shape_step is not None:
+            step_seed += 100 + shape_step
         if factors or shaped:
             before_b, after_b = _battery(diags), _battery(new_diags)
             kept = (after_b["mean_rel_error"] <= before_b["mean_rel_error"]

@@ -202,48 +202,61 @@ def read_shape_updates(stacks, diags, profile, model=None, z_min: float = 6.0, h
     """{bias stack label: Tukey lambda} where the model's tail (``tail_mass``: the fraction
     beyond 5 robust sigmas of each frame and channel) exceeds the measured one by more than
     ``z_min`` spreads: the lighter lambda whose tail, with the base read noise holding its
-    share of the pixel variance (``_tail``), is the measured fraction of the model's; with
-    ``history`` (label -> (lambda, the model's tail) of the last step, updated here), the
-    secant in log(tail) through the last two steps (other effects' tails, telegraph pixels
-    say, make the analytic step fall short).
+    share of the pixel variance (``_tail``), is the measured fraction of the model's.
 
     Calibration fits lambda to the pooled bias frames: where the channels or regions read
     with noise of different levels (what ``ReadMap`` adds), their mixture has heavier tails
     than any of them, and the tail-keeping variance re-fit makes them heavier still; the
-    battery's tail is read per frame and channel. Only lighter: a tail the model lacks is
-    left to the effects that make one (impulses, telegraph pixels, hot pixels)."""
+    battery's tail is read per frame and channel. Only lighter than a lambda whose tail is
+    too heavy: a tail the model lacks is left to the effects that make one (impulses,
+    telegraph pixels, hot pixels).
+
+    ``history`` (label -> the lambdas tried with the model's tail there, updated here) makes
+    the later steps of a re-fit a search: a damped secant in log(tail) through the last two
+    (other effects' tails, telegraph pixels say, make the analytic step fall short), and,
+    once a step has made the tail significantly too light, regula falsi between the last
+    lambda too heavy and the first too light."""
     if "G*" not in parse_model(model or profile.richest_model) or profile.tukey_scale is None:
         return {}
+    history = history if history is not None else {}
     out = {}
     for stack in stacks:
         if stack.kind != "bias":
             continue
         res = {r.statistic: r for r in diags[stack.label][0]}
         tail, pixel = res.get("tail_mass"), res.get("pixel_std")
-        if tail is None or pixel is None or tail.z >= -z_min or not tail.synth_mean > 0 or not pixel.synth_mean > 0:
+        if tail is None or pixel is None or not tail.synth_mean > 0 or not pixel.synth_mean > 0 or not tail.measured > 0:
             continue
         fixed = synthesis_fixed(profile, stack)
         lam = float(fixed["lambda"])
-        if not LAMBDA_RANGE[0] <= lam < LAMBDA_RANGE[1]:
+        tried = history.setdefault(stack.label, {"heavy": None, "light": None})
+        if tail.z < -z_min:  # too heavy here
+            previous, tried["heavy"] = tried["heavy"], (lam, float(tail.synth_mean))
+        elif tail.z > z_min and tried["heavy"] is not None:  # a step went too far: too light here
+            previous, tried["light"] = None, (lam, float(tail.synth_mean))
+        else:
             continue
         hi = LAMBDA_RANGE[1]
-        last = (history or {}).get(stack.label)
-        if last is not None and last[0] < lam and 0 < tail.measured and 0 < tail.synth_mean < last[1]:
-            slope = (lam - last[0]) / (math.log(tail.synth_mean) - math.log(last[1]))  # lambda per log(tail), < 0
+        log_target = math.log(tail.measured)
+        if tried["light"] is not None:  # bracketed: regula falsi in log(tail)
+            (a, ta), (b, tb) = tried["heavy"], tried["light"]
+            new = a + (b - a) * (math.log(ta) - log_target) / (math.log(ta) - math.log(tb)) if ta > tb else 0.5 * (a + b)
+        elif previous is not None and previous[0] < lam and 0 < tail.synth_mean < previous[1]:
+            slope = (lam - previous[0]) / (math.log(tail.synth_mean) - math.log(previous[1]))  # lambda per log(tail), < 0
             # damped: towards the Gaussian the tail falls faster than a line in log(tail) says
-            new = min(lam + SECANT_DAMPING * slope * (math.log(tail.measured) - math.log(tail.synth_mean)), hi)
+            new = min(lam + SECANT_DAMPING * slope * (log_target - math.log(tail.synth_mean)), hi)
         else:
-            # the tail where the statistic counts it: TAIL_Z x the frames' robust scale (a MAD of
-            # whole codes moves in steps of half a DN: at 2 DN of noise that is 3.5 sigmas, not 5)
+            # the tail where the statistic counts it, in each channel's own sigmas: TAIL_Z x its
+            # robust scale (a MAD of whole codes moves in steps of half a DN: at 2 DN of noise
+            # that is 3.5 sigmas, not 5) over its standard deviation, the median over frames and
+            # channels (a noisier channel would inflate a pooled one)
+            f = np.asarray(stack.frames_dn, dtype=np.float64).reshape(stack.frames_dn.shape[0], 4, -1)
+            t = TAIL_Z * float(np.median(robust_scale(f, axis=2)[1][..., 0] / np.maximum(f.std(axis=2), 1e-12)))
             share = min(_read_variance(fixed, ("G*",)) / pixel.synth_mean**2, 1.0)
-            f = np.asarray(stack.frames_dn, dtype=np.float64)
-            t = TAIL_Z * float(np.median(robust_scale(f.reshape(f.shape[0], 4, -1), axis=2)[1])) / pixel.synth_mean
-            target = _tail(lam, share, t) * max(tail.measured, 0.0) / tail.synth_mean
-            f = lambda x: _tail(x, share, t) - target  # noqa: E731  (falls as lambda rises towards the Gaussian's)
-            new = hi if f(hi) >= 0 else float(optimize.brentq(f, lam, hi, xtol=1e-4))
-        if history is not None:
-            history[stack.label] = (lam, float(tail.synth_mean))
-        out[stack.label] = new
+            target = _tail(lam, share, t) * tail.measured / tail.synth_mean
+            g = lambda x: _tail(x, share, t) - target  # noqa: E731  (falls as lambda rises towards the Gaussian's)
+            new = hi if g(hi) >= 0 else float(optimize.brentq(g, lam, hi, xtol=1e-4))
+        out[stack.label] = float(new)
     return out
 
 
