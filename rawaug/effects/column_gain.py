@@ -25,7 +25,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import line_mean_variance
 from .base import PHOTON, NoiseEffect, pattern_key, register
-from .k_records import _number, check_seed
+from .k_records import _number, check_gain_pattern
 
 STATISTICS = ("fixed_col_excess",)
 
@@ -45,12 +45,9 @@ class ColumnGain(NoiseEffect):
 
     @classmethod
     def validate_params(cls, params):
-        if not isinstance(params, dict):
-            raise ValueError(f"effect {cls.token!r} parameters must be a mapping, got {params!r}")
-        check_seed(cls.token, params)
-        sigma = _number(params.get("sigma"), f"{cls.token}.sigma")
-        if not 0.0 <= sigma < 0.5:
-            raise ValueError(f"effect {cls.token!r}: sigma (fraction of the signal) must be in [0, 0.5), got {sigma}")
+        if isinstance(params, dict):
+            _number(params.get("sigma"), f"{cls.token}.sigma")  # required
+        check_gain_pattern(cls.token, params, ("sigma",))
 
 
 def column_rel_var(frames, level_dn) -> float:

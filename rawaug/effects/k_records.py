@@ -102,6 +102,19 @@ def check_density(token: str, params: dict, most: float = 0.1, of: str = "pixels
     return density
 
 
+def check_gain_pattern(token: str, params, keys: tuple[str, ...]) -> None:
+    """A seeded pattern of gains on the photo signal (``PRNU``, ``ColGain``, ``RowGain``): a
+    mapping with an integer ``seed`` and each of ``keys`` (absent: 0) a spread that is a fraction
+    of the signal, in [0, 0.5)."""
+    if not isinstance(params, dict):
+        raise ValueError(f"effect {token!r} parameters must be a mapping, got {params!r}")
+    check_seed(token, params)
+    for key in keys:
+        value = _number(params.get(key, 0.0), f"{token}.{key}")
+        if not 0.0 <= value < 0.5:
+            raise ValueError(f"effect {token!r}: {key} (fraction of the signal) must be in [0, 0.5), got {value}")
+
+
 def check_seed(token: str, params: dict) -> None:
     seed = params.get("seed")
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:

@@ -20,7 +20,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import pixel_fixed_std
 from .base import PHOTON, NoiseEffect, pattern_key, register
-from .k_records import _number, check_seed
+from .k_records import _number, check_gain_pattern
 
 STATISTICS = ("flat_fixed_rel",)
 
@@ -40,12 +40,9 @@ class PhotoResponseNonUniformity(NoiseEffect):
 
     @classmethod
     def validate_params(cls, params):
-        if not isinstance(params, dict):
-            raise ValueError(f"effect 'PRNU' parameters must be a mapping, got {params!r}")
-        check_seed(cls.token, params)
-        sigma = _number(params.get("sigma"), "PRNU.sigma")
-        if not 0.0 <= sigma < 0.5:
-            raise ValueError(f"effect 'PRNU': sigma (fraction of the signal) must be in [0, 0.5), got {sigma}")
+        if isinstance(params, dict):
+            _number(params.get("sigma"), f"{cls.token}.sigma")  # required
+        check_gain_pattern(cls.token, params, ("sigma",))
 
 
 def _fixed_var(frames):

@@ -30,7 +30,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import line_mean_variance
 from .base import PHOTON, NoiseEffect, pattern_key, register
-from .k_records import _number, check_seed
+from .k_records import check_gain_pattern
 
 STATISTICS = ("fixed_row_excess", "row_excess")
 KEYS = ("fixed", "frame")
@@ -52,18 +52,12 @@ class RowGain(NoiseEffect):
 
     @classmethod
     def validate_params(cls, params):
-        if not isinstance(params, dict):
-            raise ValueError(f"effect {cls.token!r} parameters must be a mapping, got {params!r}")
-        check_seed(cls.token, params)
+        check_gain_pattern(cls.token, params, KEYS)
         unknown = sorted(set(params) - {"seed", *KEYS})
         if unknown:
             raise ValueError(f"effect {cls.token!r}: unknown keys {unknown}; known: {['seed', *KEYS]}")
         if not any(key in params for key in KEYS):
             raise ValueError(f"effect {cls.token!r} needs at least one of {list(KEYS)} (fraction of the signal)")
-        for key in KEYS:
-            value = _number(params.get(key, 0.0), f"{cls.token}.{key}")
-            if not 0.0 <= value < 0.5:
-                raise ValueError(f"effect {cls.token!r}: {key} (fraction of the signal) must be in [0, 0.5), got {value}")
 
 
 def row_rel_parts(frames, level_dn) -> tuple[float, float]:
