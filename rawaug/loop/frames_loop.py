@@ -128,10 +128,12 @@ def _without(step, profile, stacks, refits, model):
 def _shape_search(stacks, prof, diags, diagnose_fn, model, z_min):
     """The read noise's shape re-fitted where the model's tail overshoots (``read_shape_updates``):
     up to SHAPE_STEPS steps of its search, each diagnosed by ``diagnose_fn(profile, stacks,
-    step)`` ({label: (residuals, syntheses)} of at least the bias stacks); of the states tried,
-    the start included, the one of least mean relative error among those no worse than the start
-    in it and in the count of significant residuals. Returns (stacks, profile, diags, step or
-    None: the last step taken, [lambdas of each step taken])."""
+    step)`` ({label: (residuals, syntheses)} of at least the bias stacks); it stops at a step
+    that does not improve the battery, unless that step made a tail too light (the next one is
+    then bracketed). Of the states tried, the start included, the one of least mean relative
+    error among those no worse than the start in it and in the count of significant
+    residuals. Returns (stacks, profile, diags, step or None: the last step taken, [lambdas of
+    each step taken])."""
     states = [(stacks, prof, diags, None, [])]
     history: dict = {}
     for step in range(SHAPE_STEPS):
@@ -140,7 +142,13 @@ def _shape_search(stacks, prof, diags, diagnose_fn, model, z_min):
         if not lambdas:
             break
         s2, p2 = apply_read_shapes(s, p, lambdas)
-        states.append((s2, p2, diagnose_fn(p2, s2, step), step, taken + [lambdas]))
+        d2 = diagnose_fn(p2, s2, step)
+        states.append((s2, p2, d2, step, taken + [lambdas]))
+        better = (_battery(d2)["mean_rel_error"] < _battery(d)["mean_rel_error"]
+                  and _battery(d2)["n_significant"] <= _battery(d)["n_significant"])
+        too_light = any(r.statistic == "tail_mass" and r.z > z_min for label in lambdas for r in d2[label][0])
+        if not (better or too_light):
+            break
     start = _battery(diags)
     fine = [st for st in states if _battery(st[2])["mean_rel_error"] <= start["mean_rel_error"]
             and _battery(st[2])["n_significant"] <= start["n_significant"]]
@@ -459,10 +467,18 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         if factors:
             new_stacks, refitted = apply_read_noise_factors(stacks, current, factors, model)
             new_diags = diagnose_all(refitted, step_seed, new_stacks)
-        new_stacks, refitted, new_diags, shape_step, shaped = _shape_search(
-            new_stacks, refitted, new_diags, lambda p, part, i: diagnose_all(p, step_seed + 100 + i, part), model, z_min)
+        # the shape's search reads the bias stacks (where tail_mass is read); the state it keeps
+        # gets the rest of the battery, with the seeds the whole battery would give it
+        bias_of = lambda part: [st for st in part if st.kind == "bias"]  # noqa: E731
+        shape_stacks, shape_prof, shape_diags, shape_step, shaped = _shape_search(
+            new_stacks, refitted, {st.label: new_diags[st.label] for st in bias_of(new_stacks)},
+            lambda p, part, i: diagnose_all(p, step_seed + 100 + i, bias_of(part)), model, z_min)
         if shape_step is not None:
             step_seed += 100 + shape_step
+            new_stacks, refitted = shape_stacks, shape_prof
+            rest = [st for st in new_stacks if st.kind != "bias"]
+            merged = {**shape_diags, **(diagnose_all(refitted, step_seed, rest) if rest else {})}
+            new_diags = {st.label: merged[st.label] for st in new_stacks}  # in the stacks' order, as a whole battery
         if factors or shaped:
             before_b, after_b = _battery(diags), _battery(new_diags)
             kept = (after_b["mean_rel_error"] <= before_b["mean_rel_error"]
