@@ -234,19 +234,71 @@ def psd2d_lowfreq(frames, level_dn=None):
     return float(p[..., low].mean() / (p[..., radius > 0].mean() + 1e-30))
 
 
+def grid_step(frames) -> float:
+    """The grid of whole-code frames (1 DN), 0 for any other values."""
+    return 1.0 if np.all(frames == np.rint(frames)) else 0.0
+
+
+MAX_CELLS = 1 << 22  # a wider range of grid cells is read as continuous values
+
+
+def cell_cdf(values, step: float):
+    """(knots, cdf) of 1-D ``values`` on a grid of ``step``, each value spread evenly over its
+    cell: the distribution of the values plus a uniform dither of one cell, piecewise linear.
+    None off the grid or over ``MAX_CELLS`` cells."""
+    idx = np.rint(np.asarray(values, dtype=np.float64) / step)
+    if not np.all(np.abs(idx * step - values) <= 1e-6 * step):
+        return None
+    lo, hi = idx.min(), idx.max()
+    if hi - lo >= MAX_CELLS:
+        return None
+    counts = np.bincount((idx - lo).astype(np.int64))
+    knots = (lo - 0.5 + np.arange(counts.size + 1)) * step
+    return knots, np.concatenate([[0.0], np.cumsum(counts)]) / idx.size
+
+
+def cell_median_scale(knots, cdf):
+    """Median and 1.4826 MAD of a piecewise-linear cdf (``cell_cdf``): smooth in the counts,
+    where a sample MAD of whole codes moves in steps of half a code."""
+    med = float(np.interp(0.5, cdf, knots))
+    d = np.unique(np.abs(knots - med))
+    inside = np.interp(med + d, knots, cdf) - np.interp(med - d, knots, cdf)
+    return med, MAD_TO_SIGMA * float(np.interp(0.5, inside, d)) + 1e-12
+
+
+def outside_fraction(values, step: float, z: float, upper_only: bool = False) -> float:
+    """Fraction of ``values`` (1-D) beyond ``z`` robust sigmas of their median (above it
+    only, with ``upper_only``). On a grid of ``step`` (whole codes, or means of N of them)
+    the values count spread over their cells, and median and scale are those of that
+    spread (``cell_median_scale``): a sample MAD of whole codes jumps by half a code, which
+    at 1 DN of noise moves a 5-sigma threshold by 2.5 sigma, so two stacks of the same noise
+    would count different tails. Elsewhere: 1.4826 MAD of the sample."""
+    grid = cell_cdf(values, step) if step > 0 else None
+    if grid is None:
+        med, scale = robust_scale(values, axis=0)
+        z_values = (values - med) / scale
+        return float(((z_values > z) if upper_only else (np.abs(z_values) > z)).mean())
+    knots, cdf = grid
+    med, scale = cell_median_scale(knots, cdf)
+    above = 1.0 - float(np.interp(med + z * scale, knots, cdf))
+    return above if upper_only else above + float(np.interp(med - z * scale, knots, cdf))
+
+
 def tail_mass(frames, level_dn=None):
-    """Fraction of pixels beyond 5 robust sigma from their frame-channel median."""
-    med, scale = robust_scale(frames.reshape(frames.shape[0], 4, -1), axis=2)
-    z = np.abs(frames.reshape(frames.shape[0], 4, -1) - med) / scale
-    return float((z > 5.0).mean())
+    """Fraction of pixels beyond 5 robust sigma from their frame-channel median (whole codes
+    spread over their cells: ``outside_fraction``); the mean over frames and channels."""
+    step = grid_step(frames)
+    rows = frames.reshape(-1, frames.shape[2] * frames.shape[3])
+    return float(np.mean([outside_fraction(r, step, 5.0) for r in rows]))
 
 
 def hot_fraction(frames, level_dn=None):
     """Fraction of pixels whose stack mean lies 8 robust sigma above the channel median
-    (hot or stuck-high pixels). With one frame, the frame itself."""
+    (hot or stuck-high pixels; the mean of N whole codes on its grid of 1/N,
+    ``outside_fraction``). With one frame, the frame itself."""
+    step = grid_step(frames) / frames.shape[0]
     mean_map = frames.mean(axis=0).reshape(4, -1)
-    med, scale = robust_scale(mean_map, axis=1)
-    return float(((mean_map - med) / scale > 8.0).mean())
+    return float(np.mean([outside_fraction(r, step, 8.0, upper_only=True) for r in mean_map]))
 
 
 def ppcc_r2(frames, level_dn=None):

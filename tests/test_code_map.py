@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects.code_map import combine, estimate
+from rawaug.effects.code_map import combine, estimate, next_above
 from rawaug.statistics import MAX_GAP, written_codes
 from rawaug.io import read_frame
 
@@ -14,11 +14,15 @@ DATA = Path(__file__).parent / "data"
 
 
 def _apply(m, values):
+    """The stage on pre-rounding ``values`` (DN): a missing code's inputs go below or above its split."""
     lut, lo = np.asarray(m["map_dn"][0]), m["lo_dn"][0]
-    r = np.rint(values)
+    split = np.asarray(m["split_dn"][0])
+    r = np.floor(values + 0.5)  # as the kernels round
     i = (r - lo).astype(np.int64)
     inside = (i >= 0) & (i < lut.size)
-    return np.where(inside, lut[np.clip(i, 0, lut.size - 1)], r)
+    j = np.clip(i, 0, lut.size - 1)
+    mapped = np.where(values - r < split[j], lut[j], next_above(lut)[j])
+    return np.where(inside, mapped, r)
 
 
 def test_digital_gain_comb_is_mapped_onto_the_written_codes():
@@ -27,13 +31,15 @@ def test_digital_gain_comb_is_mapped_onto_the_written_codes():
     frames = np.rint(adc * 1.5)  # gain 1.5 after the ADC: every third code is missing
     m = estimate(frames.reshape(1, 4, 500, 200), rng.normal(450.0, 225.0, 400_000), k=1.0)
     written = set(np.unique(frames).tolist())
-    r = np.arange(0.0, 900.0)
-    out = _apply(m, r)
+    s = np.linspace(-0.5, 899.5, 900_001)[:-1]  # a signal swept over the codes 0 .. 899
+    out = _apply(m, s)
     assert set(out.tolist()) <= written  # only codes the camera writes
+    r = np.arange(0.0, 900.0)
     on = np.isin(r, list(written))
-    assert np.array_equal(out[on], r[on])  # written codes map to themselves
-    assert np.abs(out - r).max() <= 1  # a missing code goes to a neighbour: the signal keeps its DN
-    assert abs(np.mean(out - r)) < 0.25
+    assert np.array_equal(_apply(m, r)[on], r[on])  # written codes map to themselves
+    assert np.abs(out - np.floor(s + 0.5)).max() <= 1  # a missing code goes to a neighbour: the signal keeps its DN
+    # its inputs split between both (gain 1.5 writes 3k and 3k + 2: 3k + 1 goes half down, half up)
+    assert abs(np.mean(out - s)) < 0.02
 
 
 def test_no_missing_codes_in_a_smooth_histogram_or_its_sparse_tail():
@@ -68,7 +74,7 @@ def test_a_signal_through_the_stage_keeps_its_level():
     frames = np.rint(np.rint(rng.normal(0, 4, 400_000)) * 1.5)
     m = estimate(frames.reshape(1, 4, 500, 200), rng.normal(0, 6, 400_000), k=1.0)
     base = NoiseProfile.load("SonyA7S2")
-    profile = base.with_effect("CodeMap", {"k": [1.0], "lo_dn": m["lo_dn"], "map_dn": m["map_dn"]})
+    profile = base.with_effect("CodeMap", m)
     fixed = {"k": 1.0, "sigma_tl": 4.0, "lambda": 0.0, "sigma_r": 0.0}
     level = 20.0 / base.span_dn
     out = {}
@@ -121,3 +127,21 @@ def test_calibration_counts_a_comb_not_the_gap_between_two_populations():
     assert missing_code_fraction(np.concatenate([noise, leaky])) == 0.0
     comb = np.rint(np.rint(rng.normal(100.0, 20.0, 100_000)) * 1.5)  # a gain of 1.5 after the ADC
     assert abs(missing_code_fraction(comb) - 1 / 3) < 0.02
+
+
+def test_a_missing_codes_inputs_split_between_both_neighbours():
+    # an ADC that never writes 4k + 3 reads those inputs as 4k + 2 or 4k + 4, half each: codes
+    # 2 and 0 mod 4 each hold 3/8 of the pixels. Sending them all to one neighbour (the map
+    # before) made that 1/4 and 1/2 and moved the mean by a quarter DN. Spread of a share of
+    # 4 x 64 x 64 pixels: 0.004; bound 0.02
+    rng = np.random.default_rng(11)
+    m = estimate(_dnl(rng, 0.0, 8.0).reshape(1, 4, 500, 200), np.rint(rng.normal(0, 8, 400_000)), k=1.0)
+    profile = NoiseProfile.load("SonyA7S2").with_effect("CodeMap", m)
+    aug = RawNoiseAugment(profile, model="G", ratio=1.0, fixed={"k": 1.0, "sigma_g": 8.0}, include_profile_effects=True,
+                          generator=torch.Generator().manual_seed(0), rank_seeding=False)
+    for level in (0.0, 1000.0):  # inside the measured map and far beyond it (the period)
+        codes = np.rint(aug(torch.full((1, 4, 64, 64), level / profile.span_dn)).double().numpy() * profile.span_dn)
+        shares = [np.mean(codes % 4 == phase) for phase in range(4)]
+        assert shares[3] == 0.0
+        assert abs(shares[2] - 0.375) < 0.02 and abs(shares[0] - 0.375) < 0.02, (level, shares)
+        assert abs(codes.mean() - level) < 0.5

@@ -37,7 +37,7 @@ def run_stages(flags, dn, columns=None, seed=1, which="numba", grids=None, read_
     previous = backend.set_backend(which)
     try:
         read_lut = torch.zeros(1, 2, dtype=torch.float64) if read_lut is None else read_lut
-        return backend.run(dn.contiguous(), values, torch.tensor(keys), 1.0, flags, grids, torch.zeros(1, 1, dtype=torch.float64),
+        return backend.run(dn.contiguous(), values, torch.tensor(keys), 1.0, flags, grids, torch.zeros(1, 3, 1, dtype=torch.float64),
                            read_lut)
     finally:
         backend.set_backend(previous)

@@ -54,7 +54,9 @@ LOOP_EFFECTS = {
     "Dead": {"seed": 47, "density": 0.02, "levels_dn": [-3.0, 0.0, 2.5, 40.0, 400.0]},
     "RowDrift": {"k": [1.0, 3.0], "octave_dn": [[0.0, 0.4, 0.0, 0.9, 1.3, 0.5, 0.2, 0.1], [0.2] * 8]},
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]],
-                "period_dn": [3]},  # its shifts (0, -1, 0) go on beyond the map: every code of the input's range
+                "split_dn": [[0.5, 0.1, 0.5, 0.5, -0.2, 0.5, 0.5, 0.1, 0.5, 0.5, -0.2]],
+                "period_dn": [3]},  # its shifts (0, -1, 0) go on beyond the map: every code of the input's range;
+                # a missing code's inputs split between both neighbours
     "LineMap": {"k": [1.0, 3.0], "row_dn": (np.sin(np.arange(2 * 4 * 30).reshape(2, 4, 30) * 0.37) * 2.0).tolist(),
                 "col_dn": (np.cos(np.arange(2 * 4 * 50).reshape(2, 4, 50) * 0.29) * 1.5).tolist(),
                 "frame_h": 30, "frame_w": 50},  # a window of 24 x 40 inputs, repeated on 48 x 64 ones

@@ -375,11 +375,13 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 code = math.floor(s + 0.5)
                 i = int(code - v[_CM_LO])
                 period = int(v[_CM_P])
-                if 0 <= i < int(v[_CM_N]):
-                    s = code_lut[int(v[_CM_REC]), i]
+                rec = int(v[_CM_REC])
+                if 0 <= i < int(v[_CM_N]):  # the code below the split, or the one above
+                    s = code_lut[rec, 0, i] if s - code < code_lut[rec, 2, i] else code_lut[rec, 1, i]
                 elif period > 0:  # a periodic comb goes on beyond the measured range: the first period's shifts
                     j = i % period
-                    s = code + code_lut[int(v[_CM_REC]), j] - (v[_CM_LO] + j)
+                    part = 0 if s - code < code_lut[rec, 2, j] else 1
+                    s = code + code_lut[rec, part, j] - (v[_CM_LO] + j)
                 else:
                     s = code
             if stages & L.DEAD:  # a dead pixel reads its stuck level, whatever came before

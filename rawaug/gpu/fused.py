@@ -369,12 +369,16 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         code = tl.floor(s + 0.5)
         i = (code - _col(v, C_CM_LO)).to(tl.int64)
         inside = live & (i >= 0) & (i < _col(v, C_CM_N).to(tl.int64))
-        mapped = tl.load(code_ptr + _col(v, C_CM_REC).to(tl.int64) * CODE_N + i, mask=inside, other=0.0)
         period = _col(v, C_CM_P).to(tl.int64)
         periodic = live & ~inside & ((tl.zeros_like(i) + period) > 0)  # a periodic comb goes on beyond the measured range
         j = ((i % tl.maximum(period, 1)) + tl.maximum(period, 1)) % tl.maximum(period, 1)
-        shift = tl.load(code_ptr + _col(v, C_CM_REC).to(tl.int64) * CODE_N + j, mask=periodic, other=0.0) \
-            - (_col(v, C_CM_LO) + j.to(tl.float64))
+        at = tl.where(inside, i, j)  # the map's entry: the code's own, or its phase's in the first period
+        row = code_ptr + _col(v, C_CM_REC).to(tl.int64) * (3 * CODE_N) + at
+        used = inside | periodic
+        split = tl.load(row + 2 * CODE_N, mask=used, other=0.5)
+        upper = (s - code) >= split  # the code above the split (an ADC's decision level inside a missing code's cell)
+        mapped = tl.where(upper, tl.load(row + CODE_N, mask=used, other=0.0), tl.load(row, mask=used, other=0.0))
+        shift = mapped - (_col(v, C_CM_LO) + j.to(tl.float64))
         s = tl.where(inside, mapped, tl.where(periodic, code + shift, code))
     if FLAGS & 268435456:  # dead pixels: the stuck level, whatever came before
         dead = unit(draw(_key(keys_ptr, K_DEAD_WHERE), p)) < _col(v, C_DD)
@@ -400,7 +404,7 @@ def launch(clean, out, values, keys, span, flags, fine, coarse, grids, normal, c
     if b == 0 or h * w == 0:
         return out
     grid = (triton.cdiv(h * w, block), b * 4)
-    fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2], normal, code_lut, code_lut.shape[1],
+    fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2], normal, code_lut, code_lut.shape[-1],
                        read_lut, read_lut.shape[1],
                        FLAGS=int(flags), P=values.shape[1], BLOCK=block, num_warps=num_warps)
     return out

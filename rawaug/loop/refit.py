@@ -33,7 +33,7 @@ from scipy import optimize
 from ..augment import parse_model
 from ..distributions import tukey_lambda_survival, tukey_lambda_variance
 from ..relations import LogLinear
-from ..statistics import MAD_TO_SIGMA, robust_scale, repaired, sensor_row_means
+from ..statistics import MAD_TO_SIGMA, cell_cdf, cell_median_scale, grid_step, robust_scale, repaired, sensor_row_means
 from .diagnose import synthesis_fixed
 
 MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated value
@@ -198,6 +198,20 @@ def apply_read_noise_factors(stacks, profile, factors: dict, model=None):
                                     tukey_scale=_shift(profile.tukey_scale, float(s_slope), float(s_intercept), k_ref))
 
 
+def _tail_threshold(frames) -> tuple[float, float]:
+    """(where ``tail_mass`` counts the tail in standard deviations of the counted values, the
+    variance the cell spread adds: step^2 / 12, DN^2), the median over frames and channels."""
+    f = np.asarray(frames, dtype=np.float64).reshape(frames.shape[0] * 4, -1)
+    step = grid_step(f)
+    dither = step**2 / 12.0
+    ratios = []
+    for row in f:
+        grid = cell_cdf(row, step) if step > 0 else None
+        scale = cell_median_scale(*grid)[1] if grid is not None else float(robust_scale(row, axis=0)[1][0])
+        ratios.append(scale / max(math.sqrt(row.var() + dither), 1e-12))
+    return TAIL_Z * float(np.median(ratios)), dither
+
+
 def read_shape_updates(stacks, diags, profile, model=None, z_min: float = 6.0, history: dict | None = None) -> dict:
     """{bias stack label: Tukey lambda} where the model's tail (``tail_mass``: the fraction
     beyond 5 robust sigmas of each frame and channel) exceeds the measured one by more than
@@ -247,13 +261,17 @@ def read_shape_updates(stacks, diags, profile, model=None, z_min: float = 6.0, h
             new = min(lam + SECANT_DAMPING * slope * (log_target - math.log(tail.synth_mean)), hi)
         else:
             # the tail where the statistic counts it, in each channel's own sigmas: TAIL_Z x its
-            # robust scale (a MAD of whole codes moves in steps of half a DN: at 2 DN of noise
-            # that is 3.5 sigmas, not 5) over its standard deviation, the median over frames and
-            # channels (a noisier channel would inflate a pooled one)
-            f = np.asarray(stack.frames_dn, dtype=np.float64).reshape(stack.frames_dn.shape[0], 4, -1)
-            t = TAIL_Z * float(np.median(robust_scale(f, axis=2)[1][..., 0] / np.maximum(f.std(axis=2), 1e-12)))
-            share = min(_read_variance(fixed, ("G*",)) / pixel.synth_mean**2, 1.0)
-            target = _tail(lam, share, t) * tail.measured / tail.synth_mean
+            # robust scale over its standard deviation, the median over frames and channels (a
+            # noisier channel would inflate a pooled one); whole codes count spread over their
+            # cells (``outside_fraction``), which adds a cell's variance to the pixels'
+            t, dither = _tail_threshold(stack.frames_dn)
+            share = min(_read_variance(fixed, ("G*",)) / (pixel.synth_mean**2 + dither), 1.0)
+            # the read noise's part of the model's tail (its prediction, at most the whole) is
+            # scaled to what the measured tail leaves after the rest (telegraph pixels, hot
+            # pixels), at most tenfold down per step
+            pred = _tail(lam, share, t)
+            read = min(pred, float(tail.synth_mean))
+            target = pred * max(tail.measured - (tail.synth_mean - read), 0.1 * read) / read
             g = lambda x: _tail(x, share, t) - target  # noqa: E731  (falls as lambda rises towards the Gaussian's)
             new = hi if g(hi) >= 0 else float(optimize.brentq(g, lam, hi, xtol=1e-4))
         out[stack.label] = float(new)
@@ -329,6 +347,33 @@ def row_noise_factors(stacks, diags, profile, z_min: float = 6.0) -> dict:
         if f2 < ROW_MIN_FACTOR**2:
             continue
         factors[stack.label] = float(math.sqrt(f2))
+    return factors
+
+
+def row_noise_restore(stacks, before: dict, after: dict, profile, z_min: float = 6.0) -> dict:
+    """{bias stack label: factor > 1 on sigma_r} where an added effect took row variance away
+    from the model: its sensor-row means now vary less than the measured ones by more than
+    ``z_min`` spreads of the syntheses, and before it (``before``: the diagnoses of the model
+    without it) they did not. A code map is such an effect: sigma_r was calibrated on the
+    rows of quantized frames, and re-quantized the row offsets shrink again (by g^2 = after
+    over before in variance), so sigma_r^2 grows by (measured - after) / g^2."""
+    factors = {}
+    for stack in stacks:
+        if stack.kind != "bias" or stack.label not in before or stack.label not in after:
+            continue
+        old = [_row_variance(s) for s in before[stack.label][1]]
+        new = [_row_variance(s) for s in after[stack.label][1]]
+        if len(old) < 2 or len(new) < 2:
+            continue
+        measured = _row_variance(stack.frames_dn)
+        model, spread = float(np.mean(new)), float(np.std(new, ddof=1))
+        if measured - model <= z_min * spread or measured - float(np.mean(old)) > z_min * float(np.std(old, ddof=1)):
+            continue
+        sigma_r = float(synthesis_fixed(profile, stack).get("sigma_r", 0.0))
+        if sigma_r <= 0:
+            continue
+        g2 = min(model / float(np.mean(old)), 1.0)
+        factors[stack.label] = float(math.sqrt(1.0 + (measured - model) / g2 / sigma_r**2))
     return factors
 
 

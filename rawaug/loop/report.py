@@ -81,7 +81,11 @@ def outcome_summary(result) -> str:
         if not refit["kept"]:
             continue
         what = refit.get("what") or "read noise"
-        if refit.get("factors"):
+        if refit.get("factors") and min(refit["factors"].values()) > 1.0:
+            lines.append(f"After `{refit['after']}` was added, the base {what} was given back (`{refit['after']}` had "
+                         f"taken the variance of the rows away): sigma x "
+                         + ", ".join(f"{f:.3f} ({label})" for label, f in refit["factors"].items()) + ".")
+        elif refit.get("factors"):
             lines.append(f"After `{refit['after']}` was added, the base {what} was re-fitted (it had counted "
                          f"the temporal noise `{refit['after']}` now explains): sigma x "
                          + ", ".join(f"{f:.3f} ({label})" for label, f in refit["factors"].items()) + ".")
