@@ -172,7 +172,7 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     if level_dn is not None or not synthesized:
         raise ValueError("Band is measured on bias and dark stacks, against syntheses")
     tones, amps = line_tones(frame_row_means(frames), [frame_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
-    return {"k": [float(k)], "freq_per_row": [tones], "amplitude_dn": [amps]}
+    return {"k": [float(k)], "freq_per_row": [tones], "amplitude_dn": [amps], "frames": [int(frames.shape[0])]}
 
 
 def combine(records: list[dict]) -> dict:
@@ -186,7 +186,10 @@ def empty(params) -> bool:
 
 def combine_tones(records: list[dict], freq_key: str) -> dict:
     """One record per gain: the tones of the first stack at that K (bias before dark), each
-    amplitude the rms over the stacks at that K that found it (within 1/200 cycle per line)."""
+    amplitude the rms over the stacks at that K that found it (within 1/200 cycle per line),
+    weighed by the degrees of freedom of each stack's circle fit (``frames`` - 3: a circle
+    through 4 frames' coefficients is far less certain than one through 8; equal weights
+    where none has more than 3 frames)."""
     by_k: dict = {}
     for r in records:
         by_k.setdefault(float(r["k"][0]), []).append(r)
@@ -197,7 +200,9 @@ def combine_tones(records: list[dict], freq_key: str) -> dict:
         freqs.append(list(first[freq_key][0]))
         row = []
         for f in first[freq_key][0]:
-            found = [a for r in by_k[k] for g, a in zip(r[freq_key][0], r["amplitude_dn"][0]) if abs(g - f) < 0.005]
-            row.append(float(np.sqrt(np.mean(np.square(found)))))
+            found = [(a, max(r.get("frames", [4])[0] - 3, 0)) for r in by_k[k]
+                     for g, a in zip(r[freq_key][0], r["amplitude_dn"][0]) if abs(g - f) < 0.005]
+            a2, w = np.square([a for a, _ in found]), np.array([w for _, w in found], dtype=np.float64)
+            row.append(float(np.sqrt(np.average(a2, weights=w) if w.sum() > 0 else a2.mean())))
         amps.append(row)
     return {"k": ks, freq_key: freqs, "amplitude_dn": amps}

@@ -56,7 +56,7 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     if level_dn is not None or not synthesized:
         raise ValueError("ColBand is measured on bias and dark stacks, against syntheses")
     tones, amps = line_tones(frame_col_means(frames), [frame_col_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
-    return {"k": [float(k)], "freq_per_col": [tones], "amplitude_dn": [amps]}
+    return {"k": [float(k)], "freq_per_col": [tones], "amplitude_dn": [amps], "frames": [int(frames.shape[0])]}
 
 
 def combine(records: list[dict]) -> dict:
