@@ -244,8 +244,10 @@ MAX_CELLS = 1 << 22  # a wider range of grid cells is read as continuous values
 
 def cell_cdf(values, step: float):
     """(knots, cdf) of 1-D ``values`` on a grid of ``step``, each value spread evenly over its
-    cell: the distribution of the values plus a uniform dither of one cell, piecewise linear.
-    None off the grid or over ``MAX_CELLS`` cells."""
+    cell, piecewise linear: the values plus a uniform dither of one cell. A code next to
+    missing ones (a gap ``written_codes`` counts: at most ``MAX_GAP`` empty codes between two
+    of >= ``MIN_COUNT`` values) stands for the inputs the ADC writes it for: its cell reaches
+    halfway to the next written code. None off the grid or over ``MAX_CELLS`` cells."""
     idx = np.rint(np.asarray(values, dtype=np.float64) / step)
     if not np.all(np.abs(idx * step - values) <= 1e-6 * step):
         return None
@@ -253,8 +255,15 @@ def cell_cdf(values, step: float):
     if hi - lo >= MAX_CELLS:
         return None
     counts = np.bincount((idx - lo).astype(np.int64))
-    knots = (lo - 0.5 + np.arange(counts.size + 1)) * step
-    return knots, np.concatenate([[0.0], np.cumsum(counts)]) / idx.size
+    occupied = np.flatnonzero(counts)
+    c = counts[occupied]
+    gaps = np.diff(occupied)
+    comb = (gaps <= MAX_GAP + 1) & (np.minimum(c[:-1], c[1:]) >= MIN_COUNT)
+    half = np.where(comb, gaps / 2.0, 0.5)
+    left, right = occupied - np.r_[0.5, half], occupied + np.r_[half, 0.5]
+    knots = (lo + np.stack([left, right], axis=1).ravel()) * step
+    cum = np.cumsum(c)
+    return knots, np.stack([cum - c, cum], axis=1).ravel() / idx.size
 
 
 def cell_median_scale(knots, cdf):
@@ -264,6 +273,17 @@ def cell_median_scale(knots, cdf):
     d = np.unique(np.abs(knots - med))
     inside = np.interp(med + d, knots, cdf) - np.interp(med - d, knots, cdf)
     return med, MAD_TO_SIGMA * float(np.interp(0.5, inside, d)) + 1e-12
+
+
+def center_scale(values, step: float) -> tuple[float, float]:
+    """(median, robust sigma) of 1-D ``values`` as ``outside_fraction`` reads them: of the
+    values spread over their cells on a grid of ``step`` (``cell_median_scale``), else the
+    sample's (1.4826 MAD)."""
+    grid = cell_cdf(values, step) if step > 0 else None
+    if grid is None:
+        med, scale = robust_scale(values, axis=0)
+        return float(med[0]), float(scale[0])
+    return cell_median_scale(*grid)
 
 
 def outside_fraction(values, step: float, z: float, upper_only: bool = False) -> float:

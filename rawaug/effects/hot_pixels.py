@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 from ..engine import layout as L
+from ..statistics import center_scale, grid_step
 from .base import DARK, NoiseEffect, pattern_key, register
 from .k_records import _number, check_density, check_seed, validate_records, value_at_k
 
@@ -60,10 +61,10 @@ class HotPixels(NoiseEffect):
 def detect(frames):
     """Boolean (4, h, w) mask of hot pixels of the stack mean and their amplitude (DN above
     the channel median)."""
-    m = np.asarray(frames, dtype=np.float64).mean(axis=0).reshape(4, -1)
-    med = np.median(m, axis=1, keepdims=True)
-    mad = 1.482602218505602 * np.median(np.abs(m - med), axis=1, keepdims=True)
-    scale = np.where(mad > 0, mad, m.std(axis=1, keepdims=True)) + 1e-12
+    frames = np.asarray(frames, dtype=np.float64)
+    m = frames.mean(axis=0).reshape(4, -1)
+    step = grid_step(frames) / frames.shape[0]  # as hot_fraction reads the mean map
+    med, scale = (v[:, None] for v in np.array([center_scale(row, step) for row in m]).T)
     hot = (m - med) / scale > THRESHOLD_SIGMA
     return hot, (m - med)[hot]
 
