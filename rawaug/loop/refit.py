@@ -33,7 +33,7 @@ from scipy import optimize
 from ..augment import parse_model
 from ..distributions import tukey_lambda_survival, tukey_lambda_variance
 from ..relations import LogLinear
-from ..statistics import MAD_TO_SIGMA, cell_cdf, cell_median_scale, grid_step, robust_scale, repaired, sensor_row_means
+from ..statistics import MAD_TO_SIGMA, center_scale, grid_step, repaired, sensor_row_means
 from .diagnose import synthesis_fixed
 
 MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated value
@@ -204,11 +204,7 @@ def _tail_threshold(frames) -> tuple[float, float]:
     f = np.asarray(frames, dtype=np.float64).reshape(frames.shape[0] * 4, -1)
     step = grid_step(f)
     dither = step**2 / 12.0
-    ratios = []
-    for row in f:
-        grid = cell_cdf(row, step) if step > 0 else None
-        scale = cell_median_scale(*grid)[1] if grid is not None else float(robust_scale(row, axis=0)[1][0])
-        ratios.append(scale / max(math.sqrt(row.var() + dither), 1e-12))
+    ratios = [center_scale(row, step)[1] / max(math.sqrt(row.var() + dither), 1e-12) for row in f]
     return TAIL_Z * float(np.median(ratios)), dither
 
 
