@@ -15,11 +15,13 @@ when no significant residual points to an effect untried in the current model.
 
 Then backward elimination: an effect added early may be redundant once a later one explains
 its residual too (a row drift under a smooth per-frame field that a later ``LowFreq``
-reproduces in full). Each added effect that a later one shares a statistic with is taken out
-in turn (with the base stage's re-fit it was judged with undone); one whose removal leaves
-no residual significant that is not significant with it is removed, measured fallbacks
-before physical effects, and the effects added after it are estimated again, until every
-effect left is needed.
+reproduces in full). Each added effect that a later one shares a statistic with, or whose own
+statistic the final model overshoots (hot pixels added for the high first rows that a later
+``LineMap`` reproduces), is taken out in turn, with the base stage's re-fit it was judged with
+undone. One whose removal leaves no residual significant that is not significant with it is
+removed -- or, for one the model overshoots with, whose removal leaves the battery no worse --
+measured fallbacks before physical effects, and the effects added after it are estimated
+again, until every effect left is needed.
 
 After each added effect the base read noise is re-fitted where the model's bias frames now
 come out noisier than the measured ones (``refit``): calibration had given the read noise
@@ -523,30 +525,47 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         kept = [s for s in result.steps if s.accepted]
         if len(kept) < 2:
             break
-        # an effect can only have been made redundant by one added after it that a statistic of
-        # its own also points to (the last one added was needed beside all the others)
+        # an effect can only have been made redundant by one added after it (the last one added
+        # was needed beside all the others): one that a statistic of its own also points to, or
+        # any whose own statistic the model now overshoots (a later effect explained its residual
+        # through a statistic the two do not share, and it adds on top)
         stats = lambda step: set(CANDIDATES[step.effect].statistics)  # noqa: E731
-        candidates = [s for i, s in enumerate(kept[:-1]) if any(stats(s) & stats(later) for later in kept[i + 1:])]
+        overshot = {r.statistic for res, _ in diags.values() for r in res if r.significant and r.z < 0}
+        candidates = [s for i, s in enumerate(kept[:-1])
+                      if stats(s) & overshot or any(stats(s) & stats(later) for later in kept[i + 1:])]
         if not candidates:
             break
-        full = _significant(diags)
+        full, full_b = _significant(diags), _battery(diags)
         removable = []
         for step in candidates:
             reduced, reduced_stacks = _without(step, current, stacks, result.refits, model)
             reduced_diags = diagnose_all(reduced, diags_seed, reduced_stacks)  # the full model's syntheses' seeds
-            if _significant(reduced_diags) <= full:
-                removable.append((step, reduced, reduced_diags, reduced_stacks))
+            reduced_b = _battery(reduced_diags)
+            # redundant: nothing becomes significant without it; or, for an effect the model
+            # overshoots with, a battery no worse without it (as many significant residuals at
+            # most, and a mean error no higher): the overshoot it ends is worth the residual it
+            # leaves at the threshold
+            no_worse = (stats(step) & overshot and reduced_b["n_significant"] <= full_b["n_significant"]
+                        and reduced_b["mean_rel_error"] <= full_b["mean_rel_error"])
+            if _significant(reduced_diags) <= full or no_worse:
+                removable.append((step, reduced, reduced_diags, reduced_stacks,
+                                  "redundant" if _significant(reduced_diags) <= full else "overshoots"))
+            else:
+                say(f"end: {step.effect} kept: without it " + ", ".join(
+                    f"{stat} ({label})" for label, stat in sorted(_significant(reduced_diags) - full)) + " significant")
         if not removable:
             break
-        step, reduced, reduced_diags, reduced_stacks = min(
+        step, reduced, reduced_diags, reduced_stacks, why = min(
             removable, key=lambda r: (r[0].kind != "measured", _battery(r[2])["mean_rel_error"]))
         before_b, after_b = _battery(diags), _battery(reduced_diags)
         others = [s.effect for s in kept if s is not step]
-        step.accepted, step.note = False, "added, then removed: redundant beside " + ", ".join(others)
-        result.removed.append({"effect": step.effect, "round": step.round, "beside": others,
+        step.accepted, step.note = False, (f"added, then removed: {'redundant' if why == 'redundant' else 'the model overshoots with it'}"
+                                           " beside " + ", ".join(others))
+        result.removed.append({"effect": step.effect, "round": step.round, "beside": others, "why": why,
                                "battery_before": before_b, "battery_after": after_b})
-        say(f"end: {step.effect} removed: no residual is significant without it beside {', '.join(others)} "
-            f"(battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f})")
+        say(f"end: {step.effect} removed: " + ("no residual is significant without it" if why == "redundant"
+                                               else "the model overshoots its statistic with it, and the battery is no worse without it")
+            + f" beside {', '.join(others)} (battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f})")
         current, diags, stacks = reduced, reduced_diags, reduced_stacks
         by_label = {st.label: st for st in stacks}
         for refit in result.refits:  # undone by _without
@@ -581,6 +600,23 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             later.stack, later.evidence = label, before_r.to_dict()
             later.battery_before, later.battery_after = _battery(without_diags), _battery(diags)
             later.signature = step_signature(stat, by_label[label].frames_dn, without_diags[label][1], diags[label][1])
+    # what is left is judged as a residual that calls for an effect is: against a larger,
+    # independent sample of syntheses (an effect removed at the end can leave a statistic at
+    # the threshold whose spread 8 syntheses underestimated)
+    final_checks: dict = {}
+    for label, (residuals, _) in diags.items():
+        for r in residuals:
+            if not r.significant or any(u["stack"] == label and u["statistic"] == r.statistic for u in result.unconfirmed):
+                continue
+            if label not in final_checks:
+                final_checks[label] = diagnose(by_label[label], current, model=model, n_synth=CONFIRM_FACTOR * n_synth,
+                                               seed=seed + 8_000_000, z_min=z_min, rel_min=rel_min)[0]
+            check = next(c for c in final_checks[label] if c.statistic == r.statistic)
+            if not (check.significant and check.z * r.z > 0):
+                result.unconfirmed.append({"stack": label, "statistic": r.statistic, "z": r.z, "z_confirm": check.z,
+                                           "n_synth_confirm": CONFIRM_FACTOR * n_synth})
+                say(f"end: {r.statistic} ({label}, z={r.z:.1f}) not confirmed on {CONFIRM_FACTOR * n_synth} "
+                    f"syntheses (z={check.z:.1f}): not unexplained")
     result.profile, result.colour_bias = _with_fitted_colour_bias(current, stacks, model, seed)
     if result.colour_bias:
         say("colour bias fitted with the added effects: " + "; ".join(

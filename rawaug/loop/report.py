@@ -95,8 +95,9 @@ def outcome_summary(result) -> str:
                          + ", ".join(f"{lam:.3f} ({label})" for label, lam in lambdas.items()) + ".")
     for gone in getattr(result, "removed", []):
         lines.append(f"`{gone['effect']}` was added, then removed: beside " + ", ".join(f"`{t}`" for t in gone["beside"])
-                     + " no residual is significant without it (battery "
-                     f"{gone['battery_before']['mean_rel_error']:.3f} -> {gone['battery_after']['mean_rel_error']:.3f}).")
+                     + (" the model overshot its statistic with it, and the battery is no worse without it (battery "
+                        if gone.get("why") == "overshoots" else " no residual is significant without it (battery ")
+                     + f"{gone['battery_before']['mean_rel_error']:.3f} -> {gone['battery_after']['mean_rel_error']:.3f}).")
     chance = getattr(result, "unconfirmed", [])
     if chance:
         lines.append("Not confirmed on a larger sample of syntheses (a chance deviation, not acted on): "
