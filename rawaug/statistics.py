@@ -1002,6 +1002,62 @@ def flat_gain_spread(frames, level_dn=None):
     return float(frames.mean(axis=(1, 2, 3)).std(ddof=1) / max(level, 1e-12))
 
 
+GRID_MAX_PERIOD = 16  # packed pixels along each axis (32 sensor pixels): the periods a gain grid is looked for at
+GRID_SMOOTH = 2 * GRID_MAX_PERIOD + 1  # packed pixels of the box a flat's light shape is taken over
+
+
+def flat_relative_map(frames) -> np.ndarray:
+    """(4, h, w) fixed pattern of a flat stack (N, 4, h, w; DN) relative to its light: the
+    stack mean over its box average of ``GRID_SMOOTH`` pixels, less 1 (a light's shape, smooth
+    over the box, does not count; a pattern of a short period averages out of the box)."""
+    m = np.asarray(frames, dtype=np.float64).mean(axis=0)
+    smooth = ndimage.uniform_filter(m, size=(1, GRID_SMOOTH, GRID_SMOOTH), mode="reflect")
+    return m / np.where(np.abs(smooth) > 1e-12, smooth, 1e-12) - 1.0
+
+
+def _phase_counts(n, p):
+    """(p,) lines of each phase of a period p among n lines."""
+    return (n - np.arange(p) + p - 1) // p
+
+
+def _phase_means(n, max_period):
+    """(n, sum of 1 .. max_period) matrix: column block p (p columns) averages the lines of
+    each phase of a period p among n lines."""
+    blocks = []
+    for p in range(1, max_period + 1):
+        m = np.zeros((n, p))
+        m[np.arange(n), np.arange(n) % p] = 1.0
+        blocks.append(m / _phase_counts(n, p))
+    return np.concatenate(blocks, axis=1)
+
+
+def period_excess(rel) -> dict:
+    """{(py, px): excess} for every period up to ``GRID_MAX_PERIOD`` but 1 x 1: the variance of
+    the fold's cell means over the cells, less what white noise of the map's variance leaves in
+    a mean of h w / (py px) pixels, summed over the channels (relative units squared). All
+    folds at once: two products with phase-averaging matrices."""
+    rel = np.asarray(rel, dtype=np.float64)
+    h, w = rel.shape[1:]
+    my, mx = min(GRID_MAX_PERIOD, h), min(GRID_MAX_PERIOD, w)
+    cells = np.matmul(np.matmul(_phase_means(h, my).T[None], rel), _phase_means(w, mx))  # (4, sum py, sum px)
+    starts_y, starts_x = np.cumsum([0, *range(1, my)]), np.cumsum([0, *range(1, mx)])
+    block_sum = lambda a: np.add.reduceat(np.add.reduceat(a, starts_y, axis=1), starts_x, axis=2)  # noqa: E731
+    n = np.arange(1, my + 1)[:, None] * np.arange(1, mx + 1)[None, :]  # cells of each period
+    mean, mean2 = block_sum(cells) / n, block_sum(cells**2) / n
+    noise = rel.var(axis=(1, 2))[:, None, None] * n / (h * w)
+    excess = np.sum(mean2 - mean**2 - noise, axis=0)  # (my, mx)
+    return {(py, px): float(excess[py - 1, px - 1]) for py in range(1, my + 1) for px in range(1, mx + 1)
+            if not py == px == 1}
+
+
+def grid_excess(frames, level_dn=None):
+    """Largest excess variance of a flat stack's relative fixed pattern folded over a period
+    (``period_excess``) over the pattern's variance: about 0 for a pattern with no period, up
+    to 1 for one that is all periodic (phase-detection pixels, a repeating microlens cell)."""
+    rel = flat_relative_map(frames)
+    return max(period_excess(rel).values()) / max(float(rel.var(axis=(1, 2)).sum()), 1e-30)
+
+
 LIGHT_STABILITY = 1e-3  # a flat's light is stable to about 0.1 %: smaller deviations of its mean are not resolved
 
 
@@ -1081,6 +1137,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),
         Statistic("flat_linearity", flat_linearity, kind="flat", floor=LIGHT_STABILITY),
         Statistic("flat_gain_spread", flat_gain_spread, min_frames=2, kind="flat", floor=LIGHT_STABILITY),
+        Statistic("grid_excess", grid_excess, kind="flat", view="raw"),  # phase-detection rows are not defects to repair
     )
 }
 

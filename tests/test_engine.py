@@ -60,6 +60,9 @@ LOOP_EFFECTS = {
     "LineMap": {"k": [1.0, 3.0], "row_dn": (np.sin(np.arange(2 * 4 * 30).reshape(2, 4, 30) * 0.37) * 2.0).tolist(),
                 "col_dn": (np.cos(np.arange(2 * 4 * 50).reshape(2, 4, 50) * 0.29) * 1.5).tolist(),
                 "frame_h": 30, "frame_w": 50},  # a window of 24 x 40 inputs, repeated on 48 x 64 ones
+    "GainGrid": {"period": [3, 2], "gain": [[[1.0, 1.0], [1.0, 0.5], [1.0, 1.2]], [[1.0] * 2] * 3, [[0.9, 1.1]] * 3,
+                                             [[1.0, 1.0], [0.0, 1.0], [1.0, 1.0]]],
+                 "frame_h": 30, "frame_w": 50},  # a phase per sample on the test inputs; a gain of 0 (a masked pixel)
     "ReadDist": {"k": [1.0, 3.0], "quantiles_dn": (np.linspace(-6, 6, 257)[None, None] ** 3 / 20
                                                   * np.array([1.0, 2.0])[:, None, None] * np.ones((1, 4, 1))).tolist()},
 }

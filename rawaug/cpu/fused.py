@@ -72,6 +72,7 @@ _DOFF = L.COLUMN["dark_offset"]
 _RG = L.COLUMN["read_gain"]
 _FG = L.COLUMN["frame_gain"]
 _LMR, _LMOY, _LMOX, _LMLH, _LMLW = (L.COLUMN[n] for n in ("lmap_record", "lmap_oy", "lmap_ox", "lmap_lh", "lmap_lw"))
+_GGR, _GGPY, _GGPX, _GGOY, _GGOX = (L.COLUMN[n] for n in ("ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox"))
 _SPD, _SPM, _SPL = L.COLUMN["spike_density"], L.COLUMN["spike_median"], L.COLUMN["spike_log_std"]
 _SPIKE_WHERE, _SPIKE_SIZE = L.STREAM["spike_where"], L.STREAM["spike_size"]
 _CRD, _CRM, _CRL, _CRH = L.COLUMN["crts_density"], L.COLUMN["crts_median"], L.COLUMN["crts_log_std"], L.COLUMN["crts_high"]
@@ -279,6 +280,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         if stages & L.ROW_GAIN:
             row_gain += (v[_RGF] * symmetric(normal, draw(keys[_ROWGAIN_PATTERN], (sensor * 2 + row_set) * h + y))
                          + v[_RGT] * symmetric(normal, draw(keys[_ROWGAIN_FRAME], (b * 2 + row_set) * h + y)))
+        ggrec, ggy, ggpx, ggox = 0, 0, 1, 0
+        if stages & L.GAIN_GRID:  # the grid row of this packed row: its period's phase
+            ggrec, ggpx, ggox = int(v[_GGR]) + c, int(v[_GGPX]), int(v[_GGOX])
+            ggy = (y + int(v[_GGOY])) % int(v[_GGPY])
         g0 = r * w
         p0 = ((sensor * 4 + c) * h + y) * w
         for x in range(w):
@@ -289,6 +294,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 bad += 1
             if stages & L.PRNU:
                 s *= 1.0 + v[_PRNU] * symmetric(normal, draw(keys[_PRNU_PATTERN], p))
+            if stages & L.GAIN_GRID:  # the measured periodic gain at this pixel, before the Poisson draw
+                s *= grids[ggrec, ggy, (x + ggox) % ggpx]
             if stages & L.DARK_CURRENT:
                 s += k * v[_DARK_E] * max(1.0 + v[_DSNU] * symmetric(normal, draw(keys[_DSNU_PATTERN], p)), 0.0)
             if stages & L.GLOW:

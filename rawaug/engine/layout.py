@@ -49,6 +49,7 @@ FRAME_NOISE = 1 << 38  # frame-to-frame read-noise level: the base read noise of
 FRAME_GAIN = 1 << 39  # frame-to-frame gain: the photo signal of a frame times its own factor, after shot noise
 LINE_MAP = 1 << 40  # measured fallback: fixed row and column offset profiles of the measured frame
 ROW_GAIN = 1 << 41  # row gain: each sensor row's gain on the photo signal, fixed and new in every frame
+GAIN_GRID = 1 << 42  # measured fallback: a periodic grid of pixel gains on the photo signal (phase-detection pixels)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -101,6 +102,7 @@ COLUMNS = (
     "lmap_record", "lmap_gh", "lmap_gw", "lmap_oy", "lmap_ox", "lmap_h", "lmap_w",  # line profiles: grids record, window
     "lmap_lh", "lmap_lw",  # ... and the measured profiles' lengths (packed rows, packed columns)
     "rowgain_fixed", "rowgain_frame",  # row gain: std of the sensor rows' relative gains, fixed and per frame
+    "ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox",  # gain grid: first grids record, period, phase (packed pixels)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

@@ -42,6 +42,7 @@ C_CBF0, C_CBA0 = _column("cband_f0"), _column("cband_a0")
 C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_log_std")
 C_CGS = _column("colgain_sigma")
 C_RGF, C_RGT = _column("rowgain_fixed"), _column("rowgain_frame")
+C_GGR, C_GGPY, C_GGPX, C_GGOY, C_GGOX = (_column(n) for n in ("ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox"))
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DOFF = _column("dark_offset")
 C_RG = _column("read_gain")
@@ -201,6 +202,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     s = tl.load(clean_ptr + plane.to(tl.int64) * hw + idx, mask=live, other=0.0).to(tl.float64) * scale_in
     if FLAGS & 1:  # PRNU
         s *= 1.0 + _col(v, C_PRNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_PRNU), p))
+    if FLAGS & 4398046511104:  # measured gain grid: the periodic gain at this pixel, before the Poisson draw
+        gg = grids_ptr + (_col(v, C_GGR).to(tl.int64) + c) * GH.to(tl.int64) * GW.to(tl.int64)
+        gy = (y + _col(v, C_GGOY).to(tl.int64)) % _col(v, C_GGPY).to(tl.int64)
+        gx = (x + _col(v, C_GGOX).to(tl.int64)) % _col(v, C_GGPX).to(tl.int64)
+        s *= tl.load(gg + gy * GW.to(tl.int64) + gx, mask=live, other=1.0)
     if FLAGS & 16384:  # dark current: K * dark electrons * (1 + DSNU map), before shot noise
         s += k * _col(v, C_DARK_E) * tl.maximum(1.0 + _col(v, C_DSNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)), 0.0)
     if FLAGS & 524288:  # amplifier glow: K * exposure * a smooth dark-current map (e-/s), a window of glow_h x glow_w
