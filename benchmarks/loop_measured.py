@@ -45,7 +45,7 @@ def imx686():
         print(f"## IMX686 ISO {iso} per-frame bias fits (PMN)\n")
         out = frame_table_loop(read_frame_table(DATA / f"IMX686_iso{iso}_per_frame_bias_fits.csv"), 3472 // 2, 4624 // 2, k)
         print(steps_table(out["steps"]))
-        print(f"BLE found: {out['params']}\n")
+        print("".join(f"{token} found: {params}\n" for token, params in out["effects"].items()))
         print(residual_table(out["before"], "before"))
         print(residual_table(out["after"], "after"))
 

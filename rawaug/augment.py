@@ -67,6 +67,8 @@ FIXED_KEYS = {
     "color_bias_dn": "per-channel black-level error, DN (4 values R, G1, B, G2)",
     "exposure_s": "exposure time, seconds, for the dark signal of a profile's Dark, DarkHot, DarkCol, Glow and DarkOffset effects (>= 0)",
     "sensor": f"sensor instance of the fixed patterns, an integer in [0, {L.SENSORS}); 0 is the profile's own",
+    "sequence": "1: the batch's samples are consecutive frames of one sequence, in order (a profile's BlackDrift "
+                "walks across them); 0 (default): independent shots",
 }
 
 
@@ -94,6 +96,8 @@ def check_fixed(fixed) -> dict:
             raise ValueError(f"fixed lambda must be in [-1, 1], got {value!r}")
         if key == "sensor" and not (lo >= 0 and float(values.max()) < L.SENSORS and bool((values == values.round()).all())):
             raise ValueError(f"fixed sensor must be an integer in [0, {L.SENSORS}) ({FIXED_KEYS[key]}), got {value!r}")
+        if key == "sequence" and not (values.numel() == 1 and float(values[0]) in (0.0, 1.0)):
+            raise ValueError(f"fixed sequence must be 0 or 1 ({FIXED_KEYS[key]}), got {value!r}")
         out[key] = value
     return out
 

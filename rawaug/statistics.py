@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from scipy import fft as sp_fft  # pocketfft with SIMD: ~2x NumPy's on a stack's frames
 from scipy import ndimage
 from scipy import stats as sstats
 
@@ -24,6 +25,11 @@ from .engine.layout import COLUMN_SET, READ_MAP_BLOCKS, ROW_SET, XTALK_LAGS
 
 MAD_TO_SIGMA = 1.482602218505602
 _LOW_BAND = 16  # low-frequency band: the lowest 1/16 of the frequencies
+
+
+def _power(spectrum):
+    """|X|^2 of a complex spectrum, without the square root of ``np.abs``."""
+    return spectrum.real**2 + spectrum.imag**2
 
 
 def _centered(frames):
@@ -204,7 +210,7 @@ def defect_lines(frames, level_dn=None):
 def _lowfreq_ratio(profiles):
     """Mean power of the lowest 1/16 frequencies over the mean power (DC excluded) of
     1-D profiles along the last axis: 1 for white noise, large for smooth shading."""
-    p = np.abs(np.fft.rfft(profiles - profiles.mean(axis=-1, keepdims=True), axis=-1)) ** 2
+    p = _power(sp_fft.rfft(profiles - profiles.mean(axis=-1, keepdims=True), axis=-1))
     p = p[..., 1:]
     n_low = max(1, p.shape[-1] // _LOW_BAND)
     return float(p[..., :n_low].mean() / (p.mean() + 1e-30))
@@ -224,7 +230,7 @@ def psd2d_lowfreq(frames, level_dn=None):
     """2-D power spectrum: mean power in the low-frequency disk (radius below 1/16 of the
     Nyquist frequency, DC excluded) over the mean power of all non-DC frequencies."""
     c = _centered(frames)
-    p = np.abs(np.fft.rfft2(c, axes=(2, 3))) ** 2
+    p = _power(sp_fft.rfft2(c, axes=(2, 3)))
     fy = np.fft.fftfreq(c.shape[2])[:, None]
     fx = np.fft.rfftfreq(c.shape[3])[None, :]
     radius = np.sqrt(fy**2 + fx**2) / 0.5
@@ -437,6 +443,15 @@ def frame_mean_common_cov(frames, level_dn=None):
     return float((c[0, 2] + c[1, 3]) / 2.0)
 
 
+def frame_mean_lag1(frames, level_dn=None):
+    """Lag-1 autocorrelation of the frame means (mean over the channels) about the stack's, in
+    the order the frames were taken: about -1/N for offsets new in every frame, towards 1 for
+    a level that drifts from frame to frame."""
+    m = frame_means(frames).mean(axis=1)
+    c = m - m.mean()
+    return float(np.sum(c[1:] * c[:-1]) / max(float(np.sum(c * c)), 1e-300))
+
+
 HIGH_PASS = 7  # packed pixels: the local mean taken out before lag correlations (smooth fields do not count)
 # raw lags of the correlation curve: a half plane of radius 2 (every lag XTALK_LAGS holds among them)
 CURVE_LAGS = tuple((dy, dx) for dy in range(3) for dx in range(-2, 3) if dy > 0 or dx > 0)
@@ -506,9 +521,20 @@ def lag_covariances(frames, lags=XTALK_LAGS, across_tiles=False):
     raw = temporal_mosaic(np.asarray(frames, dtype=np.float64))
     out = []
     for dy, dx in lags:
-        prod, within = lag_pairs(raw, dy, dx)
-        out.append(float(np.mean(prod[:, ~within] if across_tiles else prod)))
-    return float(np.mean(raw * raw)), np.array(out)
+        if across_tiles:
+            prod, within = lag_pairs(raw, dy, dx)
+            out.append(float(np.mean(prod[:, ~within])))
+        else:  # a sum of products without the product array (einsum: ~10x faster than mean(a * b))
+            _, hh, ww = raw.shape
+            a = raw[:, : hh - dy, max(0, -dx) : ww - max(0, dx)]
+            b = raw[:, dy:, max(0, dx) : ww - max(0, -dx)]
+            out.append(float(_dot(a, b)) / a.size)
+    return float(_dot(raw, raw)) / raw.size, np.array(out)
+
+
+def _dot(a, b) -> float:
+    """Sum of the products of two (N, h, w) arrays or views of one shape."""
+    return float(np.einsum("ijk,ijk->", a, b))
 
 
 def tile_pair_covariances(frames):
@@ -523,17 +549,18 @@ def tile_pair_covariances(frames):
     raw = np.empty((n, 2 * h, 2 * w))
     for c in range(4):
         raw[:, ROW_SET[c]::2, COLUMN_SET[c]::2] = r[:, c]
-    # products of the pairs at each lag and the pairs (a strided view) whose pixels share a tile
-    pairs = ((raw[:, :, :-1] * raw[:, :, 1:], (slice(None), slice(0, None, 2))),  # (0, 1): x even
-             (raw[:, :-1] * raw[:, 1:], (slice(0, None, 2), slice(None))),  # (1, 0): y even
-             (raw[:, :-1, :-1] * raw[:, 1:, 1:], (slice(0, None, 2), slice(0, None, 2))),  # (1, 1): y, x even
-             (raw[:, :-1, 1:] * raw[:, 1:, :-1], (slice(0, None, 2), slice(0, None, 2))))  # (1, -1): y even, x odd
+    # the pairs at each lag and the pairs (a strided view) whose pixels share a tile
+    pairs = ((raw[:, :, :-1], raw[:, :, 1:], (slice(None), slice(0, None, 2))),  # (0, 1): x even
+             (raw[:, :-1], raw[:, 1:], (slice(0, None, 2), slice(None))),  # (1, 0): y even
+             (raw[:, :-1, :-1], raw[:, 1:, 1:], (slice(0, None, 2), slice(0, None, 2))),  # (1, 1): y, x even
+             (raw[:, :-1, 1:], raw[:, 1:, :-1], (slice(0, None, 2), slice(0, None, 2))))  # (1, -1): y even, x odd
     within, across = [], []
-    for prod, (sy, sx) in pairs:
-        inner = prod[:, sy, sx]
-        within.append(inner.sum() / inner.size)
-        across.append((prod.sum() - inner.sum()) / (prod.size - inner.size))
-    return float(np.mean(raw * raw)), np.array(within), np.array(across)
+    for a, b, (sy, sx) in pairs:
+        total, size = _dot(a, b), a.size
+        inner, inner_size = _dot(a[:, sy, sx], b[:, sy, sx]), a[:, sy, sx].size
+        within.append(inner / inner_size)
+        across.append((total - inner) / (size - inner_size))
+    return _dot(raw, raw) / raw.size, np.array(within), np.array(across)
 
 
 def tile_covariance_excess(frames):
@@ -809,8 +836,8 @@ def frame_noise_spread(frames, level_dn=None):
     so that smooth fields, line noise, spikes and telegraph pixels do not count. Near
     sqrt(2 / pixels) for a read noise of one level."""
     r = temporal_highpass(np.asarray(frames, dtype=np.float64))
-    flat = r.reshape(r.shape[0], -1)
-    mad = median(np.abs(flat - median(flat, axis=1, keepdims=True)), axis=1)
+    flat = r.reshape(r.shape[0], -1).astype(np.float32)  # sorted 3x faster; the MAD within 1e-7 of float64's
+    mad = median(np.abs(flat - median(flat, axis=1, keepdims=True)), axis=1).astype(np.float64)
     return float(np.std(np.log(np.maximum(MAD_TO_SIGMA * mad, 1e-12) ** 2), ddof=1))
 
 
@@ -858,7 +885,7 @@ def line_tone_spectrum(m):
     smooth fields are the low-frequency statistics' concern). Per frame, not about the stack
     mean: a tone of random phase has the same power in every frame, while its residual about
     the mean of a few frames does not."""
-    p = (np.abs(np.fft.rfft(m, axis=1)) ** 2 / m.shape[1]).mean(axis=0)
+    p = (_power(sp_fft.rfft(m, axis=1)) / m.shape[1]).mean(axis=0)
     f = np.fft.rfftfreq(m.shape[1])
     keep = f >= 0.5 / _LOW_BAND
     return f[keep], p[keep]
@@ -931,7 +958,7 @@ def windowed_periodogram(raw):
     ``hann_2d``, DN^2: |X|^2 / sum(w^2), so white noise of variance s^2 reads s^2 in every bin
     and a tone of amplitude a reads about a^2 sum(w)^2 / (4 sum(w^2))."""
     w = hann_2d(raw.shape[1:])
-    return (np.abs(np.fft.rfft2(raw * w, axes=(1, 2))) ** 2).mean(axis=0) / float(np.sum(w * w))
+    return _power(sp_fft.rfft2(raw * w, axes=(1, 2))).mean(axis=0) / float(np.sum(w * w))
 
 
 LOCAL, CORE = 9, 5  # bins along each axis: a tone must stand out of the ring between these squares around it
@@ -1134,6 +1161,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("diag_tone", diag_tone, kind="bias"),
         Statistic("frame_mean_std", frame_mean_std, min_frames=3),
         Statistic("frame_mean_common_cov", frame_mean_common_cov, min_frames=3),
+        Statistic("frame_mean_lag1", frame_mean_lag1, min_frames=4),  # a black level drifting over the frames
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),
         Statistic("flat_linearity", flat_linearity, kind="flat", floor=LIGHT_STABILITY),
         Statistic("flat_gain_spread", flat_gain_spread, min_frames=2, kind="flat", floor=LIGHT_STABILITY),

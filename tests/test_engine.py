@@ -27,6 +27,7 @@ LOOP_EFFECTS = {
     "Spikes": {"density": 0.01, "density_per_s": 0.005, "log_std": 0.5, "k": [1.0, 3.0], "median_dn": [40.0, 90.0]},
     "Clip": {"floor_dn": -3.0},
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
+    "BlackDrift": {"k": [1.0, 3.0], "sigma_dn": [0.7, 1.5], "rho": [0.8, 0.8]},
     "PRNU": {"seed": 17, "sigma": 0.02},
     "ColGain": {"seed": 67, "sigma": 0.01},
     "RowGain": {"seed": 71, "fixed": 0.01, "frame": 0.02},
@@ -149,6 +150,7 @@ def test_parameters_are_counter_based_per_sample():
     ({"lambda": 3.7}, r"lambda must be in \[-1, 1\], got 3.7"),
     ({"sigma_r": -0.1}, "sigma_r must be >= 0"),
     ({"color_bias_dn": [1, 2, 3]}, "4 values"),
+    ({"sequence": 2}, "sequence must be 0 or 1"),
 ])
 def test_fixed_parameters_are_validated(fixed, match):
     with pytest.raises(ValueError, match=match):

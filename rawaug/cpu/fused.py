@@ -69,6 +69,7 @@ _ROWGAIN_PATTERN, _ROWGAIN_FRAME = L.STREAM["rowgain_pattern"], L.STREAM["rowgai
 _DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_log_std"]
 _DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
 _DOFF = L.COLUMN["dark_offset"]
+_DRIFT = L.COLUMN["black_drift"]
 _RG = L.COLUMN["read_gain"]
 _FG = L.COLUMN["frame_gain"]
 _LMR, _LMOY, _LMOX, _LMLH, _LMLW = (L.COLUMN[n] for n in ("lmap_record", "lmap_oy", "lmap_ox", "lmap_lh", "lmap_lw"))
@@ -240,6 +241,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             line += v[_BC] * symmetric(normal, draw(keys[_BLE], b * 5 + 1 + c))
         if stages & L.DARK_OFFSET:
             line += v[_DOFF]
+        if stages & L.BLACK_DRIFT:
+            line += v[_DRIFT]
         if stages & L.BAND:
             line += banding_at(keys[_BAND], v, b, 2 * y + row_set, _BF0, _BA0)
         if stages & L.ROW_CHANNEL:

@@ -50,6 +50,7 @@ FRAME_GAIN = 1 << 39  # frame-to-frame gain: the photo signal of a frame times i
 LINE_MAP = 1 << 40  # measured fallback: fixed row and column offset profiles of the measured frame
 ROW_GAIN = 1 << 41  # row gain: each sensor row's gain on the photo signal, fixed and new in every frame
 GAIN_GRID = 1 << 42  # measured fallback: a periodic grid of pixel gains on the photo signal (phase-detection pixels)
+BLACK_DRIFT = 1 << 43  # black level drifting over a sequence of frames (AR(1) across consecutive frames), all channels
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -103,6 +104,7 @@ COLUMNS = (
     "lmap_lh", "lmap_lw",  # ... and the measured profiles' lengths (packed rows, packed columns)
     "rowgain_fixed", "rowgain_frame",  # row gain: std of the sensor rows' relative gains, fixed and per frame
     "ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox",  # gain grid: first grids record, period, phase (packed pixels)
+    "black_drift",  # black-level drift: this frame's offset (DN), all channels
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

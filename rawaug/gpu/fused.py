@@ -45,6 +45,7 @@ C_RGF, C_RGT = _column("rowgain_fixed"), _column("rowgain_frame")
 C_GGR, C_GGPY, C_GGPX, C_GGOY, C_GGOX = (_column(n) for n in ("ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox"))
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DOFF = _column("dark_offset")
+C_DRIFT = _column("black_drift")
 C_RG = _column("read_gain")
 C_FG = _column("frame_gain")
 C_LMR, C_LMOY, C_LMOX, C_LMLH, C_LMLW = (_column(n) for n in ("lmap_record", "lmap_oy", "lmap_ox", "lmap_lh", "lmap_lw"))
@@ -370,6 +371,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         line += _col(v, C_BC) * _normal(draw(_key(keys_ptr, K_BLE), (b * 5 + 1 + c).to(tl.uint64) + tl.zeros_like(g)))
     if FLAGS & 34359738368:  # black level moving with exposure
         line += _col(v, C_DOFF)
+    if FLAGS & 8796093022208:  # black level drifting over the frames of a sequence
+        line += _col(v, C_DRIFT)
     s += line
     if FLAGS & 65536:  # measured code map: nearest code the camera uses
         code = tl.floor(s + 0.5)

@@ -101,8 +101,10 @@ def _run_frame_table(args, path):
     rows, cols = args.frame_size[0] // 2, args.frame_size[1] // 2
     result = parameters.frame_table_loop(table, rows, cols, args.k, seed=args.seed)
     profile = None
-    if args.profile and result["params"]:
-        profile = NoiseProfile.load(args.profile).with_effect("BLE", result["params"])
+    if args.profile and result["effects"]:
+        profile = NoiseProfile.load(args.profile)
+        for token, params in result["effects"].items():
+            profile = profile.with_effect(token, params)
     md = [f"# rawaug loop: {path.name}", "", f"{table['means'].shape[0]} frames, K = {args.k:g} DN/e-.", "",
           steps_table(result["steps"]), residual_table(result["before"], "before"), residual_table(result["after"], "after")]
     return profile, {"input": str(path), "kind": "frame_table", **result}, "\n".join(md), None

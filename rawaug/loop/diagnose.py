@@ -243,8 +243,8 @@ def _one(profile, stack, tokens, fixed, generator) -> np.ndarray:
     if stack.illumination is not None:  # a flat as it was taken: under its light's measured shape
         level = level * stack.illumination
     clean = torch.from_numpy(level / profile.span_dn).float().expand(n, 4, h, w).contiguous()
-    aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed={**fixed, "sensor": 0}, generator=generator,
-                          rank_seeding=False)  # one sensor: the frames of a stack share its fixed patterns
+    aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed={**fixed, "sensor": 0, "sequence": 1},
+                          generator=generator, rank_seeding=False)  # one sensor, frames in the order taken
     with torch.no_grad():
         frames = aug(clean) * profile.span_dn
     return (torch.round(frames) if stack.integer else frames).numpy()

@@ -309,31 +309,36 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
     by_label = {st.label: st for st in stacks}
     checks: dict = {}  # stack label -> its residuals on CONFIRM_FACTOR x n_synth syntheses of the current model
 
-    def confirmed_options(step_no):
+    def unconfirmed(label, evidence, cache, check_seed, where, outcome):
         # the spread of n_synth syntheses is itself uncertain (a standard deviation of 8 values
-        # is off by a quarter, and now and then by half): a residual is only acted on if it is
-        # still significant against a larger, independent sample of syntheses
+        # is off by a quarter, and now and then by half): a significant residual counts only if
+        # it still is, with its sign, against CONFIRM_FACTOR x the syntheses with fresh seeds
+        # (``cache``: label -> those diagnoses of the current model). One that is not is
+        # recorded, once per model, as unconfirmed.
+        if label not in cache:
+            cache[label] = diagnose(by_label[label], current, model=model, n_synth=CONFIRM_FACTOR * n_synth,
+                                    seed=check_seed, z_min=z_min, rel_min=rel_min)[0]
+        check = next(r for r in cache[label] if r.statistic == evidence.statistic)
+        if check.significant and check.z * evidence.z > 0:
+            return False
+        if not any(u["stack"] == label and u["statistic"] == evidence.statistic for u in result.unconfirmed):
+            result.unconfirmed.append({"stack": label, "statistic": evidence.statistic, "z": evidence.z,
+                                       "z_confirm": check.z, "n_synth_confirm": CONFIRM_FACTOR * n_synth})
+            say(f"{where}: {evidence.statistic} ({label}, z={evidence.z:.1f}) not confirmed on "
+                f"{CONFIRM_FACTOR * n_synth} syntheses (z={check.z:.1f}): {outcome}")
+        return True
+
+    def confirmed_options(step_no):
+        # a residual is only acted on if it is confirmed (``unconfirmed``)
         skip = set()
         while True:
             options = _options(diags, tried, set(current.effects), skip)
-            unconfirmed = []
-            for _, label, evidence in options:
-                if label not in checks:
-                    checks[label] = diagnose(by_label[label], current, model=model, n_synth=CONFIRM_FACTOR * n_synth,
-                                             seed=seed + 7_000_000 + 1000 * step_no, z_min=z_min, rel_min=rel_min)[0]
-                check = next(r for r in checks[label] if r.statistic == evidence.statistic)
-                if not (check.significant and check.z * evidence.z > 0):
-                    unconfirmed.append((label, evidence, check))
-            if not unconfirmed:
+            left_out = {(label, evidence.statistic) for _, label, evidence in options
+                        if unconfirmed(label, evidence, checks, seed + 7_000_000 + 1000 * step_no, f"step {step_no}",
+                                       "not acted on")}
+            if not left_out:
                 return options
-            for label, evidence, check in unconfirmed:
-                skip.add((label, evidence.statistic))
-                if any(u["stack"] == label and u["statistic"] == evidence.statistic for u in result.unconfirmed):
-                    continue  # said in an earlier round of this model
-                result.unconfirmed.append({"stack": label, "statistic": evidence.statistic, "z": evidence.z,
-                                           "z_confirm": check.z, "n_synth_confirm": CONFIRM_FACTOR * n_synth})
-                say(f"step {step_no}: {evidence.statistic} ({label}, z={evidence.z:.1f}) not confirmed on "
-                    f"{CONFIRM_FACTOR * n_synth} syntheses (z={check.z:.1f}): not acted on")
+            skip |= left_out
 
     def judged(trial, shared, step_no, which=None, known=None, refit_z=None):
         # (diagnoses, stacks, profile, factors) of a trial model on ``which`` (default all
@@ -606,17 +611,8 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
     final_checks: dict = {}
     for label, (residuals, _) in diags.items():
         for r in residuals:
-            if not r.significant or any(u["stack"] == label and u["statistic"] == r.statistic for u in result.unconfirmed):
-                continue
-            if label not in final_checks:
-                final_checks[label] = diagnose(by_label[label], current, model=model, n_synth=CONFIRM_FACTOR * n_synth,
-                                               seed=seed + 8_000_000, z_min=z_min, rel_min=rel_min)[0]
-            check = next(c for c in final_checks[label] if c.statistic == r.statistic)
-            if not (check.significant and check.z * r.z > 0):
-                result.unconfirmed.append({"stack": label, "statistic": r.statistic, "z": r.z, "z_confirm": check.z,
-                                           "n_synth_confirm": CONFIRM_FACTOR * n_synth})
-                say(f"end: {r.statistic} ({label}, z={r.z:.1f}) not confirmed on {CONFIRM_FACTOR * n_synth} "
-                    f"syntheses (z={check.z:.1f}): not unexplained")
+            if r.significant and not any(u["stack"] == label and u["statistic"] == r.statistic for u in result.unconfirmed):
+                unconfirmed(label, r, final_checks, seed + 8_000_000, "end", "not unexplained")
     result.profile, result.colour_bias = _with_fitted_colour_bias(current, stacks, model, seed)
     if result.colour_bias:
         say("colour bias fitted with the added effects: " + "; ".join(

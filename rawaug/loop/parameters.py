@@ -30,6 +30,7 @@ import numpy as np
 from scipy import optimize
 from scipy import stats as sstats
 
+from ..effects import black_drift
 from ..effects.frame_black_level import split_excess
 from ..profile import LogLinear
 
@@ -340,10 +341,27 @@ def _table_statistics(means) -> dict:
     }
 
 
-def diagnose_frame_table(table: dict, rows: int, cols: int, *, ble_dn: float = 0.0, channel_dn: float = 0.0, n_synth: int = 400,
+def _common_drift(rng, n: int, sigma: float, rho: float) -> np.ndarray:
+    """(n, 1) common offsets of an AR(1) over n frames (``BlackDrift``), DN."""
+    b = np.empty(n)
+    e = rng.standard_normal(n)
+    b[0] = sigma * e[0]
+    for i in range(1, n):
+        b[i] = rho * b[i - 1] + math.sqrt(1.0 - rho * rho) * sigma * e[i]
+    return b[:, None]
+
+
+TABLE_EFFECTS = {"frame_mean_std": ["BLE", "BlackDrift"], "frame_mean_common_cov": ["BLE", "BlackDrift"],
+                 "frame_mean_lag1_autocorr": ["BlackDrift"]}
+
+
+def diagnose_frame_table(table: dict, rows: int, cols: int, *, ble_dn: float = 0.0, channel_dn: float = 0.0,
+                         drift_dn: float = 0.0, drift_rho: float = 0.0, n_synth: int = 400,
                          seed: int = 0, z_min: float = 6.0, rel_min: float = 0.1) -> list[dict]:
     """Statistics of the per-frame channel means against ``n_synth`` synthesized tables of
-    the same number of frames (Gaussian channel means with the model covariance)."""
+    the same number of frames (Gaussian channel means with the model covariance, plus a
+    common offset drifting as an AR(1) of spread ``drift_dn`` and lag-1 correlation
+    ``drift_rho`` over the frames in their order)."""
     means = np.asarray(table["means"], dtype=np.float64)
     n = means.shape[0]
     if n < 8:
@@ -351,34 +369,66 @@ def diagnose_frame_table(table: dict, rows: int, cols: int, *, ble_dn: float = 0
     cov = model_mean_covariance(float(np.mean(table["sigma_r"])), float(np.mean(table["sigma_g"])), rows, cols,
                                 ble_dn, channel_dn)
     rng = np.random.default_rng(seed)
-    synth = [_table_statistics(rng.multivariate_normal(np.zeros(4), cov, size=n)) for _ in range(n_synth)]
+    synth = []
+    for _ in range(n_synth):
+        m = rng.multivariate_normal(np.zeros(4), cov, size=n)
+        synth.append(_table_statistics(m + _common_drift(rng, n, drift_dn, drift_rho) if drift_dn else m))
     out = []
     for name, m in _table_statistics(means).items():
         v = np.array([s[name] for s in synth])
         mean, std = float(v.mean()), float(v.std(ddof=1))
         z = (m - mean) / max(std, 1e-30)
         rel = abs(m - mean) / max(abs(m), 3 * std, 1e-30)
-        effect = {"frame_mean_std": ["BLE"], "frame_mean_common_cov": ["BLE"]}.get(name, [])
         out.append({"statistic": name, "measured": m, "synth_mean": mean, "synth_std": std, "z": float(z),
-                    "rel_error": float(rel), "significant": bool(abs(z) > z_min and rel > rel_min), "effects": effect})
+                    "rel_error": float(rel), "significant": bool(abs(z) > z_min and rel > rel_min),
+                    "effects": TABLE_EFFECTS.get(name, [])})
     return sorted(out, key=lambda r: -abs(r["z"]))
 
 
 def frame_table_loop(table: dict, rows: int, cols: int, k: float, **kw) -> dict:
     """The loop on a per-frame table: diagnose; if the common-mode statistics point to BLE,
-    estimate it (common covariance minus the model's) and diagnose again."""
+    estimate it (common covariance minus the model's) and diagnose again; if the frame means
+    are then still alike from one frame to the next (their lag-1 autocorrelation), a drifting
+    black level (``BlackDrift``) takes over BLE's common part, kept where that residual's error
+    falls and nothing else becomes significant. ``effects``: the profile entries found."""
     before = diagnose_frame_table(table, rows, cols, **kw)
-    steps, after, params = [], before, None
+    steps, after, effects = [], before, {}
     evidence = next((r for r in before if r["significant"] and "BLE" in r["effects"]), None)
+    means = np.asarray(table["means"], dtype=np.float64)
+    model = model_mean_covariance(float(np.mean(table["sigma_r"])), float(np.mean(table["sigma_g"])), rows, cols)
+    channel = 0.0
     if evidence is not None:
-        means = np.asarray(table["means"], dtype=np.float64)
         c = np.cov(means.T)
-        model = model_mean_covariance(float(np.mean(table["sigma_r"])), float(np.mean(table["sigma_g"])), rows, cols)
         sigma, channel = split_excess((c[0, 2] + c[1, 3]) / 2 - (model[0, 2] + model[1, 3]) / 2,
                                       float(np.mean(np.diag(c) - np.diag(model))))
         params = {"k": [float(k)], "sigma_dn": [sigma], "channel_sigma_dn": [channel]}
         after = diagnose_frame_table(table, rows, cols, ble_dn=sigma, channel_dn=channel, **kw)
         new = next(r for r in after if r["statistic"] == evidence["statistic"])
+        accepted = new["rel_error"] < evidence["rel_error"]
         steps.append({"effect": "BLE", "params": params, "evidence": evidence, "error_before": evidence["rel_error"],
-                      "error_after": new["rel_error"], "z_after": new["z"], "accepted": new["rel_error"] < evidence["rel_error"]})
-    return {"before": before, "after": after, "steps": steps, "params": params}
+                      "error_after": new["rel_error"], "z_after": new["z"], "accepted": accepted})
+        if accepted:
+            effects["BLE"] = params
+        else:
+            after = before
+    lag = next((r for r in after if r["significant"] and r["z"] > 0 and "BlackDrift" in r["effects"]), None)
+    if lag is not None:
+        # the common part of the frame means as an AR(1): its sums about the mean and of its
+        # successive differences (the model's other parts add nothing common to R-B and G1-G2)
+        ss, ssd = black_drift.common_sums(means)
+        common = (model[0, 2] + model[1, 3]) / 2 * (means.shape[0] - 1)  # a white common part's share of either sum
+        drift = black_drift.combine([{"k": [float(k)], "ss": [ss - common], "ssd": [ssd - 2.0 * common],
+                                      "n": [means.shape[0]]}])
+        trial = diagnose_frame_table(table, rows, cols, channel_dn=channel, drift_dn=drift["sigma_dn"][0],
+                                     drift_rho=drift["rho"][0], **kw)
+        new = next(r for r in trial if r["statistic"] == lag["statistic"])
+        accepted = (new["rel_error"] <= 0.5 * lag["rel_error"]
+                    and sum(r["significant"] for r in trial) < sum(r["significant"] for r in after))
+        steps.append({"effect": "BlackDrift", "params": drift, "evidence": lag, "error_before": lag["rel_error"],
+                      "error_after": new["rel_error"], "z_after": new["z"], "accepted": accepted})
+        if accepted:
+            after = trial
+            effects["BlackDrift"] = drift
+            if "BLE" in effects:  # the drift is the common part now: BLE keeps each channel's own
+                effects["BLE"] = {**effects["BLE"], "sigma_dn": [0.0]}
+    return {"before": before, "after": after, "steps": steps, "effects": effects}

@@ -5,7 +5,7 @@ the radial 2-D power spectrum (``psd2d_lowfreq``), the spectrum of the row or co
 (row / column noise and shading), the histogram of the pixel values (read-noise shape,
 clipping), of the codes one by one (missing codes), of the stack-mean map (dark signal,
 DSNU, PRNU, hot pixels), of the per-pixel temporal std, the sorted line means (defect
-lines), the sorted frame means (black-level error) or the correlation of neighbouring
+lines), the sorted frame means (black-level error), the frame means in the order taken (drift) or the correlation of neighbouring
 pixels' temporal noise at raw lags (crosstalk), of pairs in one tile and in adjacent tiles
 (a shared readout), the periodogram of the sensor-row or -column means (banding) or the
 largest bins of the 2-D periodogram (diagonal banding), or the
@@ -28,7 +28,7 @@ KIND = {
     "mean_dn": "mean_map_histogram", "fixed_std": "mean_map_histogram", "flat_fixed_rel": "mean_map_histogram",
     "flat_linearity": "mean_map_histogram",
     "temporal_std": "temporal_histogram",
-    "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means",
+    "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means", "frame_mean_lag1": "frame_sequence",
     "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
     "neighbour_corr": "lag_correlations", "row_tone": "row_tone_spectrum",
     "col_tone": "col_tone_spectrum", "diag_tone": "diag_tone_bins",
@@ -46,6 +46,7 @@ LABEL = {
     "mean_map_histogram": ("stack-mean map (DN)", "fraction of pixels", True),
     "temporal_histogram": ("per-pixel std across frames (DN)", "fraction of pixels", True),
     "frame_means": ("frame (sorted)", "frame mean about the stack's (DN)", False),
+    "frame_sequence": ("frame (in the order taken)", "frame mean about the stack's (DN)", False),
     "code_histogram": ("code (DN), one bin each, about the median", "fraction of pixels", False),
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
     "row_tone_spectrum": ("frequency (cycles per sensor row)", "temporal sensor-row-mean power (DN^2)", True),
@@ -138,6 +139,9 @@ def curve(kind: str, frames, edges=None):
     if kind == "frame_means":
         m = frames.mean(axis=(1, 2, 3))
         return np.arange(1, len(m) + 1, dtype=np.float64), np.sort(m - m.mean())
+    if kind == "frame_sequence":
+        m = frames.mean(axis=(1, 2, 3))
+        return np.arange(1, len(m) + 1, dtype=np.float64), m - m.mean()
     values = _values(kind, frames)
     counts, _ = np.histogram(values, bins=edges)
     return 0.5 * (edges[1:] + edges[:-1]), counts / max(1, values.size)
