@@ -23,6 +23,8 @@ Estimated by ``estimate`` (bias and dark stacks) and ``combine``: the common-mod
 squares of the frame means about their stack mean and of their successive differences, in
 excess of the model's; their ratio gives ``rho`` (one for the camera, pooled over every
 stack: a clamp's time constant does not depend on the gain), their level ``sigma`` per K.
+Only where the frames show a drift (``drift_lr``); else ``rho`` is 0, which is ``BLE``'s, and
+the loop does not try it (``empty``).
 """
 from __future__ import annotations
 
