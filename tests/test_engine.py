@@ -29,6 +29,7 @@ LOOP_EFFECTS = {
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
     "BlackDrift": {"k": [1.0, 3.0], "sigma_dn": [0.7, 1.5], "rho": [0.8, 0.8]},
     "PRNU": {"seed": 17, "sigma": 0.02},
+    "ChargeShare": {"share_x": 0.04, "share_y": 0.02},  # neighbours' shot draws, through this pixel's gains
     "ColGain": {"seed": 67, "sigma": 0.01},
     "RowGain": {"seed": 71, "fixed": 0.01, "frame": 0.02},
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2]},

@@ -100,6 +100,10 @@ _XT_DX = np.array([tap[1] for tap in L.XTALK_TAPS], dtype=np.int64)
 _XT_PAD = L.XTALK_PAD
 _ROW_SET = np.array(L.ROW_SET, dtype=np.int64)
 _COL_SET = np.array(L.COLUMN_SET, dtype=np.int64)
+_CHANNEL_AT = np.array(L.CHANNEL_AT, dtype=np.int64)
+_NB_DY = np.array([n[0] for n in L.NEIGHBOURS], dtype=np.int64)
+_NB_DX = np.array([n[1] for n in L.NEIGHBOURS], dtype=np.int64)
+_SHC, _SHX, _SHY = L.COLUMN["share_c"], L.COLUMN["share_x"], L.COLUMN["share_y"]
 
 
 @njit(inline="always")
@@ -214,6 +218,57 @@ def table_at(lut, row, z):
     return lut[row, i] * (1.0 - f) + lut[row, i + 1] * f
 
 
+@njit(inline="always")
+def poisson_count(lam, g, key_fine, key_rest, key_coarse, fine, coarse):
+    """Exact Poisson(lam) count of element ``g`` (0 for lam <= 0; lam finite): the tables and
+    PTRS of ``rawaug.cpu.poisson``, inlined (a call with the table tuples costs ~100 ns)."""
+    if not lam > 0.0:
+        return 0.0
+    if lam >= COARSE_MAX:
+        return _ptrs(lam, draw(key_rest, g))
+    count = 0
+    if lam >= TABLE_MAX:
+        j = int(lam * (1.0 / TABLE_MAX))
+        count = _table_count(draw(key_coarse, g), j, coarse)
+        lam -= j * TABLE_MAX  # exact
+    j = int(lam * (1.0 / GRID_STEP))
+    z = draw(key_fine, g)
+    return float(count + _table_count(z, j, fine) + _small_poisson(lam - j * GRID_STEP, z & SPARE_BITS, key_rest, g))
+
+
+@njit(inline="always")
+def shot_deviation(s, g, k, poisson, key_fine, key_rest, key_coarse, fine, coarse, normal):
+    """(mean, shot deviation) in DN of element ``g`` at signal ``s`` (finite): the exact Poisson
+    count less max(s, 0), or the Gaussian approximation's ``sqrt(K max(s, 0)) z``."""
+    if poisson:
+        mean = max(s, 0.0)
+        return mean, poisson_count(s / k, g, key_fine, key_rest, key_coarse, fine, coarse) * k - mean
+    return s, math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(key_fine, g))
+
+
+@njit(inline="always")
+def shared_shot(clean, s, s_photo, s_pixel, g, b, ry, rx, h, w, scale_in, k, wc, wx, wy, poisson, key_fine, key_rest,
+                key_coarse, fine, coarse, normal):
+    """Charge sharing (DN) at raw pixel (ry, rx) of sample b: the mean plus ``wc`` x its own
+    shot deviation plus ``wx`` (``wy``) x each horizontal (vertical) raw neighbour's, drawn
+    from the neighbour's own counter, its clean value through this pixel's gain (``s_pixel /
+    s_photo``) and dark signal (``s - s_pixel``); neighbours outside the frame add nothing."""
+    mean, dev = shot_deviation(s, g, k, poisson, key_fine, key_rest, key_coarse, fine, coarse, normal)
+    gain = s_pixel / s_photo if s_photo != 0.0 else 1.0
+    dark = s - s_pixel
+    out = mean + wc * dev
+    for i in range(4):
+        dy, dx = _NB_DY[i], _NB_DX[i]
+        wn = wx if dy == 0 else wy
+        ny, nx = ry + dy, rx + dx
+        if wn != 0.0 and 0 <= ny < 2 * h and 0 <= nx < 2 * w:
+            gn = ((b * 4 + _CHANNEL_AT[ny & 1, nx & 1]) * h + (ny >> 1)) * w + (nx >> 1)
+            sn = clean[gn] * scale_in * gain + dark
+            if math.isfinite(sn):
+                out += wn * shot_deviation(sn, gn, k, poisson, key_fine, key_rest, key_coarse, fine, coarse, normal)[1]
+    return out
+
+
 @njit(nogil=True, cache=True)
 def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read_index, normal, fine, coarse, grids,
           code_lut, read_lut):
@@ -295,10 +350,12 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             s = clean[g] * scale_in
             if not math.isfinite(s):
                 bad += 1
+            s_photo = s  # the photo signal before the pixel's gains (charge sharing takes its neighbours' through them)
             if stages & L.PRNU:
                 s *= 1.0 + v[_PRNU] * symmetric(normal, draw(keys[_PRNU_PATTERN], p))
             if stages & L.GAIN_GRID:  # the measured periodic gain at this pixel, before the Poisson draw
                 s *= grids[ggrec, ggy, (x + ggox) % ggpx]
+            s_pixel = s  # ... and after them: the dark signal is what the stages below add
             if stages & L.DARK_CURRENT:
                 s += k * v[_DARK_E] * max(1.0 + v[_DSNU] * symmetric(normal, draw(keys[_DSNU_PATTERN], p)), 0.0)
             if stages & L.GLOW:
@@ -310,24 +367,14 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 q = (sensor * 2 + col_set) * w + x
                 if unit(draw(keys[_DCOL_WHERE], q)) < v[_DCD]:
                     s += k * v[_DCE] * math.exp(v[_DCL] * symmetric(normal, draw(keys[_DCOL_SIZE], q)))
-            if stages & L.SHOT_POISSON:  # exact Poisson: tables and PTRS of rawaug.cpu.poisson, inlined (a call with the table tuples per element costs ~100 ns)
-                lam = s / k
-                if not math.isfinite(lam):
-                    pass  # NaN/Inf pass through (counted above)
-                elif not lam > 0.0:
-                    s = 0.0
-                elif lam < COARSE_MAX:
-                    count = 0
-                    if lam >= TABLE_MAX:
-                        j = int(lam * (1.0 / TABLE_MAX))
-                        count = _table_count(draw(key_coarse, g), j, coarse)
-                        lam -= j * TABLE_MAX  # exact
-                    j = int(lam * (1.0 / GRID_STEP))
-                    z = draw(key_fine, g)
-                    count += _table_count(z, j, fine) + _small_poisson(lam - j * GRID_STEP, z & SPARE_BITS, key_rest, g)
-                    s = count * k
-                else:
-                    s = _ptrs(lam, draw(key_rest, g)) * k
+            if stages & L.CHARGE_SHARE and stages & (L.SHOT_POISSON | L.SHOT_GAUSS):  # shot deviations shared with the raw neighbours
+                if math.isfinite(s):
+                    s = shared_shot(clean, s, s_photo, s_pixel, g, b, 2 * y + row_set, 2 * x + col_set, h, w, scale_in, k,
+                                    v[_SHC], v[_SHX], v[_SHY], stages & L.SHOT_POISSON, key_fine, key_rest, key_coarse,
+                                    fine, coarse, normal)
+            elif stages & L.SHOT_POISSON:  # exact Poisson: tables and PTRS of rawaug.cpu.poisson
+                if math.isfinite(s):  # NaN/Inf pass through (counted above)
+                    s = poisson_count(s / k, g, key_fine, key_rest, key_coarse, fine, coarse) * k
             elif stages & L.SHOT_GAUSS:
                 s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
             if stages & L.NONLIN:  # the photo signal compressed: s (1 - c s) above 0 DN

@@ -52,11 +52,7 @@ class BlackDrift(NoiseEffect):
         z = ctx.normal("black_drift")
         if not float(ctx.fixed.get("sequence", 0)):
             return {"black_drift": sigma * z}
-        out = torch.empty_like(z)
-        out[0] = sigma[0] * z[0]  # the first frame: from the stationary law
-        for n in range(1, z.shape[0]):
-            out[n] = rho[n] * out[n - 1] + torch.sqrt(1.0 - rho[n] ** 2) * sigma[n] * z[n]
-        return {"black_drift": out}
+        return {"black_drift": ar1(z, sigma, rho)}
 
     @classmethod
     def validate_params(cls, params):
@@ -77,6 +73,20 @@ def common_sums(frame_means) -> tuple[float, float]:
     d = np.diff(m, axis=0)
     cross = lambda a: float(np.sum(a[:, 0] * a[:, 2] + a[:, 1] * a[:, 3]) / 2.0)  # noqa: E731
     return cross(c), cross(d)
+
+
+def ar1(z, sigma, rho):
+    """Offsets (DN) of consecutive frames from their standard normals ``z`` (numpy or torch,
+    (N,)): ``b_0 = sigma_0 z_0`` (the stationary law), ``b_n = rho_n b_{n-1} + sqrt(1 - rho_n^2)
+    sigma_n z_n``; ``sigma`` and ``rho`` scalars or per frame."""
+    n = z.shape[0]
+    sigma = sigma * (z * 0 + 1)  # per frame, in z's kind of array
+    rho = rho * (z * 0 + 1)
+    out = z * 0
+    out[0] = sigma[0] * z[0]
+    for i in range(1, n):
+        out[i] = rho[i] * out[i - 1] + (1.0 - rho[i] ** 2) ** 0.5 * sigma[i] * z[i]
+    return out
 
 
 def spread_factor(n: int, rho: float) -> float:

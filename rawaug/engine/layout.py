@@ -51,6 +51,7 @@ LINE_MAP = 1 << 40  # measured fallback: fixed row and column offset profiles of
 ROW_GAIN = 1 << 41  # row gain: each sensor row's gain on the photo signal, fixed and new in every frame
 GAIN_GRID = 1 << 42  # measured fallback: a periodic grid of pixel gains on the photo signal (phase-detection pixels)
 BLACK_DRIFT = 1 << 43  # black level drifting over a sequence of frames (AR(1) across consecutive frames), all channels
+CHARGE_SHARE = 1 << 44  # charge sharing: each shot deviation mixed with its four raw neighbours' (diffusion, inter-pixel capacitance)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -105,6 +106,7 @@ COLUMNS = (
     "rowgain_fixed", "rowgain_frame",  # row gain: std of the sensor rows' relative gains, fixed and per frame
     "ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox",  # gain grid: first grids record, period, phase (packed pixels)
     "black_drift",  # black-level drift: this frame's offset (DN), all channels
+    "share_c", "share_x", "share_y",  # charge sharing: weights of the pixel's own, a horizontal and a vertical neighbour's shot deviation
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -135,3 +137,5 @@ XTALK_PAD = 2  # raw pixels of margin in the draw index, so that a lag's neighbo
 # Packed (R, G1, B, G2): which of a 2x2 tile's sensor rows / columns a channel lies on.
 ROW_SET = (0, 0, 1, 1)
 COLUMN_SET = (0, 1, 1, 0)
+CHANNEL_AT = ((0, 1), (3, 2))  # the packed channel of a raw pixel, by (row, column) parity
+NEIGHBOURS = ((0, -1), (0, 1), (-1, 0), (1, 0))  # raw (dy, dx) of the four neighbours charge is shared with

@@ -67,6 +67,7 @@ XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5, XT_DY6, XT_DX6 = (
     tl.constexpr(d) for tap in L.XTALK_TAPS for d in tap)
 C_SENSOR = _column("sensor")
+C_SHC, C_SHX, C_SHY = _column("share_c"), _column("share_x"), _column("share_y")
 C_HD, C_HM, C_HL = _column("hot_density"), _column("hot_median"), _column("hot_log_std")
 C_Q, C_B0, C_BS, C_BC, C_CL = (_column("step_dn"), _column("bias_r"), _column("ble_sigma"),
                                _column("ble_channel_sigma"), _column("clip_floor"))
@@ -168,6 +169,41 @@ def _xtalk_tap(key, v, i: tl.constexpr, dy: tl.constexpr, dx: tl.constexpr, b, r
 
 
 @triton.jit
+def _shot_deviation(s, g, k, key_fine, key_rest, key_coarse,
+                    f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                    c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, active, POISSON: tl.constexpr):
+    """As ``rawaug.cpu.fused.shot_deviation``: (mean, shot deviation) in DN at signal ``s``."""
+    if POISSON:
+        mean = tl.maximum(s, 0.0)
+        count = poisson_count(s / k, key_fine, key_rest, key_coarse, g, f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size,
+                              f_kmin, c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, active)
+        return mean, k * count - mean
+    else:
+        return s, tl.sqrt(k * tl.maximum(s, 0.0)) * _normal(draw(key_fine, g))
+
+
+@triton.jit
+def _neighbour_deviation(clean_ptr, b, ry, rx, dy: tl.constexpr, dx: tl.constexpr, H, W, scale_in, gain, dark, k, weight,
+                         key_fine, key_rest, key_coarse,
+                         f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                         c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live, POISSON: tl.constexpr):
+    """As one neighbour of ``rawaug.cpu.fused.shared_shot``: ``weight`` x the shot deviation
+    of raw pixel (ry + dy, rx + dx), 0 outside the frame."""
+    ny = ry + dy
+    nx = rx + dx
+    inside = live & (ny >= 0) & (ny < 2 * H) & (nx >= 0) & (nx < 2 * W) & ((dark * 0.0 + weight) != 0.0)
+    cn = tl.where((ny & 1) == 0, tl.where((nx & 1) == 0, 0, 1), tl.where((nx & 1) == 0, 3, 2))
+    gn = ((b.to(tl.int64) * 4 + cn) * H + (ny >> 1)) * W + (nx >> 1)
+    sn = tl.load(clean_ptr + gn, mask=inside, other=0.0).to(tl.float64) * scale_in * gain + dark
+    ok = inside & (sn == sn) & (tl.abs(sn) < float("inf"))
+    sn = tl.where(ok, sn, 0.0)
+    _, dev = _shot_deviation(sn, gn.to(tl.uint64), k, key_fine, key_rest, key_coarse,
+                             f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                             c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, ok, POISSON)
+    return tl.where(ok, weight * dev, 0.0)
+
+
+@triton.jit
 def _key(keys_ptr, slot: tl.constexpr):
     return tl.load(keys_ptr + slot).to(tl.uint64, bitcast=True)
 
@@ -201,6 +237,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     ratio = _col(v, C_RATIO)
     scale_in = span / ratio
     s = tl.load(clean_ptr + plane.to(tl.int64) * hw + idx, mask=live, other=0.0).to(tl.float64) * scale_in
+    s_photo = s  # the photo signal before the pixel's gains (charge sharing takes its neighbours' through them)
     if FLAGS & 1:  # PRNU
         s *= 1.0 + _col(v, C_PRNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_PRNU), p))
     if FLAGS & 4398046511104:  # measured gain grid: the periodic gain at this pixel, before the Poisson draw
@@ -208,6 +245,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         gy = (y + _col(v, C_GGOY).to(tl.int64)) % _col(v, C_GGPY).to(tl.int64)
         gx = (x + _col(v, C_GGOX).to(tl.int64)) % _col(v, C_GGPX).to(tl.int64)
         s *= tl.load(gg + gy * GW.to(tl.int64) + gx, mask=live, other=1.0)
+    s_pixel = s  # ... and after them: the dark signal is what the stages below add
     if FLAGS & 16384:  # dark current: K * dark electrons * (1 + DSNU map), before shot noise
         s += k * _col(v, C_DARK_E) * tl.maximum(1.0 + _col(v, C_DSNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)), 0.0)
     if FLAGS & 524288:  # amplifier glow: K * exposure * a smooth dark-current map (e-/s), a window of glow_h x glow_w
@@ -227,7 +265,35 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         leaky = unit(draw(_key(keys_ptr, K_DCOL_WHERE), q)) < _col(v, C_DCD)
         dark = k * _col(v, C_DCE) * tl.exp(_col(v, C_DCL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DCOL_SIZE), q)))
         s += tl.where(leaky, dark, 0.0)
-    if FLAGS & 2:  # P*
+    if FLAGS & 17592186044416:  # charge sharing: the shot deviations of this pixel and its raw neighbours, mixed
+        if FLAGS & 6:
+            finite = (s == s) & (tl.abs(s) < float("inf"))  # NaN/Inf pass through
+            kf, kr, kc = _key(keys_ptr, K_SHOT), _key(keys_ptr, K_SHOT_REST), _key(keys_ptr, K_SHOT_COARSE)
+            sf = tl.where(finite, s, 0.0)
+            mean, dev = _shot_deviation(sf, g, k, kf, kr, kc, f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                                        c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite,
+                                        (FLAGS & 2) != 0)
+            gain = tl.where(s_photo != 0.0, s_pixel / tl.where(s_photo != 0.0, s_photo, 1.0), 1.0)
+            dark = s - s_pixel
+            ry = 2 * y + row_set
+            rx = 2 * x + col_set
+            wx = _col(v, C_SHX)
+            wy = _col(v, C_SHY)
+            shared = mean + _col(v, C_SHC) * dev
+            shared += _neighbour_deviation(clean_ptr, b, ry, rx, 0, -1, H, W, scale_in, gain, dark, k, wx, kf, kr, kc,
+                                           f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                                           c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
+            shared += _neighbour_deviation(clean_ptr, b, ry, rx, 0, 1, H, W, scale_in, gain, dark, k, wx, kf, kr, kc,
+                                           f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                                           c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
+            shared += _neighbour_deviation(clean_ptr, b, ry, rx, -1, 0, H, W, scale_in, gain, dark, k, wy, kf, kr, kc,
+                                           f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                                           c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
+            shared += _neighbour_deviation(clean_ptr, b, ry, rx, 1, 0, H, W, scale_in, gain, dark, k, wy, kf, kr, kc,
+                                           f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                                           c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
+            s = tl.where(finite, shared, s)
+    elif FLAGS & 2:  # P*
         lam = s / k
         counted = k * poisson_count(lam, _key(keys_ptr, K_SHOT), _key(keys_ptr, K_SHOT_REST), _key(keys_ptr, K_SHOT_COARSE), g,
                               f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,

@@ -341,16 +341,6 @@ def _table_statistics(means) -> dict:
     }
 
 
-def _common_drift(rng, n: int, sigma: float, rho: float) -> np.ndarray:
-    """(n, 1) common offsets of an AR(1) over n frames (``BlackDrift``), DN."""
-    b = np.empty(n)
-    e = rng.standard_normal(n)
-    b[0] = sigma * e[0]
-    for i in range(1, n):
-        b[i] = rho * b[i - 1] + math.sqrt(1.0 - rho * rho) * sigma * e[i]
-    return b[:, None]
-
-
 TABLE_EFFECTS = {"frame_mean_std": ["BLE", "BlackDrift"], "frame_mean_common_cov": ["BLE", "BlackDrift"],
                  "frame_mean_lag1_autocorr": ["BlackDrift"]}
 
@@ -372,7 +362,7 @@ def diagnose_frame_table(table: dict, rows: int, cols: int, *, ble_dn: float = 0
     synth = []
     for _ in range(n_synth):
         m = rng.multivariate_normal(np.zeros(4), cov, size=n)
-        synth.append(_table_statistics(m + _common_drift(rng, n, drift_dn, drift_rho) if drift_dn else m))
+        synth.append(_table_statistics(m + black_drift.ar1(rng.standard_normal(n), drift_dn, drift_rho)[:, None] if drift_dn else m))
     out = []
     for name, m in _table_statistics(means).items():
         v = np.array([s[name] for s in synth])
