@@ -14,7 +14,7 @@ clean batches (8, 4, 512, 512):
 * ``scenes``: the bundled real scenes, parameters drawn from the SonyA7S2 profile
   (K over its whole range, ratio 100-300).
 
-    python benchmarks/bench_augment.py [--repeats 5]
+    python benchmarks/bench_augment.py [--repeats 5] [--threads 1] [--profile LOOP_PROFILE.yaml]
     python benchmarks/bench_augment.py --gpu-only [--profile LOOP_PROFILE.yaml]   # CUDA figures only
 
 It first prints the host time of one call's parameter draws (what a GPU call does on the CPU
@@ -126,6 +126,18 @@ def cpu_comparison(name, clean, aug, threads, repeats):
     print(f"  rawaug fused kernel G*+P*+R+U:                                 {megapixels / t['fused']:8.2f} MP/s"
           f"  ratio {t['reference'] / t['fused']:.1f}x (target >= 10x per thread)")
     return t["reference"] / t["fused"]
+
+
+def cpu_profile_cost(clean, profile_path, threads, repeats):
+    """The fused kernel on the CPU with a profile's effects against the base model's, the same
+    clean batch and fixed base parameters, timed alternately."""
+    torch.set_num_threads(threads)
+    base = RawNoiseAugment("SonyA7S2", model="G*+P*+R+U", fixed=FIXED)
+    loop = RawNoiseAugment(profile_path, model="G*+P*+R+U", fixed=FIXED)
+    t = alternate({"base": lambda: base(clean), "loop": lambda: loop(clean)}, repeats)
+    megapixels = clean.numel() / 1e6
+    print(f"CPU, {threads} thread(s), flat batch {tuple(clean.shape)}: G*+P*+R+U {megapixels / t['base']:.2f} MP/s, "
+          f"with {sorted(loop.profile.effects)} {megapixels / t['loop']:.2f} MP/s: {t['loop'] / t['base']:.2f}x the time")
 
 
 def draw_comparison(repeats):
@@ -262,7 +274,8 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=None, help="one thread count (default: 1, 2 and all)")
     parser.add_argument("--gpu-only", action="store_true", help="skip the CPU comparisons")
-    parser.add_argument("--profile", default=None, help="also time this profile with its effects (a loop profile) on the GPU")
+    parser.add_argument("--profile", default=None,
+                        help="also time this profile with its effects (a loop profile): on the GPU, and on the CPU against the base model")
     args = parser.parse_args(argv)
     if args.gpu_only:
         if not torch.cuda.is_available():
@@ -279,6 +292,8 @@ def main(argv=None):
     for threads in sorted({1, 2, torch.get_num_threads()} if args.threads is None else {args.threads}):
         for name, (clean, aug) in workloads.items():
             cpu_comparison(name, clean, aug, threads, args.repeats)
+        if args.profile:
+            cpu_profile_cost(flat, args.profile, threads, args.repeats)
     if torch.cuda.is_available():
         gpu_report(args.repeats, args.profile)
     else:

@@ -219,54 +219,15 @@ def table_at(lut, row, z):
 
 
 @njit(inline="always")
-def poisson_count(lam, g, key_fine, key_rest, key_coarse, fine, coarse):
-    """Exact Poisson(lam) count of element ``g`` (0 for lam <= 0; lam finite): the tables and
-    PTRS of ``rawaug.cpu.poisson``, inlined (a call with the table tuples costs ~100 ns)."""
-    if not lam > 0.0:
-        return 0.0
-    if lam >= COARSE_MAX:
-        return _ptrs(lam, draw(key_rest, g))
-    count = 0
-    if lam >= TABLE_MAX:
-        j = int(lam * (1.0 / TABLE_MAX))
-        count = _table_count(draw(key_coarse, g), j, coarse)
-        lam -= j * TABLE_MAX  # exact
-    j = int(lam * (1.0 / GRID_STEP))
-    z = draw(key_fine, g)
-    return float(count + _table_count(z, j, fine) + _small_poisson(lam - j * GRID_STEP, z & SPARE_BITS, key_rest, g))
-
-
-@njit(inline="always")
-def shot_deviation(s, g, k, poisson, key_fine, key_rest, key_coarse, fine, coarse, normal):
-    """(mean, shot deviation) in DN of element ``g`` at signal ``s`` (finite): the exact Poisson
-    count less max(s, 0), or the Gaussian approximation's ``sqrt(K max(s, 0)) z``."""
-    if poisson:
-        mean = max(s, 0.0)
-        return mean, poisson_count(s / k, g, key_fine, key_rest, key_coarse, fine, coarse) * k - mean
-    return s, math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(key_fine, g))
-
-
-@njit(inline="always")
-def shared_shot(clean, s, s_photo, s_pixel, g, b, ry, rx, h, w, scale_in, k, wc, wx, wy, poisson, key_fine, key_rest,
-                key_coarse, fine, coarse, normal):
-    """Charge sharing (DN) at raw pixel (ry, rx) of sample b: the mean plus ``wc`` x its own
-    shot deviation plus ``wx`` (``wy``) x each horizontal (vertical) raw neighbour's, drawn
-    from the neighbour's own counter, its clean value through this pixel's gain (``s_pixel /
-    s_photo``) and dark signal (``s - s_pixel``); neighbours outside the frame add nothing."""
-    mean, dev = shot_deviation(s, g, k, poisson, key_fine, key_rest, key_coarse, fine, coarse, normal)
-    gain = s_pixel / s_photo if s_photo != 0.0 else 1.0
-    dark = s - s_pixel
-    out = mean + wc * dev
-    for i in range(4):
-        dy, dx = _NB_DY[i], _NB_DX[i]
-        wn = wx if dy == 0 else wy
-        ny, nx = ry + dy, rx + dx
-        if wn != 0.0 and 0 <= ny < 2 * h and 0 <= nx < 2 * w:
-            gn = ((b * 4 + _CHANNEL_AT[ny & 1, nx & 1]) * h + (ny >> 1)) * w + (nx >> 1)
-            sn = clean[gn] * scale_in * gain + dark
-            if math.isfinite(sn):
-                out += wn * shot_deviation(sn, gn, k, poisson, key_fine, key_rest, key_coarse, fine, coarse, normal)[1]
-    return out
+def neighbour_at(clean, n, b, ry, rx, h, w, scale_in, gain, dark, wx, wy):
+    """(index, signal in DN, weight) of raw neighbour ``n`` (of ``NEIGHBOURS``) of raw pixel
+    (ry, rx) of sample b: its clean value through this pixel's ``gain`` and ``dark`` signal;
+    weight 0 outside the frame."""
+    ny, nx = ry + _NB_DY[n], rx + _NB_DX[n]
+    if not (0 <= ny < 2 * h and 0 <= nx < 2 * w):
+        return 0, 0.0, 0.0
+    gn = ((b * 4 + _CHANNEL_AT[ny & 1, nx & 1]) * h + (ny >> 1)) * w + (nx >> 1)
+    return gn, clean[gn] * scale_in * gain + dark, wx if _NB_DY[n] == 0 else wy
 
 
 @njit(nogil=True, cache=True)
@@ -367,16 +328,51 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 q = (sensor * 2 + col_set) * w + x
                 if unit(draw(keys[_DCOL_WHERE], q)) < v[_DCD]:
                     s += k * v[_DCE] * math.exp(v[_DCL] * symmetric(normal, draw(keys[_DCOL_SIZE], q)))
-            if stages & L.CHARGE_SHARE and stages & (L.SHOT_POISSON | L.SHOT_GAUSS):  # shot deviations shared with the raw neighbours
-                if math.isfinite(s):
-                    s = shared_shot(clean, s, s_photo, s_pixel, g, b, 2 * y + row_set, 2 * x + col_set, h, w, scale_in, k,
-                                    v[_SHC], v[_SHX], v[_SHY], stages & L.SHOT_POISSON, key_fine, key_rest, key_coarse,
-                                    fine, coarse, normal)
-            elif stages & L.SHOT_POISSON:  # exact Poisson: tables and PTRS of rawaug.cpu.poisson
-                if math.isfinite(s):  # NaN/Inf pass through (counted above)
-                    s = poisson_count(s / k, g, key_fine, key_rest, key_coarse, fine, coarse) * k
+            share = stages & L.CHARGE_SHARE  # the shot deviations of this pixel and its raw neighbours, mixed
+            if share and math.isfinite(s):
+                gain = s_pixel / s_photo if s_photo != 0.0 else 1.0
+                dark = s - s_pixel
+                ry, rx = 2 * y + row_set, 2 * x + col_set
+                mean = max(s, 0.0) if stages & L.SHOT_POISSON else s
+                shared = 0.0
+            if stages & L.SHOT_POISSON:  # exact Poisson: tables and PTRS of rawaug.cpu.poisson, inlined (a call with the table tuples per element costs ~100 ns)
+                s_own = s
+                for n in range(5 if share else 1):  # this pixel, then (charge sharing) its four raw neighbours
+                    gn, sn, wn = g, s_own, v[_SHC]
+                    if n > 0:
+                        gn, sn, wn = neighbour_at(clean, n - 1, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY])
+                    lam = sn / k
+                    if not math.isfinite(lam) or (share and wn == 0.0):
+                        continue  # NaN/Inf pass through (counted above); a neighbour off the frame adds nothing
+                    if not lam > 0.0:
+                        count = 0.0
+                    elif lam < COARSE_MAX:
+                        count = 0
+                        if lam >= TABLE_MAX:
+                            j = int(lam * (1.0 / TABLE_MAX))
+                            count = _table_count(draw(key_coarse, gn), j, coarse)
+                            lam -= j * TABLE_MAX  # exact
+                        j = int(lam * (1.0 / GRID_STEP))
+                        z = draw(key_fine, gn)
+                        count += _table_count(z, j, fine) + _small_poisson(lam - j * GRID_STEP, z & SPARE_BITS, key_rest, gn)
+                    else:
+                        count = _ptrs(lam, draw(key_rest, gn))
+                    if share:
+                        shared += wn * (count * k - max(sn, 0.0))
+                    else:
+                        s = count * k
+                if share and math.isfinite(s):
+                    s = mean + shared
             elif stages & L.SHOT_GAUSS:
-                s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
+                if share and math.isfinite(s):
+                    shared = v[_SHC] * math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
+                    for n in range(4):
+                        gn, sn, wn = neighbour_at(clean, n, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY])
+                        if wn != 0.0 and math.isfinite(sn):
+                            shared += wn * math.sqrt(k * max(sn, 0.0)) * symmetric(normal, draw(keys[_SHOT], gn))
+                    s = mean + shared
+                else:
+                    s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
             if stages & L.NONLIN:  # the photo signal compressed: s (1 - c s) above 0 DN
                 s -= v[_NL] * s * max(s, 0.0)
             if stages & L.FRAME_GAIN:  # this frame's gain on the photo signal and its shot noise

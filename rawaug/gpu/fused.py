@@ -279,7 +279,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
             rx = 2 * x + col_set
             wx = _col(v, C_SHX)
             wy = _col(v, C_SHY)
-            shared = mean + _col(v, C_SHC) * dev
+            shared = _col(v, C_SHC) * dev
             shared += _neighbour_deviation(clean_ptr, b, ry, rx, 0, -1, H, W, scale_in, gain, dark, k, wx, kf, kr, kc,
                                            f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
                                            c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
@@ -292,7 +292,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
             shared += _neighbour_deviation(clean_ptr, b, ry, rx, 1, 0, H, W, scale_in, gain, dark, k, wy, kf, kr, kc,
                                            f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
                                            c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
-            s = tl.where(finite, shared, s)
+            s = tl.where(finite, mean + shared, s)
     elif FLAGS & 2:  # P*
         lam = s / k
         counted = k * poisson_count(lam, _key(keys_ptr, K_SHOT), _key(keys_ptr, K_SHOT_REST), _key(keys_ptr, K_SHOT_COARSE), g,

@@ -33,6 +33,8 @@ from scipy import stats as sstats
 from ..effects import black_drift
 from ..effects.frame_black_level import split_excess
 from ..profile import LogLinear
+from ..statistics import frame_mean_common_cov, frame_mean_lag1, frame_mean_std
+from .registry import effects_for
 
 BIC_DROP = 6.0  # 'strong' evidence (Kass & Raftery); with F_TEST_P, 0-3 % false structure on pure lines
 F_TEST_P = 1e-2
@@ -329,20 +331,18 @@ def model_mean_covariance(sigma_r, sigma_pix, rows: int, cols: int, ble_dn: floa
 
 
 def _table_statistics(means) -> dict:
+    """The battery's frame-mean statistics of (n, 4) per-frame channel means (DN), as frames of
+    one packed pixel, and the correlation of the channel pairs that share a sensor row."""
     c = np.cov(means.T)
     sd = np.sqrt(np.diag(c))
     corr = c / np.outer(sd, sd)
-    f = means.mean(axis=1)
+    frames = means[:, :, None, None]
     return {
-        "frame_mean_std": float(np.sqrt(np.mean(np.diag(c)))),
-        "frame_mean_common_cov": float((c[0, 2] + c[1, 3]) / 2),
+        "frame_mean_std": frame_mean_std(frames),
+        "frame_mean_common_cov": frame_mean_common_cov(frames),
         "row_pair_corr": float((corr[0, 1] + corr[2, 3]) / 2),
-        "frame_mean_lag1_autocorr": float(np.corrcoef(f[:-1], f[1:])[0, 1]),
+        "frame_mean_lag1": frame_mean_lag1(frames),
     }
-
-
-TABLE_EFFECTS = {"frame_mean_std": ["BLE", "BlackDrift"], "frame_mean_common_cov": ["BLE", "BlackDrift"],
-                 "frame_mean_lag1_autocorr": ["BlackDrift"]}
 
 
 def diagnose_frame_table(table: dict, rows: int, cols: int, *, ble_dn: float = 0.0, channel_dn: float = 0.0,
@@ -371,7 +371,7 @@ def diagnose_frame_table(table: dict, rows: int, cols: int, *, ble_dn: float = 0
         rel = abs(m - mean) / max(abs(m), 3 * std, 1e-30)
         out.append({"statistic": name, "measured": m, "synth_mean": mean, "synth_std": std, "z": float(z),
                     "rel_error": float(rel), "significant": bool(abs(z) > z_min and rel > rel_min),
-                    "effects": TABLE_EFFECTS.get(name, [])})
+                    "effects": effects_for(name)})
     return sorted(out, key=lambda r: -abs(r["z"]))
 
 
