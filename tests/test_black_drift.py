@@ -1,5 +1,7 @@
 """BlackDrift: a black level that drifts over a sequence of frames (an AR(1) across frames),
 through the real stage, its statistic and its estimator."""
+import functools
+
 import numpy as np
 import pytest
 import torch
@@ -11,11 +13,15 @@ from rawaug.statistics import frame_mean_lag1
 SHAPE = (16, 16)  # packed pixels per channel: small frames, the offsets are per frame
 
 
+@functools.lru_cache(maxsize=None)
+def drift_profile(sigma, rho, k):
+    profile = NoiseProfile.load("SonyA7S2")
+    return profile.with_effect("BlackDrift", {"k": [k], "sigma_dn": [sigma], "rho": [rho]}) if sigma else profile
+
+
 def stack(n, sigma=1.0, rho=0.9, seed=0, sequence=1, k=1.0, read_dn=1.0):
     """(n, 4, h, w) bias frames in DN: Gaussian read noise of ``read_dn`` plus the drift."""
-    profile = NoiseProfile.load("SonyA7S2")
-    if sigma:
-        profile = profile.with_effect("BlackDrift", {"k": [k], "sigma_dn": [sigma], "rho": [rho]})
+    profile = drift_profile(sigma, rho, k)
     aug = RawNoiseAugment(profile, model="G", ratio=1.0, fixed={"k": k, "sigma_g": read_dn, "sequence": sequence},
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     with torch.no_grad():

@@ -1,5 +1,7 @@
 """ChargeShare: photo charge shared with the four raw neighbours, through the real stage (both
 shot-noise models), its statistic and its estimator."""
+import functools
+
 import numpy as np
 import pytest
 import torch
@@ -13,11 +15,15 @@ K = 2.0  # DN per electron
 LEVEL = 0.1  # of the span: ~800 electrons, shot noise far above the read noise
 
 
+@functools.lru_cache(maxsize=None)
+def share_profile(share):
+    profile = NoiseProfile.load("SonyA7S2")
+    return profile if share is None else profile.with_effect("ChargeShare", {"share_x": share[0], "share_y": share[1]})
+
+
 def flats(n, share=None, seed=0, model="P*", level=LEVEL, shape=(32, 32), read_dn=0.0):
     """(n, 4, h, w) flat frames in DN (read noise ``read_dn``), with ``share`` (share_x, share_y)."""
-    profile = NoiseProfile.load("SonyA7S2")
-    if share is not None:
-        profile = profile.with_effect("ChargeShare", {"share_x": share[0], "share_y": share[1]})
+    profile = share_profile(share)
     if read_dn:
         model += "+G"
     aug = RawNoiseAugment(profile, model=model, ratio=1.0, fixed={"k": K, "sigma_g": read_dn},
@@ -78,7 +84,7 @@ def camera(share, seed):
     for j, level in enumerate((0.05, 0.2)):
         measured = flats(4, share, seed=seed * 10 + j, level=level, read_dn=2.0)
         base = [flats(4, None, seed=10_000 + seed * 10 + 6 * j + i, level=level, read_dn=2.0) for i in range(6)]
-        level_dn = level * NoiseProfile.load("SonyA7S2").span_dn
+        level_dn = level * share_profile(None).span_dn
         records.append(cs.estimate(measured, base, K, level_dn=level_dn, kind="flat"))
     return cs.combine(records)
 
