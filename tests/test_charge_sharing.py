@@ -99,7 +99,8 @@ def test_the_estimate_finds_the_sharing_over_cameras():
 
 def test_no_sharing_is_measured_as_none_in_most_cameras():
     # the 3-sd rule per lag leaves a lag's chance excess in about 6 x 0.3 % of stacks; over 20
-    # cameras (4 stacks each) a small share may come back, never a large one
+    # cameras (4 stacks each) a small share may come back, never a large one. Measured: 16 of
+    # these 20 empty and 34 of 40 others (seeds 500-539), the largest share 0.0086
     got = [camera(None, 100 + s) for s in range(20)]
     assert sum(cs.empty(g) for g in got) >= 12
     assert max(max(g.values()) for g in got) < 0.01
