@@ -328,8 +328,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 q = (sensor * 2 + col_set) * w + x
                 if unit(draw(keys[_DCOL_WHERE], q)) < v[_DCD]:
                     s += k * v[_DCE] * math.exp(v[_DCL] * symmetric(normal, draw(keys[_DCOL_SIZE], q)))
-            share = stages & L.CHARGE_SHARE  # the shot deviations of this pixel and its raw neighbours, mixed
-            if share and math.isfinite(s):
+            share = (stages & L.CHARGE_SHARE) != 0 and math.isfinite(s)  # shot deviations mixed with the raw neighbours'
+            if share:
                 gain = s_pixel / s_photo if s_photo != 0.0 else 1.0
                 dark = s - s_pixel
                 ry, rx = 2 * y + row_set, 2 * x + col_set
@@ -361,10 +361,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                         shared += wn * (count * k - max(sn, 0.0))
                     else:
                         s = count * k
-                if share and math.isfinite(s):
+                if share:
                     s = mean + shared
             elif stages & L.SHOT_GAUSS:
-                if share and math.isfinite(s):
+                if share:
                     shared = v[_SHC] * math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
                     for n in range(4):
                         gn, sn, wn = neighbour_at(clean, n, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY])

@@ -172,7 +172,8 @@ def _xtalk_tap(key, v, i: tl.constexpr, dy: tl.constexpr, dx: tl.constexpr, b, r
 def _shot_deviation(s, g, k, key_fine, key_rest, key_coarse,
                     f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
                     c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, active, POISSON: tl.constexpr):
-    """As ``rawaug.cpu.fused.shot_deviation``: (mean, shot deviation) in DN at signal ``s``."""
+    """(mean, shot deviation) in DN at signal ``s``, as ``rawaug.cpu.fused``'s shot stage: the
+    exact Poisson count less max(s, 0), or the Gaussian approximation's ``sqrt(K max(s, 0)) z``."""
     if POISSON:
         mean = tl.maximum(s, 0.0)
         count = poisson_count(s / k, key_fine, key_rest, key_coarse, g, f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size,
@@ -187,11 +188,12 @@ def _neighbour_deviation(clean_ptr, b, ry, rx, dy: tl.constexpr, dx: tl.constexp
                          key_fine, key_rest, key_coarse,
                          f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
                          c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live, POISSON: tl.constexpr):
-    """As one neighbour of ``rawaug.cpu.fused.shared_shot``: ``weight`` x the shot deviation
-    of raw pixel (ry + dy, rx + dx), 0 outside the frame."""
+    """``weight`` x the shot deviation of raw pixel (ry + dy, rx + dx), from its clean value
+    through this pixel's ``gain`` and ``dark`` signal, 0 outside the frame (as
+    ``rawaug.cpu.fused.neighbour_at`` and the CPU's shot stage)."""
     ny = ry + dy
     nx = rx + dx
-    inside = live & (ny >= 0) & (ny < 2 * H) & (nx >= 0) & (nx < 2 * W) & ((dark * 0.0 + weight) != 0.0)
+    inside = live & (ny >= 0) & (ny < 2 * H) & (nx >= 0) & (nx < 2 * W) & ((dark * 0.0 + weight) != 0.0)  # weight: a scalar, broadcast
     cn = tl.where((ny & 1) == 0, tl.where((nx & 1) == 0, 0, 1), tl.where((nx & 1) == 0, 3, 2))
     gn = ((b.to(tl.int64) * 4 + cn) * H + (ny >> 1)) * W + (nx >> 1)
     sn = tl.load(clean_ptr + gn, mask=inside, other=0.0).to(tl.float64) * scale_in * gain + dark
