@@ -87,10 +87,6 @@ class ChargeShare(NoiseEffect):
                                      f"in [0, {MAX_SHARE:.4f}], got {value}")
 
 
-def _lag_correlations(frames, shot_var):
-    return lag_covariances(frames)[1] / shot_var
-
-
 def estimate(frames, synthesized, k: float, level_dn=None, kind=None, **_) -> dict:
     """One record from a flat stack (N >= 2, 4, h, w) in DN at clean level ``level_dn`` (DN):
     the excess correlation at each lag over the shot variance, and that variance's share of
@@ -101,12 +97,12 @@ def estimate(frames, synthesized, k: float, level_dn=None, kind=None, **_) -> di
     shot_var = float(k) * float(np.mean(level_dn))
     if not shot_var > 0.0:
         raise ValueError(f"ChargeShare needs a flat above black, got level {float(np.mean(level_dn))} DN")
-    measured = _lag_correlations(frames, shot_var)
-    model = np.array([_lag_correlations(np.asarray(s, dtype=np.float64), shot_var) for s in synthesized])
+    temporal, measured = lag_covariances(frames)
+    measured = measured / shot_var
+    model = np.array([lag_covariances(np.asarray(s, dtype=np.float64))[1] / shot_var for s in synthesized])
     excess = measured - model.mean(axis=0)
     spread = model.std(axis=0, ddof=1) * np.sqrt(1.0 + 1.0 / len(model)) if len(model) > 1 else np.zeros_like(excess)
     excess = np.where(np.abs(excess) > SIGNIFICANT * spread, excess, 0.0)
-    temporal = lag_covariances(frames)[0]
     return {"corr": excess.tolist(), "weight": float(min(shot_var / max(temporal, 1e-12), 1.0))}
 
 
