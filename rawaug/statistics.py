@@ -1100,6 +1100,7 @@ class Statistic:
     line_fraction: bool = False  # resolution: one line of the stack
     base: str = ""  # the base-model parameter it checks ("" when only effects explain it)
     floor: float = 0.0  # resolution of the measurement itself (e.g. the light's stability)
+    pooled: bool = False  # a spread over a stack's N frames (N - 1 degrees of freedom): judged over every stack that has it
 
     def applies(self, n_frames: int, kind: str) -> bool:
         # dark frames are bias frames of a longer exposure: every bias statistic applies
@@ -1164,7 +1165,9 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("frame_mean_lag1", frame_mean_lag1, min_frames=4),  # a black level drifting over the frames
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),
         Statistic("flat_linearity", flat_linearity, kind="flat", floor=LIGHT_STABILITY),
-        Statistic("flat_gain_spread", flat_gain_spread, min_frames=2, kind="flat", floor=LIGHT_STABILITY),
+        # a flat pair holds one degree of freedom: a jitter of a few times the light's stability
+        # shows only in the pairs of every level and ISO together
+        Statistic("flat_gain_spread", flat_gain_spread, min_frames=2, kind="flat", floor=LIGHT_STABILITY, pooled=True),
         Statistic("grid_excess", grid_excess, kind="flat", view="raw"),  # phase-detection rows are not defects to repair
     )
 }

@@ -235,12 +235,13 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "row gain": (None, None, row_driver_gains, ["RowGain"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
-FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES}  # every other case: two levels, no series
+# every other case: two levels, no series; the gain jitter's pairs at five levels (one degree
+# of freedom each, judged pooled over the 10 pairs of the camera)
+FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES, "gain jitter": SERIES}
 # physical effects a case may add besides its own: the clamp's decay has low-frequency power that
 # FPN's fixed shading (a smooth fixed offset) reproduces; where FPN takes that part first (3 of
 # sessions 1-10), LineMap reproduces the rest
 BESIDES = {"settling clamp": {"FPN"}}
-FLAT_FRAMES = {"gain jitter": 8}  # flats per level (every other case: a pair); a pair's frame-mean spread has 1 degree of freedom
 
 
 def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_exposures=(4.0,), flat_levels=(0.02, 0.1),
@@ -265,8 +266,7 @@ def test_loop_on_a_manifest_names_the_undeclared_effect(tmp_path, case):
 
 def check_case(tmp_path, case, seed):
     effect, params, post, expected = CASES[case]
-    manifest = write_frames(tmp_path, effect, params, post, seed=seed, flat_levels=FLAT_LEVELS.get(case, (0.02, 0.1)),
-                            n_flat=FLAT_FRAMES.get(case, 2))
+    manifest = write_frames(tmp_path, effect, params, post, seed=seed, flat_levels=FLAT_LEVELS.get(case, (0.02, 0.1)))
     out, report = tmp_path / "loop.yaml", tmp_path / "report"
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)

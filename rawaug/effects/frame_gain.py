@@ -13,9 +13,10 @@ a standard normal per frame.
 Profile entry::  ``FrameGain: {sigma: 0.003}``
 
 Detected on flat stacks of >= 2 frames by ``flat_gain_spread`` (the spread over frames of the
-frame means over the level; resolved to the light's stability, 0.1 %). Estimated by
-``estimate``: its square in excess of the model's syntheses'; ``combine`` pools the flat
-stacks (a pair holds one degree of freedom).
+frame means over the level; resolved to the light's stability, 0.1 %), judged pooled over
+every flat stack of the camera (``Statistic.pooled``: a pair holds one degree of freedom, so
+0.3 % shows in 20 pairs and not in one). Estimated by ``estimate``: its square in excess of
+the model's syntheses'; ``combine`` pools the flat stacks the same way.
 """
 from __future__ import annotations
 

@@ -7,16 +7,20 @@ same size and count; every statistic of ``rawaug.statistics`` gets
 * ``rel_error = |measured - mean| / max(|measured|, 3 spread, resolution)`` (error figure:
   relative to the measured value, or to the synthesis noise where that is larger),
 
-and residuals are ranked by ``|z|`` and traced to the effects that explain them.
+and residuals are ranked by ``|z|`` and traced to the effects that explain them. A pooled
+statistic (a frame-to-frame spread of N - 1 degrees of freedom per stack, such as a flat
+pair's) is judged over every stack that has it (``pool_residuals``).
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
+from scipy.stats import chi2, norm
 
 from ..augment import RawNoiseAugment, parse_model
 from ..effects.gain_nonlinearity import fit_rates, linear_rates
@@ -173,6 +177,10 @@ class Residual:
     significant: bool
     effects: list
     base: str
+    # a pooled statistic (``Statistic.pooled``): "stack" holds this stack's own figures; the
+    # first stack that has it carries the joint residual ("over": the stacks pooled), the
+    # others point to it ("into") and are not significant on their own (``pool_residuals``)
+    pooled: dict = field(default_factory=dict)
 
     def to_dict(self):
         return asdict(self)
@@ -302,9 +310,72 @@ def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float =
         res = STATISTICS[name].resolution(stack.frames_dn, abs(mean))  # null: the model count
         z = (m - mean) / math.sqrt(std**2 + res**2)
         rel = abs(m - mean) / max(abs(m), 3.0 * std, res)
-        out.append(Residual(name, m, mean, std, float(z), float(rel), bool(abs(z) > z_min and rel > rel_min),
-                            effects_for(name), STATISTICS[name].base))
+        r = Residual(name, m, mean, std, float(z), float(rel), bool(abs(z) > z_min and rel > rel_min), effects_for(name),
+                     STATISTICS[name].base)
+        if STATISTICS[name].pooled:  # its degrees of freedom counted, as when pooled over stacks (``pool_residuals``)
+            own = {"measured": m, "synth_mean": mean, "synth_std": std, "z": float(z), "rel_error": float(rel),
+                   "resolution": res, "dof": stack.frames_dn.shape[0] - 1}
+            r = dataclasses.replace(_joint(name, [own], z_min, rel_min), pooled={"stack": own, "over": [stack.label]})
+        out.append(r)
     return sorted(out, key=lambda r: -abs(r.z))
+
+
+def _chi2_z(t: float, dof: float) -> float:
+    """A chi-square value of ``dof`` degrees of freedom as a standard normal z (its tail
+    probability's quantile, either side)."""
+    z = norm.isf(chi2.sf(t, dof)) if t >= dof else norm.ppf(chi2.cdf(t, dof))
+    return float(np.clip(z, -40.0, 40.0))
+
+
+def _joint(name: str, parts: list[dict], z_min: float, rel_min: float) -> Residual:
+    """The residual of a pooled statistic over stacks (``parts``: each stack's own figures).
+    A spread of N frames has N - 1 degrees of freedom; the measured variances are pooled,
+    and so are the model's (mean square of its syntheses' values, plus the resolution's
+    square: a light stable to 0.1 % is part of the model of a flat). The pooled measured
+    variance over the model's is a chi-square of the summed degrees of freedom over them."""
+    dof = np.array([p["dof"] for p in parts], dtype=np.float64)
+    d = float(dof.sum())
+    measured = float(np.sum(dof * np.square([p["measured"] for p in parts])) / d)
+    model = float(np.sum(dof * (np.square([p["synth_mean"] for p in parts]) + np.square([p["synth_std"] for p in parts]))) / d)
+    floor = float(np.sum(dof * np.square([p["resolution"] for p in parts])) / d)
+    z = _chi2_z(d * measured / max(model + floor, 1e-300), d)
+    m, mean = math.sqrt(measured), math.sqrt(model)
+    spread = math.sqrt((model + floor) / (2.0 * d))  # of the pooled spread, under the model
+    rel = abs(m - mean) / max(m, 3.0 * spread, math.sqrt(floor))
+    return Residual(name, m, mean, spread, z, float(rel), bool(abs(z) > z_min and rel > rel_min), effects_for(name),
+                    STATISTICS[name].base)
+
+
+def pool_residuals(diags: dict, z_min: float = 6.0, rel_min: float = 0.1) -> dict:
+    """``diags`` ({label: (residuals, syntheses)}) with every pooled statistic judged over all
+    the stacks that have it: the first of them (in ``diags``' order) carries the joint
+    residual (``_joint``), the others keep their own figures, not significant. A flat pair
+    holds one degree of freedom of a frame-to-frame spread, twenty pairs twenty. Pure
+    (new residuals) and idempotent: each stack's own figures stay in ``pooled["stack"]``."""
+    carriers: dict = {}
+    for label, (residuals, _) in diags.items():
+        for r in residuals:
+            if r.pooled:
+                carriers.setdefault(r.statistic, []).append(label)
+    if not carriers:
+        return diags
+    own = {(label, r.statistic): r.pooled["stack"] for label, (res, _) in diags.items() for r in res if r.pooled}
+    joint = {name: _joint(name, [own[(lb, name)] for lb in labels], z_min, rel_min) for name, labels in carriers.items()}
+    out = {}
+    for label, (residuals, synthesized) in diags.items():
+        new = []
+        for r in residuals:
+            if r.pooled:
+                labels, stack = carriers[r.statistic], own[(label, r.statistic)]
+                if label == labels[0]:
+                    r = dataclasses.replace(joint[r.statistic], pooled={"stack": stack, "over": list(labels)})
+                else:
+                    r = dataclasses.replace(r, measured=stack["measured"], synth_mean=stack["synth_mean"],
+                                            synth_std=stack["synth_std"], z=stack["z"], rel_error=stack["rel_error"],
+                                            significant=False, pooled={"stack": stack, "into": labels[0]})
+            new.append(r)
+        out[label] = (sorted(new, key=lambda r: -abs(r.z)), synthesized)
+    return out
 
 
 def diagnose(stack: FrameStack, profile, *, model: str | None = None, n_synth: int = 12, seed: int = 0,

@@ -11,7 +11,9 @@ battery's mean relative error most is added (greedy model selection: one statist
 points to several effects -- a fixed column pattern also raises the per-pixel fixed-pattern
 spread -- and only trying them tells which one the data hold). A rejected candidate is tried
 again once another effect has been added (its estimate depends on the model); the loop ends
-when no significant residual points to an effect untried in the current model.
+when no significant residual points to an effect untried in the current model. A pooled
+statistic (``pool_residuals``: one degree of freedom per flat pair) is one residual over all
+the stacks that have it: screened and confirmed on all of them.
 
 Then backward elimination: an effect added early may be redundant once a later one explains
 its residual too (a row drift under a smooth per-frame field that a later ``LowFreq``
@@ -43,11 +45,11 @@ from ..effects.k_records import merge_records
 from ..profile import NoiseProfile
 from ..relations import KTable
 from ..statistics import repaired
-from .diagnose import FrameStack, Residual, battery_error, diagnose, fitted_offsets, synthesis_fixed
+from .diagnose import FrameStack, Residual, battery_error, diagnose, fitted_offsets, pool_residuals, synthesis_fixed
 from .refit import (apply_read_noise_factors, apply_read_shapes, apply_row_noise_factors, read_noise_factors,
                     read_shape_updates, row_noise_factors, row_noise_restore)
 from .registry import CANDIDATES
-from .signatures import step_signature
+from .signatures import pooled_signature, step_signature
 
 ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
 CONFIRM_FACTOR = 3  # a residual that would call for an effect is confirmed on 3x the syntheses, with fresh seeds
@@ -186,6 +188,14 @@ def _options(diags, tried, present, skip=frozenset()):
     return sorted(best.values(), key=lambda o: -abs(o[2].z))
 
 
+def _signature(evidence: dict, label, by_label, before, after) -> dict:
+    """The curve behind a step's evidence (``step_signature``) on its stack, or for a pooled
+    residual on every stack it was pooled over (``pooled_signature``)."""
+    over = (evidence.get("pooled") or {}).get("over") or [label]
+    parts = [(by_label[lb].frames_dn, before[lb][1], after[lb][1]) for lb in over]
+    return step_signature(evidence["statistic"], *parts[0]) if len(parts) == 1 else pooled_signature(evidence["statistic"], parts)
+
+
 def _two_sided(token) -> bool:
     return bool(getattr(CANDIDATES[token].module, "TWO_SIDED", False))
 
@@ -279,7 +289,7 @@ def diagnose_stacks(prof, labels: list, which: list, step_seed: int, *, model=No
         with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="rawaug-loop") as pool:
             offsets = dict(zip([id(src) for src in sources], pool.map(pilot, sources)))
             results = list(pool.map(job, which))
-    return {s.label: r for s, r in zip(which, results)}
+    return pool_residuals({s.label: r for s, r in zip(which, results)}, z_min, rel_min)
 
 
 def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = None, n_synth: int = 12, seed: int = 0,
@@ -315,10 +325,15 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         # it still is, with its sign, against CONFIRM_FACTOR x the syntheses with fresh seeds
         # (``cache``: label -> those diagnoses of the current model). One that is not is
         # recorded, once per model, as unconfirmed.
-        if label not in cache:
-            cache[label] = diagnose(by_label[label], current, model=model, n_synth=CONFIRM_FACTOR * n_synth,
-                                    seed=check_seed, z_min=z_min, rel_min=rel_min)[0]
-        check = next(r for r in cache[label] if r.statistic == evidence.statistic)
+        # a pooled residual is confirmed on every stack it was pooled over
+        over = evidence.pooled.get("over") or [label]
+        key = (label, tuple(over))
+        if key not in cache:
+            again = {lb: diagnose(by_label[lb], current, model=model, n_synth=CONFIRM_FACTOR * n_synth,
+                                  seed=check_seed + (0 if lb == label else 1 + labels.index(lb)), z_min=z_min, rel_min=rel_min)
+                     for lb in over}
+            cache[key] = pool_residuals(again, z_min, rel_min)[label][0]
+        check = next(r for r in cache[key] if r.statistic == evidence.statistic)
         if check.significant and check.z * evidence.z > 0:
             return False
         if not any(u["stack"] == label and u["statistic"] == evidence.statistic for u in result.unconfirmed):
@@ -354,7 +369,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             done = known.setdefault(key, {})
             missing = [st for st in part if st.label not in done]
             done.update(diagnose_all(prof, step_seed, missing) if missing else {})
-            return {st.label: done[st.label] for st in part}
+            return pool_residuals({st.label: done[st.label] for st in part}, z_min, rel_min)
 
         if not shared:
             return run(trial, which, "model"), stacks, trial, {}
@@ -408,7 +423,9 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 # reads): most candidates fail there, and the whole battery is not run for them
                 known: dict = {}  # the screening's diagnoses, reused by the whole battery's
                 refit_z = getattr(CANDIDATES[token].module, "REFIT_Z", None)
-                screen = judged(trial, shared, step_no, [by_label[label]], known, refit_z)[0]
+                # (a pooled residual: on every stack it was pooled over)
+                screen = judged(trial, shared, step_no, [by_label[lb] for lb in evidence.pooled.get("over") or [label]],
+                                known, refit_z)[0]
                 err_before, err_after = _evidence_error(token, evidence, diags[label][0], screen[label][0])
                 if err_after > ACCEPT_FACTOR * err_before:
                     after = next(r for r in screen[label][0] if r.statistic == evidence.statistic)
@@ -455,8 +472,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 f"{step.error_after:.3f}{battery}: {step.note}")
         if chosen is None:
             continue
-        chosen[0].signature = step_signature(chosen[0].evidence["statistic"], by_label[chosen[0].stack].frames_dn,
-                                             diags[chosen[0].stack][1], chosen[2][chosen[0].stack][1])
+        chosen[0].signature = _signature(chosen[0].evidence, chosen[0].stack, by_label, diags, chosen[2])
         diags_without = diags
         current, diags, diags_seed = chosen[1], chosen[2], seed + 1000 * step_no
         if chosen[3] is not stacks:  # the base stage it was judged with, re-fitted
@@ -489,7 +505,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             new_stacks, refitted = shape_stacks, shape_prof
             rest = [st for st in new_stacks if st.kind != "bias"]
             merged = {**shape_diags, **(diagnose_all(refitted, step_seed, rest) if rest else {})}
-            new_diags = {st.label: merged[st.label] for st in new_stacks}  # in the stacks' order, as a whole battery
+            new_diags = pool_residuals({st.label: merged[st.label] for st in new_stacks}, z_min, rel_min)  # in the stacks' order, as a whole battery
         if factors or shaped:
             before_b, after_b = _battery(diags), _battery(new_diags)
             kept = (after_b["mean_rel_error"] <= before_b["mean_rel_error"]
@@ -604,7 +620,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             later.z_after, later.evidence_after = after_r.z, after_r.to_dict()
             later.stack, later.evidence = label, before_r.to_dict()
             later.battery_before, later.battery_after = _battery(without_diags), _battery(diags)
-            later.signature = step_signature(stat, by_label[label].frames_dn, without_diags[label][1], diags[label][1])
+            later.signature = _signature(later.evidence, label, by_label, without_diags, diags)
     # what is left is judged as a residual that calls for an effect is: against a larger,
     # independent sample of syntheses (an effect removed at the end can leave a statistic at
     # the threshold whose spread 8 syntheses underestimated)

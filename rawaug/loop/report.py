@@ -33,7 +33,10 @@ def residual_table(rows, title="") -> str:
     for r in rows:
         r = _jsonable(r)
         to = ", ".join(r.get("effects") or []) or r.get("base", "") or "-"
-        out.append(f"| {r['statistic']} | {r['measured']:.4g} | {r['synth_mean']:.4g} | {r['z']:.1f} | "
+        over = (r.get("pooled") or {}).get("over") or []
+        into = (r.get("pooled") or {}).get("into")
+        name = r["statistic"] + (f" (pooled over {len(over)} stacks)" if len(over) > 1 else f" (judged pooled, with {into})" if into else "")
+        out.append(f"| {name} | {r['measured']:.4g} | {r['synth_mean']:.4g} | {r['z']:.1f} | "
                    f"{r['rel_error']:.3f} | {'yes' if r['significant'] else ''} | {to} |")
     return "\n".join(out) + "\n"
 

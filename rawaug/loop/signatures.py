@@ -5,13 +5,15 @@ the radial 2-D power spectrum (``psd2d_lowfreq``), the spectrum of the row or co
 (row / column noise and shading), the histogram of the pixel values (read-noise shape,
 clipping), of the codes one by one (missing codes), of the stack-mean map (dark signal,
 DSNU, PRNU, hot pixels), of the per-pixel temporal std, the sorted line means (defect
-lines), the sorted frame means (black-level error), the frame means in the order taken (drift) or the correlation of neighbouring
+lines), the sorted frame means (black-level error; over their level, a flat's gain jitter),
+the frame means in the order taken (drift) or the correlation of neighbouring
 pixels' temporal noise at raw lags (crosstalk), of pairs in one tile and in adjacent tiles
 (a shared readout), the periodogram of the sensor-row or -column means (banding) or the
 largest bins of the 2-D periodogram (diagonal banding), or the
 white temporal variance per channel and block (read-noise map). ``step_signature`` gives the
 measured curve and the model's before and after a step
-(mean and spread over its syntheses), on the measured curve's grid.
+(mean and spread over its syntheses), on the measured curve's grid; ``pooled_signature``
+puts the curves of the stacks a pooled statistic was judged on end to end.
 """
 from __future__ import annotations
 
@@ -34,7 +36,7 @@ KIND = {
     "col_tone": "col_tone_spectrum", "diag_tone": "diag_tone_bins",
     "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram",
     "stuck_fraction": "temporal_histogram", "spike_fraction": "temporal_histogram", "frame_noise_spread": "temporal_histogram",
-    "col_flicker_fraction": "col_tone_spectrum", "flat_gain_spread": "frame_means",
+    "col_flicker_fraction": "col_tone_spectrum", "flat_gain_spread": "frame_means_relative",
 }  # every other statistic: the histogram of the pixel values
 LABEL = {
     "radial_spectrum": ("radial frequency (cycles/pixel)", "power (DN^2)", True),
@@ -46,6 +48,7 @@ LABEL = {
     "mean_map_histogram": ("stack-mean map (DN)", "fraction of pixels", True),
     "temporal_histogram": ("per-pixel std across frames (DN)", "fraction of pixels", True),
     "frame_means": ("frame (sorted)", "frame mean about the stack's (DN)", False),
+    "frame_means_relative": ("frame (sorted within its stack)", "frame mean about the stack's, over it", False),
     "frame_sequence": ("frame (in the order taken)", "frame mean about the stack's (DN)", False),
     "code_histogram": ("code (DN), one bin each, about the median", "fraction of pixels", False),
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
@@ -139,6 +142,9 @@ def curve(kind: str, frames, edges=None):
     if kind == "frame_means":
         m = frames.mean(axis=(1, 2, 3))
         return np.arange(1, len(m) + 1, dtype=np.float64), np.sort(m - m.mean())
+    if kind == "frame_means_relative":  # a flat's frame means over its level: stacks of any level side by side
+        m = frames.mean(axis=(1, 2, 3))
+        return np.arange(1, len(m) + 1, dtype=np.float64), np.sort(m - m.mean()) / max(abs(float(m.mean())), 1e-12)
     if kind == "frame_sequence":
         m = frames.mean(axis=(1, 2, 3))
         return np.arange(1, len(m) + 1, dtype=np.float64), m - m.mean()
@@ -171,6 +177,22 @@ def step_signature(statistic: str, frames, before, after) -> dict:
         out[name + "_std"] = ys.std(axis=0, ddof=1).tolist() if len(ys) > 1 else [0.0] * len(x)
     out["xlabel"], out["ylabel"], out["log_y"] = LABEL[kind]
     out["log_x"] = kind.endswith("spectrum") and not kind.endswith("tone_spectrum")
+    out["distance_before"], out["distance_after"] = distance(out, "before"), distance(out, "after")
+    return out
+
+
+def pooled_signature(statistic: str, parts) -> dict:
+    """``step_signature`` of a pooled statistic over the stacks it was judged on (``parts``:
+    (frames, before, after) of each): their curves end to end (one pair's curve is 2 points;
+    twenty pairs' are 40)."""
+    sigs = [step_signature(statistic, *part) for part in parts]
+    if sigs[0]["kind"].endswith("histogram"):
+        raise ValueError(f"a pooled signature puts curves end to end, not histograms ({statistic}: {sigs[0]['kind']})")
+    out = dict(sigs[0])
+    for key in ("measured", "before", "before_std", "after", "after_std"):
+        out[key] = [v for sig in sigs for v in sig[key]]
+    out["x"] = [float(i) for i in range(1, len(out["measured"]) + 1)]
+    out["pooled_over"] = len(parts)
     out["distance_before"], out["distance_after"] = distance(out, "before"), distance(out, "after")
     return out
 
