@@ -182,6 +182,13 @@ CURVE_STATISTICS = {"exposure_s": ("mean_dn", "temporal_std", "fixed_std"),  # d
                     "level_dn": ("temporal_std", "fixed_std", "flat_fixed_rel")}  # photon transfer, PRNU
 
 
+def _own(r: dict) -> dict:
+    """A residual's figures on its own stack: a pooled statistic's joint residual (carried by
+    the first of its stacks) replaced by that stack's own figures, its joint significance kept."""
+    own = (r.get("pooled") or {}).get("stack")
+    return {**r, **{k: own[k] for k in ("measured", "synth_mean", "synth_std")}} if own else r
+
+
 def setting_curves(report: dict) -> list[dict]:
     """Each statistic against exposure (the bias and dark stacks of one ISO) and against
     level (its bias and flat stacks; bias at level 0): measured, and the model's syntheses
@@ -199,8 +206,8 @@ def setting_curves(report: dict) -> list[dict]:
             if not any(s["kind"] == kind for _, s in members) or len(members) < 2:
                 continue
             x_of = {label: float(s.get(axis) or 0.0) for label, s in members}  # bias: its exposure, level 0
-            before = {label: {r["statistic"]: r for r in map(_jsonable, initial.get(label, []))} for label, _ in members}
-            after = {label: {r["statistic"]: r for r in map(_jsonable, final.get(label, []))} for label, _ in members}
+            before = {label: {r["statistic"]: _own(r) for r in map(_jsonable, initial.get(label, []))} for label, _ in members}
+            after = {label: {r["statistic"]: _own(r) for r in map(_jsonable, final.get(label, []))} for label, _ in members}
             flagged = {name for d in (before, after) for res in d.values() for name, r in res.items() if r["significant"]}
             names = [n for n in dict.fromkeys(CURVE_STATISTICS[axis] + tuple(sorted(flagged)))
                      if sum(n in before[label] and n in after[label] for label, _ in members) >= 2]
