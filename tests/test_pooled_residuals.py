@@ -23,7 +23,7 @@ def _stack(rng, sigma, synth_sigma=0.2 * F, n_synth=8, dof=1):
     measured = sigma * math.sqrt(rng.chisquare(dof) / dof)
     synth = synth_sigma * np.sqrt(rng.chisquare(dof, n_synth) / dof)
     return {"measured": measured, "synth_mean": float(synth.mean()), "synth_std": float(synth.std(ddof=1)),
-            "z": 0.0, "rel_error": 0.0, "resolution": F, "dof": dof}
+            "z": 0.0, "rel_error": 0.0, "resolution": F, "dof": dof, "n_synth": n_synth}
 
 
 def _joint_z(rng, sigma, n_stacks, dof=1):
@@ -34,20 +34,40 @@ def test_flat_gain_spread_is_pooled():
     assert STATISTICS[NAME].pooled and STATISTICS[NAME].floor == F
 
 
-def test_pooled_z_is_standard_normal_under_the_model():
-    # a light that wanders by F (the model's own resolution) over 20 pairs: the pooled z is a
-    # chi-square of 20 degrees of freedom through its tail probability, N(0, 1) but for the
-    # syntheses' share of the model variance (4 % of F^2, estimated from 8 x 20 values)
+def test_pooled_z_is_standard_normal_above_the_light_and_below_the_model():
+    # a light that wanders by F (the most the model allows) over 20 pairs: above the model's
+    # variance plus F^2 the pooled z is a chi-square of 20 degrees of freedom through its tail
+    # probability (N(0, 1) there, but for the syntheses' share of the variance, 4 % of F^2,
+    # estimated from 8 x 20 values), and never negative
     rng = np.random.default_rng(11)
     n = 2000
     sigma = math.sqrt(F**2 + (0.2 * F) ** 2)
     z = np.array([_joint_z(rng, sigma, 20).z for _ in range(n)])
-    assert abs(z.mean()) < 5 / math.sqrt(n), z.mean()
-    assert abs(z.std() - 1.0) < 5 / math.sqrt(2 * n), z.std()
-    assert np.sum(np.abs(z) > 6.0) == 0  # P = 2e-9 each
+    for q, p in ((1.0, 0.1587), (2.0, 0.02275), (3.0, 0.00135)):
+        assert abs(np.mean(z > q) - p) < 5 * math.sqrt(p * (1 - p) / n) + 1 / n, (q, np.mean(z > q))
+    assert z.min() >= 0.0 and np.sum(z > 6.0) == 0  # P = 1e-9 each
+    # a perfectly stable light: below the model's own variance the z is that chi-square's,
+    # and it never reaches the upper side (26 x its degrees of freedom)
+    z0 = np.array([_joint_z(rng, 0.2 * F, 20).z for _ in range(n)])
+    for q, p in ((-1.0, 0.1587), (-2.0, 0.02275)):
+        assert abs(np.mean(z0 < q) - p) < 5 * math.sqrt(p * (1 - p) / n) + 1 / n, (q, np.mean(z0 < q))
+    assert z0.max() <= 0.0 and np.sum(z0 < -6.0) == 0
     # and so for stacks of 8 frames (7 degrees of freedom each)
     z8 = np.array([_joint_z(rng, sigma, 6, dof=7).z for _ in range(n)])
-    assert abs(z8.mean()) < 5 / math.sqrt(n) and abs(z8.std() - 1.0) < 5 / math.sqrt(2 * n), (z8.mean(), z8.std())
+    assert abs(np.mean(z8 > 2.0) - 0.02275) < 5 * math.sqrt(0.02275 * 0.97725 / n) + 1 / n, np.mean(z8 > 2.0)
+
+
+def test_a_model_above_the_measured_spread_is_significant_only_beyond_the_light():
+    # frames of a stable light (the spread of shot noise, 0.1 F) against a model that makes
+    # frame means wander by 0.8 F (a row drift with a frame mean, say) and by 3 F (a gain
+    # jitter nobody has): both overshoot far beyond chance, but only the second by more than
+    # the light's resolution
+    rng = np.random.default_rng(16)
+    small = [_joint(NAME, [_stack(rng, 0.1 * F, synth_sigma=0.8 * F) for _ in range(20)], 6.0, 0.1) for _ in range(100)]
+    large = [_joint(NAME, [_stack(rng, 0.1 * F, synth_sigma=3 * F) for _ in range(20)], 6.0, 0.1) for _ in range(100)]
+    assert all(r.z < -6.0 for r in small + large)
+    assert not any(r.significant for r in small)
+    assert all(r.significant for r in large)
 
 
 def test_three_times_the_light_is_found_over_twenty_pairs_and_not_on_one():

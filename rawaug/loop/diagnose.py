@@ -20,7 +20,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
-from scipy.stats import chi2, norm
+from scipy.stats import f as f_dist
+from scipy.stats import norm
 
 from ..augment import RawNoiseAugment, parse_model
 from ..effects.gain_nonlinearity import fit_rates, linear_rates
@@ -314,36 +315,54 @@ def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float =
                      STATISTICS[name].base)
         if STATISTICS[name].pooled:  # its degrees of freedom counted, as when pooled over stacks (``pool_residuals``)
             own = {"measured": m, "synth_mean": mean, "synth_std": std, "z": float(z), "rel_error": float(rel),
-                   "resolution": res, "dof": stack.frames_dn.shape[0] - 1}
+                   "resolution": res, "dof": stack.frames_dn.shape[0] - 1, "n_synth": len(values)}
             r = dataclasses.replace(_joint(name, [own], z_min, rel_min), pooled={"stack": own, "over": [stack.label]})
         out.append(r)
     return sorted(out, key=lambda r: -abs(r.z))
 
 
-def _chi2_z(t: float, dof: float) -> float:
-    """A chi-square value of ``dof`` degrees of freedom as a standard normal z (its tail
-    probability's quantile, either side)."""
-    z = norm.isf(chi2.sf(t, dof)) if t >= dof else norm.ppf(chi2.cdf(t, dof))
+def _ratio_z(ratio: float, dof: float, dof_model: float) -> float:
+    """A ratio of variances (measured over model, ``dof`` and ``dof_model`` degrees of freedom:
+    an F variate) as a standard normal z, its tail probability's quantile on either side."""
+    z = norm.isf(f_dist.sf(ratio, dof, dof_model)) if ratio >= 1.0 else norm.ppf(f_dist.cdf(ratio, dof, dof_model))
     return float(np.clip(z, -40.0, 40.0))
 
 
 def _joint(name: str, parts: list[dict], z_min: float, rel_min: float) -> Residual:
     """The residual of a pooled statistic over stacks (``parts``: each stack's own figures).
     A spread of N frames has N - 1 degrees of freedom; the measured variances are pooled,
-    and so are the model's (mean square of its syntheses' values, plus the resolution's
-    square: a light stable to 0.1 % is part of the model of a flat). The pooled measured
-    variance over the model's is a chi-square of the summed degrees of freedom over them."""
+    and so are the model's (mean square of its syntheses' values). The resolution (a flat's
+    light, stable to 0.1 %: its square, ``floor``) is a variance the light may add or not:
+    the measured variance is tested (an F ratio: the summed degrees of freedom over those of
+    the syntheses) against the model's plus the floor above it and against the model's alone
+    below it, z = 0 between. Pooling resolves the spread's variance better, not the light: a deviation
+    of the pooled spread from the model's under the resolution is not significant."""
     dof = np.array([p["dof"] for p in parts], dtype=np.float64)
     d = float(dof.sum())
+    n = np.array([p["n_synth"] for p in parts], dtype=np.float64)
     measured = float(np.sum(dof * np.square([p["measured"] for p in parts])) / d)
-    model = float(np.sum(dof * (np.square([p["synth_mean"] for p in parts]) + np.square([p["synth_std"] for p in parts]))) / d)
+    # the syntheses' mean square, from their mean and spread (ddof 1)
+    squares = np.square([p["synth_mean"] for p in parts]) + np.square([p["synth_std"] for p in parts]) * (n - 1) / n
+    model = float(np.sum(dof * squares) / d)
     floor = float(np.sum(dof * np.square([p["resolution"] for p in parts])) / d)
-    z = _chi2_z(d * measured / max(model + floor, 1e-300), d)
+    d_model = float(np.sum(dof * n))  # the model's variance is itself estimated, from the syntheses
+
+    def z_over(base):  # Satterthwaite: a known floor on top of the estimated variance
+        d_eff = d_model * (base / model) ** 2 if model > 0 else math.inf
+        return _ratio_z(measured / max(base, 1e-300), d, min(d_eff, 1e12))
+
+    if measured > model + floor:
+        z = max(z_over(model + floor), 0.0)
+    elif measured < model:
+        z = min(z_over(model), 0.0)
+    else:
+        z = 0.0
     m, mean = math.sqrt(measured), math.sqrt(model)
     spread = math.sqrt((model + floor) / (2.0 * d))  # of the pooled spread, under the model
     rel = abs(m - mean) / max(m, 3.0 * spread, math.sqrt(floor))
-    return Residual(name, m, mean, spread, z, float(rel), bool(abs(z) > z_min and rel > rel_min), effects_for(name),
-                    STATISTICS[name].base)
+    resolved = abs(m - mean) > math.sqrt(floor)
+    return Residual(name, m, mean, spread, z, float(rel), bool(abs(z) > z_min and rel > rel_min and resolved),
+                    effects_for(name), STATISTICS[name].base)
 
 
 def pool_residuals(diags: dict, z_min: float = 6.0, rel_min: float = 0.1) -> dict:
