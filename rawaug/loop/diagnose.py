@@ -335,8 +335,8 @@ def _joint(name: str, parts: list[dict], z_min: float, rel_min: float) -> Residu
     light, stable to 0.1 %: its square, ``floor``) is a variance the light may add or not:
     the measured variance is tested (an F ratio: the summed degrees of freedom over those of
     the syntheses) against the model's plus the floor above it and against the model's alone
-    below it, z = 0 between. Pooling resolves the spread's variance better, not the light: a deviation
-    of the pooled spread from the model's under the resolution is not significant."""
+    below it, z = 0 between. Pooling resolves the spread's variance better, not the light: a
+    deviation of the pooled spread from the model's under the resolution is not significant."""
     dof = np.array([p["dof"] for p in parts], dtype=np.float64)
     d = float(dof.sum())
     n = np.array([p["n_synth"] for p in parts], dtype=np.float64)
