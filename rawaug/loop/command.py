@@ -111,6 +111,8 @@ def _run_frame_table(args, path):
 
 
 LEVEL_SPLIT = 0.02  # flats of one setting whose means differ by more were taken under different lights
+JITTER_MARGIN = 10  # ... and by more than this many times the camera's frame-to-frame jitter (``_camera_jitter``),
+JITTER_GAP_MAX = 0.15  # up to this: a gain does not jitter by 1.5 %, and one frame per unlisted light still splits
 SERIES_SPREAD = 0.25  # flats further than this from one line through zero do not share one light
 
 
@@ -132,13 +134,25 @@ class _Flat(NamedTuple):
         return self.exposure * (self.light or 1.0)
 
 
+def _camera_jitter(flats: dict) -> float:
+    """The frame-to-frame spread of the flats' log means, from every gap between a setting's
+    sorted frames, over the camera: their median over that of a pair's gap, 0.954 sigma.
+    Most gaps lie within one level (a pair holds one), so the median is the jitter's, not an
+    unlisted light's step; the median of a few gaps is uncertain by some 40 %."""
+    gaps = [np.diff(np.sort(np.log(np.maximum([float(np.mean(packed)) for packed, _ in frames], 1e-9))))
+            for frames in flats.values() if len(frames) >= 2]
+    return float(np.median(np.concatenate(gaps))) / 0.954 if gaps else 0.0
+
+
 def _split_levels(flats: dict) -> dict:
     """Flats of one setting (ISO, exposure, light) split where their sorted means jump by more
-    than ``LEVEL_SPLIT`` and by more than 6 x the spread of the frames within the levels
-    that leaves (a gain jitter spreads one level's frames): under lights the manifest does
+    than ``LEVEL_SPLIT``, by more than 6 x the spread of the frames within the levels that
+    leaves and by more than ``JITTER_MARGIN`` x the camera's jitter (a gain jitter spreads one
+    level's frames; a pair holds one gap): under lights the manifest does
     not list, one exposure holds several levels, and each is a stack of its own (keys gain
     the level's index)."""
     out = {}
+    jitter = _camera_jitter(flats)
     for (iso, exposure, light), frames in flats.items():
         means = np.array([float(np.mean(packed)) for packed, _ in frames])
         order = np.argsort(means)
@@ -156,8 +170,8 @@ def _split_levels(flats: dict) -> dict:
         # where it also exceeds 6 x the spread of the frames within the levels it would leave
         within = [np.log(means[g]) - np.log(means[g]).mean() for g in groups.values() if len(g) > 1]
         spread = float(np.sqrt(np.sum(np.concatenate(within) ** 2) / sum(len(w) - 1 for w in within))) if within else 0.0
-        if spread > 0:
-            groups = split(lambda gap: gap > max(LEVEL_SPLIT, 6 * spread))
+        if spread > 0 or jitter > 0:  # (a pair 2 % apart has no spread within the levels it would leave)
+            groups = split(lambda gap: gap > max(LEVEL_SPLIT, 6 * spread, min(JITTER_MARGIN * jitter, JITTER_GAP_MAX)))
         if len(groups) > 1:
             print(f"warning: ISO {iso:g}: the flats at {exposure:g} s" + (f", light {light:g}" if light else "")
                   + f" fall at {len(groups)} levels (was the light changed?): each level is a stack of its own; "
