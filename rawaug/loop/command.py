@@ -134,13 +134,13 @@ class _Flat(NamedTuple):
         return self.exposure * (self.light or 1.0)
 
 
-def _camera_jitter(flats: dict) -> float:
-    """The frame-to-frame spread of the flats' log means, from every gap between a setting's
-    sorted frames, over the camera: their median over that of a pair's gap, 0.954 sigma.
-    Most gaps lie within one level (a pair holds one), so the median is the jitter's, not an
-    unlisted light's step; the median of a few gaps is uncertain by some 40 %."""
-    gaps = [np.diff(np.sort(np.log(np.maximum([float(np.mean(packed)) for packed, _ in frames], 1e-9))))
-            for frames in flats.values() if len(frames) >= 2]
+def _camera_jitter(means: list) -> float:
+    """The frame-to-frame spread of the flats' log means (``means``: each setting's frame
+    means), from every gap between a setting's sorted frames, over the camera: their median
+    over that of a pair's gap, 0.954 sigma. Most gaps lie within one level (a pair holds
+    one), so the median is the jitter's, not an unlisted light's step; the median of a few
+    gaps is uncertain by some 40 %."""
+    gaps = [np.diff(np.sort(np.log(np.maximum(m, 1e-9)))) for m in means if len(m) >= 2]
     return float(np.median(np.concatenate(gaps))) / 0.954 if gaps else 0.0
 
 
@@ -152,9 +152,10 @@ def _split_levels(flats: dict) -> dict:
     not list, one exposure holds several levels, and each is a stack of its own (keys gain
     the level's index)."""
     out = {}
-    jitter = _camera_jitter(flats)
+    means_of = {key: np.array([float(np.mean(packed)) for packed, _ in frames]) for key, frames in flats.items()}
+    jitter = _camera_jitter(list(means_of.values()))
     for (iso, exposure, light), frames in flats.items():
-        means = np.array([float(np.mean(packed)) for packed, _ in frames])
+        means = means_of[(iso, exposure, light)]
         order = np.argsort(means)
 
         def split(gap_ok):
