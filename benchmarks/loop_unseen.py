@@ -277,13 +277,75 @@ def ramp_jitter(dn, rng, **_):
     return dn * np.stack([g[0::2], g[0::2], g[1::2], g[1::2]])[:, :, None]  # R, G1 on even sensor rows
 
 
+# 2026-11-27 (sixth session): a fresh batch of EMVA 1288 and defect effects, written before the
+# loop ran on any of them.
+
+def _fixed(seed, shape):
+    """A fixed pattern of the sensor: the same in every frame of every setting."""
+    return np.random.default_rng(seed).standard_normal(shape)
+
+
+def pixel_prnu(dn, rng, kind="", **_):
+    """Photo response non-uniformity: each pixel's response to light off by 1 % rms (fixed), so flats show a per-pixel pattern in proportion to the signal and bias frames none."""
+    if kind != "flat":
+        return dn
+    return dn * (1.0 + 0.01 * _fixed(31, dn.shape))
+
+
+def dark_current(dn, rng, exposure=0.0, k=1.0, **_):
+    """Dark current: 1.5 e-/s in every pixel, with its shot noise, so the 4 s darks sit 6 e- above the bias and are noisier."""
+    return dn + k * rng.poisson(1.5 * exposure, dn.shape)
+
+
+def dsnu(dn, rng, exposure=0.0, k=1.0, **_):
+    """Dark signal non-uniformity: each pixel's dark current drawn once from a lognormal around 1 e-/s (sigma 0.8 in log), with its shot noise."""
+    rate = np.exp(np.log(1.0) + 0.8 * _fixed(37, dn.shape))
+    return dn + k * rng.poisson(rate * exposure)
+
+
+def pixel_offsets(dn, rng, **_):
+    """Offset fixed pattern: each pixel's black level off by 0.8 DN rms, the same in every frame (bias, dark and flat)."""
+    return dn + 0.8 * _fixed(41, dn.shape)
+
+
+def column_offsets(dn, rng, **_):
+    """Column offset fixed pattern: each sensor column's black level off by 0.8 DN rms, the same in every frame."""
+    c = 0.8 * _fixed(43, 2 * dn.shape[2])
+    return dn + np.stack([c[0::2], c[1::2], c[1::2], c[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
+def soft_knee(dn, rng, span=15871.0, **_):
+    """Gain non-linearity: the response falls short of a line in proportion to the signal, 1.5 % at 10 % of white and 6 % at 40 %."""
+    return dn * (1.0 - 0.15 * np.maximum(dn, 0.0) / span)
+
+
+def hot_pixels(dn, rng, **_):
+    """Hot pixels of offset: 0.1 % of the pixels (fixed) read 20 to 100 DN high in every frame, whatever the exposure."""
+    where = np.random.default_rng(47).random(dn.shape) < 0.001
+    return dn + where * np.random.default_rng(53).uniform(20.0, 100.0, dn.shape)
+
+
+def black_clip(dn, rng, **_):
+    """The camera clips at its black level: every value below black is written as black, so half a bias frame's values pile up at 0 DN."""
+    return np.maximum(dn, 0.0)
+
+
+def fixed_tone(dn, rng, **_):
+    """A fixed interference pattern: 0.8 DN at 0.07 cycles per sensor row and 0.13 per sensor column, the same in every frame."""
+    _, h, w = dn.shape
+    y, x = np.arange(2 * h)[:, None], np.arange(2 * w)[None, :]
+    t = 0.8 * np.cos(2 * np.pi * (0.07 * y + 0.13 * x) + 1.0)
+    return dn + np.stack([t[0::2, 0::2], t[0::2, 1::2], t[1::2, 1::2], t[1::2, 0::2]])
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
                                  leaky_columns, clamp_sag, gain_jitter, coarse_adc,
                                  impulses, column_flicker, reset_transient, noisy_frames,
                                  pdaf_pixels, row_gain, charge_sharing, lens_shading, companded_raw, channel_black,
-                                 ramp_jitter)}
+                                 ramp_jitter, pixel_prnu, dark_current, dsnu, pixel_offsets, column_offsets, soft_knee,
+                                 hot_pixels, black_clip, fixed_tone)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
