@@ -29,7 +29,7 @@ _HD, _HM, _HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_l
 _Q, _B0 = L.COLUMN["step_dn"], L.COLUMN["bias_r"]
 _BS, _BC, _CL = L.COLUMN["ble_sigma"], L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"]
 _RATIO = L.COLUMN["ratio"]
-_DARK_E, _DSNU = L.COLUMN["dark_e"], L.COLUMN["dsnu"]
+_DARK_E, _DSNU_LOG = L.COLUMN["dark_e"], L.COLUMN["dsnu_log"]
 _DSNU_PATTERN = L.STREAM["dsnu_pattern"]
 _LF, _LF_GH, _LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
 _CM_REC, _CM_LO, _CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
@@ -318,7 +318,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s *= grids[ggrec, ggy, (x + ggox) % ggpx]
             s_pixel = s  # ... and after them: the dark signal is what the stages below add
             if stages & L.DARK_CURRENT:
-                s += k * v[_DARK_E] * max(1.0 + v[_DSNU] * symmetric(normal, draw(keys[_DSNU_PATTERN], p)), 0.0)
+                sl = v[_DSNU_LOG]  # a log-normal rate map of mean 1
+                s += k * v[_DARK_E] * math.exp(sl * symmetric(normal, draw(keys[_DSNU_PATTERN], p)) - 0.5 * sl * sl)
             if stages & L.GLOW:
                 s += k * v[_GLS] * shading_at(grids, glrec, gly0, x + glox, glh, glw, glgh, glgw)
             if stages & L.DARK_HOT:  # a hot pixel's dark electrons: the median this exposure times its log-normal factor

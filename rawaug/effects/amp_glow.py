@@ -76,11 +76,12 @@ class AmpGlow(NoiseEffect):
             shape = arr.shape
 
 
-def estimate(frames, synthesized, k: float, exposure_s=None, **_) -> dict:
+def estimate(frames, synthesized, k: float, exposure_s=None, kind: str = "dark", **_) -> dict:
     """Glow record at gain ``k`` from a dark stack (N, 4, h, w) in DN of ``exposure_s``
-    seconds and stacks of the same shape synthesized by the current model."""
+    seconds and stacks of the same shape synthesized by the current model (a flat's shading
+    is the light's)."""
     frames = np.asarray(frames, dtype=np.float64)
-    if not exposure_s:
+    if kind != "dark" or not exposure_s:
         raise ValueError("Glow needs a dark stack and its exposure_s")
     base = [np.asarray(s, dtype=np.float64) for s in synthesized]
     shape = glow_grid_shape(*frames.shape[2:])

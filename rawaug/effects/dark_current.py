@@ -7,9 +7,11 @@ stage), and the rate differs from pixel to pixel (a fixed pattern whose spread g
 ``t``: DSNU). The ELD paper lumps dark current into the read noise of its short bias frames;
 dark frames at longer exposures show it apart.
 
-Stage (DN, before shot noise): ``s -> s + K * dark_e * max(1 + dsnu * g, 0)`` with
-``dark_e = rate(K) * exposure_s`` electrons and ``g`` a standard-normal map keyed by the
-profile's seed and the pixel position. The exposure is a synthesis setting
+Stage (DN, before shot noise): ``s -> s + K * dark_e * exp(b g - b^2 / 2)`` with
+``dark_e = rate(K) * exposure_s`` electrons, ``g`` a standard-normal map keyed by the
+profile's seed and the pixel position and ``b = sqrt(log(1 + dsnu^2))``: a log-normal rate
+map of mean 1 and relative spread ``dsnu``. Dark current is skewed (a few pixels leak far
+more than most), and a rate is never negative. The exposure is a synthesis setting
 (``RawNoiseAugment(fixed={"exposure_s": t})``, default 0: no dark signal).
 
 Profile entry (per-K records, nearest record in log K)::
@@ -18,10 +20,10 @@ Profile entry (per-K records, nearest record in log K)::
 
 Detected on dark stacks (``FrameStack(kind="dark", exposure_s=t)``, synthesized with the
 offsets and read noise of the bias frames of the same ISO) by ``mean_dn`` (the dark signal),
-``temporal_std`` (its shot noise) and ``fixed_std`` (DSNU). Estimated by ``estimate``: the
-mean excess over the model gives the rate, the excess fixed-pattern variance (less the
-dark shot noise left in an N-frame mean), with each map's smooth part removed (``Glow``,
-``FPN`` shading), gives DSNU.
+``temporal_std`` (its shot noise), ``fixed_std`` and ``fixed_pixel_var`` (DSNU). Estimated by ``estimate``: the
+mean excess over the model gives the rate, the excess white fixed-pattern variance
+(``fixed_pixel_var``: the dark shot noise left in an N-frame mean, ``Glow`` and ``FPN``
+shading cancel) gives DSNU.
 """
 from __future__ import annotations
 
@@ -29,12 +31,11 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from .amp_glow import glow_grid_shape
-from .dark_shading import white_fixed_var
+from ..statistics import fixed_pixel_var
 from .base import PHOTON, NoiseEffect, pattern_key, register
 from .k_records import check_seed, validate_records, value_at_k
 
-STATISTICS = ("mean_dn", "temporal_std", "fixed_std")
+STATISTICS = ("mean_dn", "temporal_std", "fixed_std", "fixed_pixel_var")
 
 
 @register
@@ -42,13 +43,14 @@ class DarkCurrent(NoiseEffect):
     token = "Dark"
     order = PHOTON + 5
     flag = L.DARK_CURRENT
-    columns = ("dark_e", "dsnu")
+    columns = ("dark_e", "dsnu_log")
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
         exposure = ctx.fixed.get("exposure_s", 0.0)
         exposure = torch.as_tensor(exposure, dtype=torch.float64, device=ctx.device).expand(ctx.batch)
-        return {"dark_e": value_at_k(p, "rate_e_per_s", ctx.k) * exposure, "dsnu": value_at_k(p, "dsnu", ctx.k)}
+        dsnu = value_at_k(p, "dsnu", ctx.k)
+        return {"dark_e": value_at_k(p, "rate_e_per_s", ctx.k) * exposure, "dsnu_log": torch.sqrt(torch.log1p(dsnu * dsnu))}
 
     def pattern_streams(self):
         return {"dsnu_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
@@ -59,19 +61,19 @@ class DarkCurrent(NoiseEffect):
         check_seed(cls.token, params)
 
 
-def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, **_) -> dict:
+def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, kind: str = "dark", **_) -> dict:
     """Dark-current record at gain ``k`` from a dark stack (N >= 2, 4, h, w) in DN of
-    ``exposure_s`` seconds and stacks of the same shape synthesized by the current model."""
+    ``exposure_s`` seconds and stacks of the same shape synthesized by the current model. A
+    flat's exposure carries light: its excess is not dark current."""
     frames = np.asarray(frames, dtype=np.float64)
-    if not exposure_s or frames.shape[0] < 2:
+    if kind != "dark" or not exposure_s or frames.shape[0] < 2:
         raise ValueError("Dark needs a dark stack of >= 2 frames and its exposure_s")
     base = [np.asarray(s, dtype=np.float64) for s in synthesized]
     signal_dn = float(frames.mean() - np.mean([s.mean() for s in base]))
     if signal_dn <= 0:
         return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [0.0], "dsnu": [0.0]}
-    n = frames.shape[0]
-    shape = glow_grid_shape(*frames.shape[2:])  # the white spread, without the smooth glow or shading
-    excess = white_fixed_var(frames, shape) - float(np.mean([white_fixed_var(s, shape) for s in base])) - k * signal_dn / n
+    # the white fixed spread over the model's: its dark shot noise, glow and shading cancel
+    excess = fixed_pixel_var(frames) - float(np.mean([fixed_pixel_var(s) for s in base]))
     dsnu = float(np.sqrt(max(excess, 0.0)) / signal_dn)
     return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [signal_dn / (k * float(exposure_s))], "dsnu": [dsnu]}
 

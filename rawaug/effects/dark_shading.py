@@ -23,11 +23,12 @@ Both are per-K records (nearest record in log K)::
     FPN: {seed: 11, k: [K, ...], sigma_dn: [..], shading_dn: [[[..gw..], ..gh..], ...],
           frame_h: H, frame_w: W}
 
-Detected by ``fixed_std`` (stack-mean spread), ``psd2d_lowfreq``, ``row_lowfreq`` and
+Detected by ``fixed_std`` (stack-mean spread), ``fixed_pixel_var`` (its white part), ``psd2d_lowfreq``, ``row_lowfreq`` and
 ``col_lowfreq`` (smooth shading), see ``rawaug.statistics``. Estimated by
 ``estimate``: grid = least-squares fit of the upsampled grid to the stack-mean map, shrunk by
 the temporal smooth power a mean of N frames keeps (``fixed_shading_grid``); sigma = the excess spread of the
-map minus its shading (robust, so hot pixels do not count) over the current model. A single frame cannot separate a white
+map over the current model's (``fixed_pixel_var``: unbiased, hot pixels and impulses left out, shading and
+row or column patterns cancelled). A single frame cannot separate a white
 fixed pattern from temporal noise: then only the shading is estimated (``sigma_dn`` 0).
 """
 from __future__ import annotations
@@ -37,11 +38,11 @@ import torch
 import torch.nn.functional as F
 
 from ..engine import layout as L
-from ..statistics import fixed_std, repaired
+from ..statistics import fixed_pixel_var, repaired
 from .base import DARK, NoiseEffect, pattern_key, register
 from .k_records import check_seed, frame_size, grid_columns, validate_records, value_at_k
 
-STATISTICS = ("fixed_std", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
+STATISTICS = ("fixed_std", "fixed_pixel_var", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
 MAX_GRID = 8
 
 
@@ -130,21 +131,6 @@ def fixed_shading_grid(frames, shape: tuple | None = None) -> np.ndarray:
     return grid * shrink
 
 
-def _white_var(frames, grid):
-    """Robust variance (``fixed_std`` squared) of the stack-mean map once the shading grid
-    is removed, DN^2: hot pixels do not count here."""
-    return fixed_std(frames - upsample_grid(grid, *frames.shape[2:])[None, None]) ** 2
-
-
-def white_fixed_var(frames, shape: tuple | None = None) -> float:
-    """``_white_var`` with the stack's own ``shading_grid`` (of ``shape``) removed: the
-    pixel-to-pixel fixed spread without smooth shading or glow, DN^2. A robust spread of a
-    sum is not the quadrature sum of the parts' spreads, so an estimator that subtracts
-    spreads measures them without the smooth part."""
-    frames = np.asarray(frames, dtype=np.float64)
-    return _white_var(frames, shading_grid(frames, shape))
-
-
 def estimate(frames, synthesized, k: float, seed: int = 11, kind: str = "bias", **_) -> dict:
     """Dark-shading record at gain ``k`` from measured frames (N, 4, h, w) in DN and
     stacks of the same shape synthesized by the current model: bias and dark stacks only (a
@@ -153,11 +139,10 @@ def estimate(frames, synthesized, k: float, seed: int = 11, kind: str = "bias", 
     if kind == "flat":
         raise ValueError("FPN is measured on bias and dark stacks")
     frames = np.asarray(frames, dtype=np.float64)
-    grid = shading_grid(frames)  # removed before the white part is measured
     sigma = 0.0
     if frames.shape[0] >= 2:
         base = [np.asarray(s, dtype=np.float64) for s in synthesized]
-        excess = _white_var(frames, grid) - float(np.mean([_white_var(s, shading_grid(s)) for s in base]))
+        excess = fixed_pixel_var(frames) - float(np.mean([fixed_pixel_var(s) for s in base]))
         sigma = float(np.sqrt(max(excess, 0.0)))
     return {"seed": int(seed), "k": [float(k)], "sigma_dn": [sigma], "shading_dn": [fixed_shading_grid(frames).tolist()],
             "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3])}

@@ -59,7 +59,7 @@ DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
 COLUMNS = (
     "k", "ratio",
     "prnu_sigma",
-    "dark_e", "dsnu",
+    "dark_e", "dsnu_log",
     "sigma_tl", "lambda", "sigma_g",
     "sigma_r",
     "col_sigma", "col_fixed",

@@ -21,7 +21,7 @@ def _column(name: str) -> tl.constexpr:
 
 
 C_K, C_RATIO, C_PRNU = _column("k"), _column("ratio"), _column("prnu_sigma")
-C_DARK_E, C_DSNU = _column("dark_e"), _column("dsnu")
+C_DARK_E, C_DSNU_LOG = _column("dark_e"), _column("dsnu_log")
 C_LF, C_LF_GH, C_LF_GW = _column("lowfreq_sigma"), _column("lowfreq_gh"), _column("lowfreq_gw")
 C_CM_REC, C_CM_LO, C_CM_N = _column("codemap_record"), _column("codemap_lo"), _column("codemap_n")
 C_CM_P = _column("codemap_period")
@@ -248,8 +248,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         gx = (x + _col(v, C_GGOX).to(tl.int64)) % _col(v, C_GGPX).to(tl.int64)
         s *= tl.load(gg + gy * GW.to(tl.int64) + gx, mask=live, other=1.0)
     s_pixel = s  # ... and after them: the dark signal is what the stages below add
-    if FLAGS & 16384:  # dark current: K * dark electrons * (1 + DSNU map), before shot noise
-        s += k * _col(v, C_DARK_E) * tl.maximum(1.0 + _col(v, C_DSNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)), 0.0)
+    if FLAGS & 16384:  # dark current: K * dark electrons * a log-normal DSNU map of mean 1, before shot noise
+        sl = _col(v, C_DSNU_LOG)
+        s += k * _col(v, C_DARK_E) * tl.exp(sl * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)) - 0.5 * sl * sl)
     if FLAGS & 524288:  # amplifier glow: K * exposure * a smooth dark-current map (e-/s), a window of glow_h x glow_w
         gh_ = _col(v, C_GLH)
         gw_ = _col(v, C_GLW)

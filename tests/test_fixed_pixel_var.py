@@ -1,0 +1,113 @@
+"""``fixed_pixel_var``: the white fixed pattern's variance (DSNU of offsets and dark current), and
+the estimators built on it (``FPN``'s white part, ``Dark``'s log-normal DSNU). Random things by
+distribution, with bounds from the number of draws."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from rawaug import NoiseProfile, RawNoiseAugment
+from rawaug.effects import amp_glow, dark_current, dark_shading
+from rawaug.statistics import STATISTICS, fixed_pixel_var
+
+BASE = NoiseProfile.load("SonyA7S2")
+
+
+def stack(rng, n=6, h=64, w=64, temporal=2.0, fixed=0.0, row=0.0, heavy=False):
+    """n frames (4, h, w): white temporal noise (Student t with 3 dof, scaled to ``temporal``
+    rms, when ``heavy``), a per-frame row offset of ``row`` DN, and a white fixed pattern of
+    ``fixed`` DN rms."""
+    shape = (n, 4, h, w)
+    t = rng.standard_t(3, shape) / math.sqrt(3.0) if heavy else rng.standard_normal(shape)
+    return temporal * t + row * rng.standard_normal((n, 4, h, 1)) + fixed * rng.standard_normal((1, 4, h, w))
+
+
+def test_unbiased_for_any_temporal_noise_and_blind_to_lines_and_shading():
+    rng = np.random.default_rng(0)
+    draws = 200
+    for fixed, kw in ((0.0, {}), (0.8, {}), (0.8, {"row": 1.5}), (0.0, {"heavy": True})):
+        v = np.array([fixed_pixel_var(stack(rng, fixed=fixed, **kw)) for _ in range(draws)])
+        # the mean of 200 estimates: within 4 standard errors of the truth. Leaving out the cells
+        # with an outlier in some frame keeps Gaussian noise unbiased; a heavy tail (Student t,
+        # 3 dof) leaves a bias of about 0.14 % of the temporal variance (4 DN^2): 0.2 % allowed
+        bias = 0.002 * 4.0 if kw.get("heavy") else 0.0
+        assert abs(v.mean() - fixed**2) < bias + 4 * v.std(ddof=1) / math.sqrt(draws), (fixed, kw, v.mean(), v.std())
+    # a fixed row and column pattern cancel exactly in the double differences; a smooth shading
+    # of 5 DN leaves its mixed second derivative (~0.004 DN a cell)
+    f = stack(rng, fixed=0.5)
+    y, x = np.mgrid[0:64, 0:64]
+    lines = 3.0 * rng.standard_normal((4, 64, 1)) + 2.0 * rng.standard_normal((4, 1, 64))
+    assert fixed_pixel_var(f + lines[None]) == pytest.approx(fixed_pixel_var(f), abs=1e-9)
+    assert fixed_pixel_var(f + 5.0 * np.cos(x / 20.0) * y / 64) == pytest.approx(fixed_pixel_var(f), rel=1e-4)
+
+
+def test_hot_pixels_and_impulses_do_not_count():
+    rng = np.random.default_rng(1)
+    draws = 100
+    clean, dirty = [], []
+    for _ in range(draws):
+        f = stack(rng, fixed=0.8)
+        clean.append(fixed_pixel_var(f))
+        hot = (rng.random((1, 4, 64, 64)) < 1e-3) * rng.uniform(30, 200, (1, 4, 64, 64))  # fixed
+        spikes = (rng.random(f.shape) < 5e-4) * rng.uniform(30, 200, f.shape)  # new in every frame
+        dirty.append(fixed_pixel_var(f + hot + spikes))
+    clean, dirty = np.array(clean), np.array(dirty)
+    # what a cell's exclusion costs a Gaussian pattern: a few cells of 16k, far below the spread
+    d = dirty - clean
+    assert abs(d.mean()) < 4 * clean.std(ddof=1) / math.sqrt(draws), (d.mean(), clean.std())
+    assert np.abs(d).max() < clean.std(ddof=1), (np.abs(d).max(), clean.std())
+
+
+def test_resolution_covers_two_patterns_realizations():
+    """The model holds one realization of a pattern; the sensor another: their values differ by
+    about 3 v / sqrt(n) (the statistic's floor), not by the syntheses' temporal spread alone."""
+    rng = np.random.default_rng(2)
+    frames = stack(rng, fixed=1.0)
+    res = STATISTICS["fixed_pixel_var"].resolution(frames, 1.0)
+    d = np.array([fixed_pixel_var(stack(rng, temporal=0.01, fixed=1.0)) - fixed_pixel_var(stack(rng, temporal=0.01, fixed=1.0))
+                  for _ in range(300)])
+    # the rms difference within 20 % of the floor (300 draws: the rms' own spread is 4 %)
+    assert 0.8 < d.std() / res < 1.2, (d.std(), res)
+
+
+def synth(effects, exposure_s, seed, n=6, size=64, k=1.0):
+    prof = BASE
+    for token, params in effects.items():
+        prof = prof.with_effect(token, params)
+    aug = RawNoiseAugment(prof, model="G+P*", ratio=1.0, fixed={"k": k, "sigma_g": 2.0, "exposure_s": exposure_s, "sensor": 0},
+                          generator=torch.Generator().manual_seed(seed), rank_seeding=False)
+    return (aug(torch.zeros((n, 4, size, size), dtype=torch.float64)) * prof.span_dn).numpy()
+
+
+def test_dark_dsnu_is_a_log_normal_map_of_mean_one_and_is_estimated():
+    dark = {"Dark": {"seed": 21, "k": [1.0], "rate_e_per_s": [50.0], "dsnu": [0.6]}}
+    frames = synth(dark, 4.0, seed=1, n=8, size=96)  # 200 e- a pixel
+    m = frames.mean(axis=0).ravel()  # the map of 8 frames: rate map x 200 DN, plus shot and read noise / sqrt(8)
+    n = m.size
+    assert abs(m.mean() - 200.0) < 5 * 200.0 * 0.6 / math.sqrt(n)
+    # log-normal: skewed (Gaussian DSNU clipped at 0 has skewness < 0.7 at 0.6), never negative
+    skew = float(np.mean((m - m.mean()) ** 3) / m.std() ** 3)
+    assert skew > 3 * 0.6 + 0.6**3 - 1.0, skew  # a log-normal of cv 0.6 has 3 cv + cv^3 = 2.0
+    base = [synth({}, 4.0, seed=s, n=8, size=96) for s in range(2, 5)]
+    est = dark_current.estimate(frames, base, 1.0, exposure_s=4.0, kind="dark")
+    assert abs(est["rate_e_per_s"][0] - 50.0) < 1.0
+    # one realization of 37k pixels of a log-normal of cv 0.6: its sample cv is off by ~1.5 %
+    assert abs(est["dsnu"][0] - 0.6) < 0.05, est
+
+
+def test_fpn_white_part_is_the_excess_fixed_variance():
+    truth = {"seed": 3, "k": [1.0], "sigma_dn": [0.8], "shading_dn": [[[0.0]]]}
+    meas = synth({"FPN": truth}, 1e-4, seed=1, n=8, size=96)
+    base = [synth({}, 1e-4, seed=s, n=8, size=96) for s in range(2, 5)]
+    est = dark_shading.estimate(meas, base, 1.0)
+    assert abs(est["sigma_dn"][0] - 0.8) < 0.05, est
+
+
+def test_dark_current_and_glow_are_not_estimated_from_flats():
+    # a flat's exposure carries light: its excess is the light, not dark current or glow
+    frames = synth({}, 0.1, seed=1)
+    with pytest.raises(ValueError, match="dark stack"):
+        dark_current.estimate(frames + 300.0, [frames], 1.0, exposure_s=0.1, kind="flat")
+    with pytest.raises(ValueError, match="dark stack"):
+        amp_glow.estimate(frames + 300.0, [frames], 1.0, exposure_s=0.1, kind="flat")
