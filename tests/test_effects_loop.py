@@ -183,6 +183,13 @@ def test_hot_pixels_density_and_estimate():
     est = hot_pixels.estimate(f, [synth({}, batch=4, size=128, seed=9)], K)
     assert abs(est["density"] - 2e-3) < 5 * math.sqrt(2e-3 / n)
     assert abs(math.log(est["median_dn"][0] / 80.0)) < 0.1
+    # a flat's shot noise hides the dimmer ones: bias and dark stacks only
+    with pytest.raises(ValueError, match="bias and dark"):
+        hot_pixels.estimate(f + 300.0, [f], K, kind="flat")
+    # one population over the stacks: the density their mean, one median per gain
+    two = hot_pixels.combine([est, {**est, "density": 1e-3, "median_dn": [20.0]}, {**est, "k": [2 * K], "median_dn": [160.0]}])
+    assert two["k"] == [K, 2 * K] and two["density"] == pytest.approx((2 * est["density"] + 1e-3) / 3)
+    assert two["median_dn"] == pytest.approx([math.sqrt(est["median_dn"][0] * 20.0), 160.0])
 
 
 DARK_HOT = {"seed": 61, "density": 2e-3, "median_e_per_s": 40.0, "log_std": 0.3}

@@ -205,6 +205,18 @@ def row_driver_gains(dn, rng, **_):
     return dn * np.stack([g[0::2], g[0::2], g[1::2], g[1::2]])[:, :, None]  # R, G1 on even sensor rows
 
 
+
+def offset_pattern(dn, rng, **_):
+    """A fixed offset per pixel (made outside rawaug): 0.7 DN rms, the same in every frame."""
+    return dn + 0.7 * np.random.default_rng(29).standard_normal(dn.shape)
+
+
+def skewed_dark_current(dn, rng, exposure=0.0, k=1.0, **_):
+    """Dark current of a log-normal rate per pixel (made outside rawaug): median 1.2 e-/s, 0.7 in
+    log, with its shot noise."""
+    rate = 1.2 * np.exp(0.7 * np.random.default_rng(31).standard_normal(dn.shape))
+    return dn + k * rng.poisson(rate * exposure)
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist", "LineMap"}  # the measured fallbacks; every other effect is physical
 
 
@@ -233,6 +245,8 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "settling clamp": (None, None, settling_clamp, ["LineMap"]),
          "uneven light": (None, None, uneven_light, []),
          "row gain": (None, None, row_driver_gains, ["RowGain"]),
+         "offset pattern": (None, None, offset_pattern, ["FPN"]),
+         "skewed dark current": (None, None, skewed_dark_current, ["Dark"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 # every other case: two levels, no series; the gain jitter's pairs at five levels (one degree
@@ -256,7 +270,8 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short
 SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
-              "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain"}
+              "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
+              "skewed dark current"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

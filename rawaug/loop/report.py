@@ -178,7 +178,7 @@ def _signature_panel(ax, sig: dict) -> None:
 
 
 # ----------------------------------------------------------------------------- curves across settings
-CURVE_STATISTICS = {"exposure_s": ("mean_dn", "temporal_std", "fixed_std"),  # dark signal, its shot noise, DSNU
+CURVE_STATISTICS = {"exposure_s": ("mean_dn", "temporal_std", "fixed_std", "fixed_pixel_var"),  # dark signal, its shot noise, DSNU
                     "level_dn": ("temporal_std", "fixed_std", "flat_fixed_rel")}  # photon transfer, PRNU
 
 
