@@ -231,7 +231,7 @@ def psd2d_lowfreq(frames, level_dn=None):
     """2-D power spectrum: mean power in the low-frequency disk (radius below 1/16 of the
     Nyquist frequency, DC excluded) over the mean power of all non-DC frequencies."""
     c = _centered(frames)
-    p = _power(sp_fft.rfft2(c, axes=(2, 3)))
+    p = _power(sp_fft.rfft2(c.astype(np.float32), axes=(2, 3)))  # single precision: 2x faster, 1e-6 of the ratio
     fy = np.fft.fftfreq(c.shape[2])[:, None]
     fx = np.fft.rfftfreq(c.shape[3])[None, :]
     radius = np.sqrt(fy**2 + fx**2) / 0.5
@@ -419,7 +419,8 @@ def fixed_std(frames, level_dn=None):
 def _double_difference(x):
     """2x2 double differences of a packed channel's neighbours: a pattern constant along a
     row or a column, and smooth shading, cancel; a white pattern of variance v gives 4 v."""
-    return x[..., :-1, :-1] - x[..., :-1, 1:] - x[..., 1:, :-1] + x[..., 1:, 1:]
+    dx = x[..., 1:] - x[..., :-1]
+    return dx[..., 1:, :] - dx[..., :-1, :]
 
 
 OUTLIER_SIGMAS = 6.0  # a double difference this many robust sigmas out is a defect or an impulse
@@ -439,14 +440,18 @@ def fixed_pixel_var(frames, level_dn=None):
     n = frames.shape[0]
     mean = frames.mean(axis=0)
     a = _double_difference(mean)  # (4, h-1, w-1)
-    t = _double_difference(frames - mean)  # (N, 4, h-1, w-1)
+    t = _double_difference(frames) - a  # (N, 4, h-1, w-1): the double differences of frames - mean
     ca, sa = robust_scale(a.reshape(4, -1), axis=1)
-    ct, st = robust_scale(t.transpose(1, 0, 2, 3).reshape(4, -1), axis=1)
+    # the temporal scale from every other cell along both axes: a quarter of the sort, a 6-sigma
+    # threshold within 1 % of the full sample's
+    sub = t[:, :, ::2, ::2]
+    ct, st = robust_scale(sub.transpose(1, 0, 2, 3).reshape(4, -1), axis=1)
+    ct, st = ct[:, :, None], st[:, :, None]
     keep = np.abs(a - ca[:, :, None]) <= OUTLIER_SIGMAS * sa[:, :, None]
-    keep &= np.all(np.abs(t - ct[None, :, :, None]) <= OUTLIER_SIGMAS * st[None, :, :, None], axis=0)
+    keep &= (t.max(axis=0) - ct <= OUTLIER_SIGMAS * st) & (ct - t.min(axis=0) <= OUTLIER_SIGMAS * st)
     count = np.maximum(keep.sum(axis=(1, 2)), 1)
-    fixed = np.sum(np.where(keep, a * a, 0.0), axis=(1, 2)) / count
-    temporal = np.sum(np.where(keep, np.sum(t * t, axis=0), 0.0), axis=(1, 2)) / count / (n * (n - 1))
+    fixed = np.einsum("ijk,ijk->i", np.where(keep, a, 0.0), a) / count
+    temporal = np.einsum("ijk,ijk->i", keep, np.einsum("nijk,nijk->ijk", t, t)) / count / (n * (n - 1))
     return float(np.mean(fixed - temporal) / 4.0)
 
 
@@ -511,10 +516,11 @@ def temporal_highpass(frames):
     if cached:
         return _last_highpass.result
     n = frames.shape[0]
-    r = (frames - frames.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1))
-    r = r - r.mean(axis=3, keepdims=True)
-    r = r - r.mean(axis=2, keepdims=True)
-    r = r - ndimage.uniform_filter(r, size=(1, 1, HIGH_PASS, HIGH_PASS), mode="reflect")
+    r = frames - frames.mean(axis=0, keepdims=True)
+    r *= np.sqrt(n / (n - 1))
+    r -= r.mean(axis=3, keepdims=True)
+    r -= r.mean(axis=2, keepdims=True)
+    r -= ndimage.uniform_filter(r, size=(1, 1, HIGH_PASS, HIGH_PASS), mode="reflect")
     if isinstance(frames, np.ndarray) and not frames.flags.writeable:  # the battery's repaired view: reused
         r.flags.writeable = False
         _last_highpass.source, _last_highpass.result = frames, r
@@ -697,11 +703,20 @@ def two_state_pixels(frames):
     return (*two_state(values, flicker_threshold(n) * var), var)
 
 
+_last_flicker = threading.local()  # the last read-only stack's flickering mask on this thread
+
+
 def flickering(frames):
     """(4, h, w) mask of the pixels that flicker between two states (random telegraph pixels),
-    ``two_state_pixels``."""
-    frames = np.asarray(frames)
-    return two_state_pixels(frames)[0].reshape(frames.shape[1:])
+    ``two_state_pixels``. Computed once for the same read-only array in a row (the battery's
+    repaired view: ``tile_corr`` and ``flicker_fraction`` both read it)."""
+    if getattr(_last_flicker, "source", None) is frames:
+        return _last_flicker.result
+    mask = two_state_pixels(np.asarray(frames))[0].reshape(np.shape(frames)[1:])
+    if isinstance(frames, np.ndarray) and not frames.flags.writeable:
+        mask.flags.writeable = False
+        _last_flicker.source, _last_flicker.result = frames, mask
+    return mask
 
 
 def flicker_fraction(frames, level_dn=None):
@@ -738,20 +753,21 @@ def spike_scale(frames):
     return np.sqrt(median(var.reshape(f.shape[1], -1), axis=1) / (sstats.chi2.median(n - 1) / (n - 1)))
 
 
-def spikes(frames):
+def spikes(frames, scale=None):
     """(N, 4, h, w) mask of single-frame events of a stack (N >= 3; DN): a value more than
     ``SPIKE_Z`` x the larger of its channel's temporal scale (the median pixel's temporal
     variance, as a Gaussian's sigma) and the spread of the pixel's other frames above the
     median of those, in a pixel where no other frame is. A hot pixel is high in every frame, a
     telegraph pixel in several, a pixel with much dark shot noise spread in all: none of them
     is a spike. Only pixels whose highest value stands 4.5 scales above their mean can be one
-    (the rule implies it for N >= 3); the rule is applied to those."""
+    (the rule implies it for N >= 3); the rule is applied to those. ``scale``: the (4,)
+    ``spike_scale`` if known (that of ``-frames`` is the same)."""
     f = np.asarray(frames, dtype=np.float64)
     n = f.shape[0]
     mask = np.zeros(f.shape, dtype=bool)
     if n < 3:
         return mask
-    scale = spike_scale(f)[:, None, None]
+    scale = (spike_scale(f) if scale is None else np.asarray(scale))[:, None, None]
     top = f.max(axis=0)
     cand = np.nonzero(top - f.mean(axis=0) > 4.5 * np.maximum(scale, 1e-9))
     if cand[0].size == 0:
@@ -771,7 +787,8 @@ def spike_fraction(frames, level_dn=None):
     stack's pixel values: heavy-tailed read noise makes both alike (at Tukey lambda -0.14 each
     ~5e-4), an impulse only bright ones."""
     f = np.asarray(frames, dtype=np.float64)
-    return float(spikes(f).mean() - spikes(-f).mean())
+    scale = spike_scale(f) if f.shape[0] >= 3 else None
+    return float(spikes(f, scale).mean() - spikes(-f, scale).mean())
 
 
 def spike_outliers(frames):
@@ -779,7 +796,8 @@ def spike_outliers(frames):
     outnumber the dark ones significantly (``significant_spikes``), the brightest of them,
     all but as many as there are dark ones (those are the read noise's own tail); else none."""
     f = np.asarray(frames, dtype=np.float64)
-    bright, n_dark = spikes(f), int(spikes(-f).sum())
+    scale = spike_scale(f) if f.shape[0] >= 3 else None
+    bright, n_dark = spikes(f, scale), int(spikes(-f, scale).sum())
     if not significant_spikes(int(bright.sum()), n_dark):
         return np.zeros(f.shape, dtype=bool)
     out = np.zeros(f.shape, dtype=bool)
@@ -993,7 +1011,8 @@ def windowed_periodogram(raw):
     ``hann_2d``, DN^2: |X|^2 / sum(w^2), so white noise of variance s^2 reads s^2 in every bin
     and a tone of amplitude a reads about a^2 sum(w)^2 / (4 sum(w^2))."""
     w = hann_2d(raw.shape[1:])
-    return _power(sp_fft.rfft2(raw * w, axes=(1, 2))).mean(axis=0) / float(np.sum(w * w))
+    x = sp_fft.rfft2((raw * w).astype(np.float32), axes=(1, 2))  # single precision: 2x faster, 1e-6 of a bin
+    return _power(x).mean(axis=0, dtype=np.float64) / float(np.sum(w * w))
 
 
 LOCAL, CORE = 9, 5  # bins along each axis: a tone must stand out of the ring between these squares around it

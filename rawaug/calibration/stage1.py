@@ -415,8 +415,9 @@ def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = N
     for i, pair in enumerate(pairs):
         if not isinstance(pair, (tuple, list)) or len(pair) != 2:
             raise ValueError(f"flat pair {i} must be a (frame_a, frame_b) pair, got {type(pair).__name__}")
-        a = np.asarray(_packed(pair[0], f"flat pair {i} frame a"), dtype=np.float64)
-        b = np.asarray(_packed(pair[1], f"flat pair {i} frame b"), dtype=np.float64)
+        a, b = (_packed(x, f"flat pair {i} frame {ab}") for x, ab in zip(pair, "ab"))
+        if not (a.dtype == b.dtype == np.float32):  # float32 frames are read as they are (values as float64's)
+            a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
         if a.shape != b.shape:
             raise ValueError(f"flat pair {i}: frames differ in size: {a.shape} vs {b.shape}")
         sat = saturation_dn if saturation_dn is not None else _clip_level(a, b, high=True)
@@ -428,7 +429,7 @@ def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = N
         if low is not None:
             ok &= (lo > low) & ~((lo_same <= low) & (frac_lo > STUCK_TILE))
         n_total += m.size
-        mean_dn = float(0.5 * (a.mean() + b.mean()))
+        mean_dn = float(0.5 * (a.mean(dtype=np.float64) + b.mean(dtype=np.float64)))
         pair_means.append(mean_dn)
         if ok.mean() < 0.5:
             which = "saturated" if sat is not None and np.mean(np.maximum(hi, hi_same) >= sat) >= 0.5 else "black-clipped"

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..bayer import CFA_PATTERNS, pack
+from ..bayer import CFA_PATTERNS, cfa_offsets
 
 
 def _check_levels(black_level, white_level, where):
@@ -89,10 +89,18 @@ class Frame:
         """White minus the largest channel black: the DN that normalized 1.0 stands for."""
         return float(self.white_level - float(np.max(self.black_packed())))
 
-    def packed_dn(self) -> np.ndarray:
-        """(4, H/2, W/2) float32, black-subtracted DN, in packed (R, G1, B, G2) order."""
-        packed = pack(self.mosaic, self.cfa).astype(np.float32)
-        return packed - self.black_packed()[:, None, None]
+    def packed_dn(self, window: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """(4, H/2, W/2) float32, black-subtracted DN, in packed (R, G1, B, G2) order; with
+        ``window`` (top, left, h, w in packed pixels) only that part (4, h, w)."""
+        mosaic = self.mosaic
+        if window is not None:
+            top, left, h, w = (int(v) for v in window)
+            mosaic = mosaic[2 * top : 2 * (top + h), 2 * left : 2 * (left + w)]
+        black = self.black_packed()  # the mosaic is 2-D with even sides (checked on creation)
+        out = np.empty((4, mosaic.shape[0] // 2, mosaic.shape[1] // 2), dtype=np.float32)
+        for i, (r, c) in enumerate(cfa_offsets(self.cfa)):  # one pass per channel, no stacked copy
+            np.subtract(mosaic[r::2, c::2], black[i], out=out[i], dtype=np.float32, casting="unsafe")
+        return out
 
     def packed_normalized(self) -> np.ndarray:
         """(4, H/2, W/2) float32: DN / (white - black); 0 is black, 1 is white."""

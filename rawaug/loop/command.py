@@ -59,12 +59,12 @@ def add_arguments(parser) -> None:
 LOOP_SIZE = 256
 
 
-def central(packed: np.ndarray, size: int) -> np.ndarray:
-    """The central ``size`` x ``size`` of a packed (4, h, w) frame (all of a smaller side), as
-    a copy: the whole frame is not kept."""
-    _, h, w = packed.shape
+def central_window(h: int, w: int, size: int) -> tuple[int, int, int, int]:
+    """(top, left, height, width) of the central ``size`` x ``size`` of a packed h x w frame
+    (all of a smaller side)."""
     top, left = max(0, (h - size) // 2), max(0, (w - size) // 2)
-    return np.array(packed[:, top : top + size, left : left + size])
+    return top, left, min(size, h), min(size, w)
+
 
 
 def _is_frame_table(path: Path) -> bool:
@@ -219,9 +219,9 @@ class _Collected:
 
     def add(self, entry, frame) -> None:
         kind = getattr(entry, "kind", "bias")
-        whole = frame.packed_dn()
-        packed = central(whole, self.size)
-        self.shapes = (whole.shape[1:], packed.shape[1:])
+        whole = (frame.shape[0] // 2, frame.shape[1] // 2)
+        packed = frame.packed_dn(central_window(*whole, self.size))  # packs the crop only
+        self.shapes = (whole, packed.shape[1:])
         if kind == "flat":
             self.flats.setdefault((frame.iso, float(frame.exposure_s or 0.0), getattr(entry, "light", None)), []).append(
                 (packed, frame.white_level - frame.black_packed()))
