@@ -338,6 +338,14 @@ def fixed_tone(dn, rng, **_):
     return dn + np.stack([t[0::2, 0::2], t[0::2, 1::2], t[1::2, 1::2], t[1::2, 0::2]])
 
 
+def locked_tone(dn, rng, **_):
+    """Interference locked to the frame start with a little timing jitter: 0.6 DN at 0.19 cycles per sensor column and -0.11 per sensor row, its phase the same in every frame up to 0.3 rad (rms) of jitter."""
+    _, h, w = dn.shape
+    y, x = np.arange(2 * h)[:, None], np.arange(2 * w)[None, :]
+    t = 0.6 * np.cos(2 * np.pi * (0.19 * x - 0.11 * y) + 2.0 + rng.normal(0.0, 0.3))
+    return dn + np.stack([t[0::2, 0::2], t[0::2, 1::2], t[1::2, 1::2], t[1::2, 0::2]])
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -345,7 +353,7 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  impulses, column_flicker, reset_transient, noisy_frames,
                                  pdaf_pixels, row_gain, charge_sharing, lens_shading, companded_raw, channel_black,
                                  ramp_jitter, pixel_prnu, dark_current, dsnu, pixel_offsets, column_offsets, soft_knee,
-                                 hot_pixels, black_clip, fixed_tone)}
+                                 hot_pixels, black_clip, fixed_tone, locked_tone)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
