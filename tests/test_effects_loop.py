@@ -740,6 +740,62 @@ def test_diagonal_banding_tones_have_their_amplitude_and_a_uniform_phase_per_fra
         assert ks < 1.95 / np.sqrt(64), ks  # 0.1 % critical value
 
 
+FIXED_TONE = {"k": [K], "freq_per_col": [[0.13]], "freq_per_row": [[0.07]], "amplitude_dn": [[0.0]], "fixed_dn": [[0.8]]}
+
+
+def test_diagonal_banding_fixed_part_is_the_same_in_every_frame_and_uniform_over_sensors():
+    from rawaug.statistics import frame_mosaic
+
+    yy, xx = np.arange(64)[:, None], np.arange(64)[None, :]
+    arg = 2 * np.pi * (0.13 * xx + 0.07 * yy)
+    basis = np.stack([np.cos(arg).ravel(), np.sin(arg).ravel()], axis=1)
+
+    def coefficients(frames):
+        return np.linalg.lstsq(basis, frame_mosaic(frames).reshape(frames.shape[0], -1).T, rcond=None)[0]  # (2, N)
+
+    one = coefficients(synth({"DiagBand": FIXED_TONE}, batch=16, size=32, sigma_g=0.01))
+    assert np.allclose(np.hypot(*one), 0.8, atol=0.02), np.hypot(*one)
+    assert np.ptp(one, axis=1).max() < 0.01, one  # one sensor: one phase in all 16 frames
+    # 64 samples, each of a sensor instance of its own (the default): the fixed phase is uniform over instances
+    prof = BASE.with_effect("DiagBand", FIXED_TONE)
+    aug = RawNoiseAugment(prof, model="G", ratio=1.0, fixed={"k": K, "sigma_g": 0.01},
+                          generator=torch.Generator().manual_seed(5), rank_seeding=False)
+    many = coefficients((aug(torch.zeros(64, 4, 32, 32, dtype=torch.float64)) * prof.span_dn).numpy())
+    phase = (np.arctan2(-many[1], many[0]) / (2 * np.pi)) % 1.0
+    ks = np.abs(np.sort(phase) - (np.arange(1, 65) - 0.5) / 64).max()
+    assert ks < 1.95 / np.sqrt(64), ks  # Kolmogorov-Smirnov, 0.1 % critical value
+
+
+def test_diagonal_banding_estimate_tells_a_fixed_tone_from_one_new_in_every_frame():
+    row = {"sigma_g": 2.0, "model": "G+R", "sigma_r": 0.5}
+    base = [synth({}, batch=8, size=64, seed=s, **row) for s in range(1, 6)]
+    est = diagonal_banding.estimate(synth({"DiagBand": FIXED_TONE}, batch=8, size=64, **row), base, K)
+    assert np.allclose(est["freq_per_col"][0], [0.13], atol=0.1 / 128) and np.allclose(est["freq_per_row"][0], [0.07], atol=0.1 / 128)
+    assert abs(est["fixed_dn"][0][0] - 0.8) < 0.12, est  # coherent power over 8 frames of 128 x 128
+    assert est["amplitude_dn"][0][0] < 0.3, est  # the circle of 8 points about a fixed centre: noise only
+    # a tone whose phase is new in every frame has no fixed part: F test at FIXED_P = 1e-3 per
+    # tone and stack, so over 2 tones x 20 stacks a fixed part appears with probability ~4 %
+    fixed = [diagonal_banding.estimate(synth({"DiagBand": DIAGBAND}, batch=8, size=64, seed=s, **row), base, K).get("fixed_dn")
+             for s in range(40, 60)]
+    assert sum(f is not None for f in fixed) <= 1, fixed
+    # a phase that jitters about a fixed one (0.3 rad rms; an arc, not a circle about the fixed part):
+    # fixed part 0.6 exp(-0.3^2 / 2) = 0.574, the part new in every frame 0.6 sqrt(1 - exp(-0.3^2)) = 0.176
+    from rawaug.bayer import pack
+
+    yy, xx = np.arange(128)[:, None], np.arange(128)[None, :]
+    jitter = np.random.default_rng(3).normal(0.0, 0.3, 8)
+    tone = 0.6 * np.cos(2 * np.pi * (0.19 * xx - 0.11 * yy)[None] + 2.0 + jitter[:, None, None])  # raw (sensor) pixels
+    arc = synth({}, batch=8, size=64, seed=11, **row) + pack(tone, "RGGB")  # packed R, G1, B, G2 as the stages lay it
+    got = diagonal_banding.estimate(arc, base, K)
+    assert abs(got["fixed_dn"][0][0] - 0.574) < 0.06 and abs(got["amplitude_dn"][0][0] - 0.176) < 0.08, got
+    # stacks at one K: the fixed part is the rms over those that found one (a stack of few frames may not)
+    few = diagonal_banding.estimate(synth({"DiagBand": FIXED_TONE}, batch=3, size=64, seed=7, **row), base, K)
+    few["fixed_dn"] = [[0.0]]
+    both = diagonal_banding.combine([est, few])
+    assert both["fixed_dn"] == est["fixed_dn"] and not diagonal_banding.empty(both), both
+    assert diagonal_banding.empty({"amplitude_dn": [[0.0]]}) and not diagonal_banding.empty({"amplitude_dn": [[0.0]], "fixed_dn": [[0.5]]})
+
+
 def test_diagonal_banding_estimate_finds_the_tones_and_nothing_in_white_noise():
     row = {"sigma_g": 2.0, "model": "G+R", "sigma_r": 0.5}
     meas = synth({"DiagBand": DIAGBAND}, batch=8, size=64, **row)
@@ -855,6 +911,8 @@ def test_effects_replay_bit_exactly():
     ("DiagBand", {"k": [1.0], "freq_per_col": [[0.0]], "freq_per_row": [[0.0]], "amplitude_dn": [[1.0]]}, "not both 0, got"),
     ("DiagBand", {"k": [1.0], "freq_per_col": [[0.6]], "freq_per_row": [[0.1]], "amplitude_dn": [[1.0]]}, r"freq_per_col in \[0, 0.5\]"),
     ("DiagBand", {"k": [1.0], "freq_per_col": [[0.1, 0.2]], "freq_per_row": [[0.1]], "amplitude_dn": [[1.0]]}, "equal lists"),
+    ("DiagBand", {"k": [1.0], "freq_per_col": [[0.1]], "freq_per_row": [[0.1]], "amplitude_dn": [[1.0]], "fixed_dn": [[-1.0]]}, "fixed_dn must be >= 0"),
+    ("DiagBand", {"k": [1.0], "freq_per_col": [[0.1]], "freq_per_row": [[0.1]], "amplitude_dn": [[1.0]], "fixed_dn": [[1.0, 2.0]]}, "equal lists"),
     ("RowDrift", {"k": [1.0], "octave_dn": [[0.0] * 7]}, "octave_dn record 0 must list 8 values"),
     ("CodeMap", {"k": [1.0], "lo_dn": [0.0], "map_dn": [[0.0, 2.0, 2.0]], "period_dn": [4]}, r"period_dn\[0\] must be 0"),
     ("CodeMap", {"k": [1.0], "lo_dn": [0.0], "map_dn": [[0.0, 2.0, 2.0]], "period_dn": [1.5]}, "whole DN"),

@@ -78,7 +78,8 @@ _SPD, _SPM, _SPL = L.COLUMN["spike_density"], L.COLUMN["spike_median"], L.COLUMN
 _SPIKE_WHERE, _SPIKE_SIZE = L.STREAM["spike_where"], L.STREAM["spike_size"]
 _CRD, _CRM, _CRL, _CRH = L.COLUMN["crts_density"], L.COLUMN["crts_median"], L.COLUMN["crts_log_std"], L.COLUMN["crts_high"]
 _CRTS_WHERE, _CRTS_SIZE, _CRTS_STATE = L.STREAM["crts_where"], L.STREAM["crts_size"], L.STREAM["crts_state"]
-_DBX0, _DBY0, _DBA0 = L.COLUMN["dband_fx0"], L.COLUMN["dband_fy0"], L.COLUMN["dband_a0"]
+_DBX0, _DBY0, _DBA0, _DBF0 = L.COLUMN["dband_fx0"], L.COLUMN["dband_fy0"], L.COLUMN["dband_a0"], L.COLUMN["dband_f0"]
+_FIXED_PHASE = L.FIXED_PHASE
 _DIAG_BAND = L.STREAM["diag_band"]
 _COL_BAND = L.STREAM["col_band"]
 _RF, _ROW_PATTERN = L.COLUMN["rowfix_sigma"], L.STREAM["row_pattern"]
@@ -151,15 +152,20 @@ def banding_at(key, v, b, line, f0, a0):
 
 
 @njit(inline="always")
-def diagonal_banding_at(key, v, b, ry, rx):
+def diagonal_banding_at(key, v, b, sensor, ry, rx):
     """Diagonal banding (DN) at raw pixel (ry, rx) of sample b: sum of
-    a_j cos(2 pi (fx_j rx + fy_j ry) + phi_j), the phase drawn as ``banding_at``'s."""
+    a_j cos(2 pi (fx_j rx + fy_j ry) + phi_j), the phase drawn as ``banding_at``'s, plus
+    f_j cos(2 pi (fx_j rx + fy_j ry) + psi_j), psi_j the sensor's (counter ``layout.FIXED_PHASE`` +
+    sensor * TONES + j): the same in every frame."""
     out = 0.0
     for j in range(_TONES):
-        a = v[_DBA0 + j]
-        if a != 0.0:
-            phase = 2.0 * math.pi * unit(draw(key, b * _TONES + j))
-            out += a * math.cos(2.0 * math.pi * (v[_DBX0 + j] * rx + v[_DBY0 + j] * ry) + phase)
+        a, f = v[_DBA0 + j], v[_DBF0 + j]
+        if a != 0.0 or f != 0.0:
+            arg = 2.0 * math.pi * (v[_DBX0 + j] * rx + v[_DBY0 + j] * ry)
+            if a != 0.0:
+                out += a * math.cos(arg + 2.0 * math.pi * unit(draw(key, b * _TONES + j)))
+            if f != 0.0:
+                out += f * math.cos(arg + 2.0 * math.pi * unit(draw(key, _FIXED_PHASE + sensor * _TONES + j)))
     return out
 
 
@@ -414,8 +420,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))
             if stages & L.COL_BAND:  # tones along the sensor columns, a phase per frame and tone
                 s += banding_at(keys[_COL_BAND], v, b, 2 * x + col_set, _CBF0, _CBA0)
-            if stages & L.DIAG_BAND:  # tones along both axes, a phase per frame and tone
-                s += diagonal_banding_at(keys[_DIAG_BAND], v, b, 2 * y + row_set, 2 * x + col_set)
+            if stages & L.DIAG_BAND:  # tones along both axes, a phase per frame and tone, and the sensor's
+                s += diagonal_banding_at(keys[_DIAG_BAND], v, b, sensor, 2 * y + row_set, 2 * x + col_set)
             if stages & L.LINES:
                 s += defect_line_at(normal, keys[_LINES_COL], (sensor * 2 + col_set) * w + x, v[_LCD], v[_LM], v[_LLS], v[_LNEG])
             if stages & L.LINE_MAP:

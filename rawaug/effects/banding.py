@@ -57,12 +57,13 @@ class Banding(NoiseEffect):
 def draw_tones(p, ctx, fields: dict, prefix: str) -> dict:
     """Per-sample columns ``{prefix}_{name}{j}`` (j < BAND_TONES) of a tone record ``p``, one
     per ``fields`` entry ``name: key`` (its lists of per-tone values under ``key``), at the
-    record nearest each drawn K; missing tones are 0 (amplitude 0: no tone)."""
+    record nearest each drawn K; missing tones, and a key the record lacks, are 0 (amplitude 0:
+    no tone)."""
     idx = record_index(p, ctx.k)
     out = {}
     for name, key in fields.items():
         table = np.zeros((len(p["k"]), L.BAND_TONES))
-        for r, values in enumerate(p[key]):
+        for r, values in enumerate(p.get(key) or []):
             table[r, : len(values)] = values
         for j in range(L.BAND_TONES):
             out[f"{prefix}_{name}{j}"] = ctx.k.new_tensor(table[:, j])[idx]

@@ -40,7 +40,7 @@ ROW_DRIFT = 1 << 29  # row noise with a low-frequency spectrum: octaves of inter
 COL_BAND = 1 << 30  # column banding: tones along the sensor columns, a random phase in every frame
 DARK_HOT = 1 << 31  # hot pixels of dark current: sparse pixels with a high dark-current rate, before shot noise
 COL_GAIN = 1 << 32  # column gain non-uniformity: each sensor column's amplifier multiplies the photo signal by its own gain
-DIAG_BAND = 1 << 33  # diagonal banding: tones along both sensor axes (a serial readout's interference), a phase per frame
+DIAG_BAND = 1 << 33  # diagonal banding: tones along both sensor axes (a serial readout's interference), a phase per frame and a fixed one
 DARK_COL = 1 << 34  # leaky columns: sparse sensor columns with a high dark-current rate, before shot noise
 DARK_OFFSET = 1 << 35  # black level moving with exposure time, without shot noise (clamp sag, amplifier warm-up)
 SPIKES = 1 << 36  # impulsive noise: single-frame events at random pixels (cosmic rays, charge bursts), after read noise
@@ -107,6 +107,7 @@ COLUMNS = (
     "ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox",  # gain grid: first grids record, period, phase (packed pixels)
     "black_drift",  # black-level drift: this frame's offset (DN), all channels
     "share_c", "share_x", "share_y",  # charge sharing: weights of the pixel's own, a horizontal and a vertical neighbour's shot deviation
+    "dband_f0", "dband_f1", "dband_f2",  # diagonal banding: amplitude (DN) of each tone's part fixed in phase (the sensor's)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -132,6 +133,7 @@ N_STREAMS = len(STREAMS)
 XTALK_LAGS = ((0, 1), (1, 0), (1, 1), (1, -1), (0, 2), (2, 0))
 XTALK_TAPS = ((0, 0),) + XTALK_LAGS  # the correlated read noise's kernel: the pixel itself and the lags behind it
 BAND_TONES = 3  # banding tones a profile may hold (along the rows; as many along the columns)
+FIXED_PHASE = 1 << 62  # counter base of a sensor's fixed tone phases (sensor * BAND_TONES + j): apart from the per-frame ones
 XTALK_PAD = 2  # raw pixels of margin in the draw index, so that a lag's neighbour index is never negative
 
 # Packed (R, G1, B, G2): which of a 2x2 tile's sensor rows / columns a channel lies on.

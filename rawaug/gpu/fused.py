@@ -51,9 +51,10 @@ C_FG = _column("frame_gain")
 C_LMR, C_LMOY, C_LMOX, C_LMLH, C_LMLW = (_column(n) for n in ("lmap_record", "lmap_oy", "lmap_ox", "lmap_lh", "lmap_lw"))
 C_SPD, C_SPM, C_SPL = _column("spike_density"), _column("spike_median"), _column("spike_log_std")
 C_CRD, C_CRM, C_CRL, C_CRH = _column("crts_density"), _column("crts_median"), _column("crts_log_std"), _column("crts_high")
-C_DBX0, C_DBY0, C_DBA0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0")
+C_DBX0, C_DBY0, C_DBA0, C_DBF0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0"), _column("dband_f0")
 C_RF, C_RC = _column("rowfix_sigma"), _column("rowch_sigma")
 TONES = tl.constexpr(L.BAND_TONES)
+FIXED_PHASE = tl.constexpr(L.FIXED_PHASE)
 C_RMC0, C_RMY0, C_RMX0 = _column("rmap_c0"), _column("rmap_y0"), _column("rmap_x0")
 C_RMOY, C_RMOX, C_RMH, C_RMW = _column("rmap_oy"), _column("rmap_ox"), _column("rmap_h"), _column("rmap_w")
 NB = tl.constexpr(L.READ_MAP_BLOCKS)
@@ -139,11 +140,14 @@ def _tone(key, v, j: tl.constexpr, b, line, F0: tl.constexpr, A0: tl.constexpr):
 
 
 @triton.jit
-def _diag_tone(key, v, j: tl.constexpr, b, ry, rx):
-    """As one tone of ``rawaug.cpu.fused.diagonal_banding_at``: a_j cos(2 pi (fx_j rx + fy_j ry) + phi_j)."""
-    phase = 6.283185307179586 * unit(draw(key, (b.to(tl.int64) * TONES + j).to(tl.uint64) + tl.zeros_like(rx).to(tl.uint64)))
-    arg = 6.283185307179586 * (_col(v, C_DBX0 + j) * rx.to(tl.float64) + _col(v, C_DBY0 + j) * ry.to(tl.float64)) + phase.to(tl.float64)
-    return _col(v, C_DBA0 + j) * tl.cos(arg)
+def _diag_tone(key, v, j: tl.constexpr, b, sensor, ry, rx):
+    """As one tone of ``rawaug.cpu.fused.diagonal_banding_at``: a_j cos(2 pi (fx_j rx + fy_j ry) + phi_j)
+    + f_j cos(2 pi (fx_j rx + fy_j ry) + psi_j), psi_j the sensor's."""
+    zero = tl.zeros_like(rx).to(tl.uint64)
+    phase = 6.283185307179586 * unit(draw(key, (b.to(tl.int64) * TONES + j).to(tl.uint64) + zero))
+    fixed = 6.283185307179586 * unit(draw(key, (sensor * TONES + j + FIXED_PHASE).to(tl.uint64) + zero))
+    arg = 6.283185307179586 * (_col(v, C_DBX0 + j) * rx.to(tl.float64) + _col(v, C_DBY0 + j) * ry.to(tl.float64))
+    return _col(v, C_DBA0 + j) * tl.cos(arg + phase.to(tl.float64)) + _col(v, C_DBF0 + j) * tl.cos(arg + fixed.to(tl.float64))
 
 
 @triton.jit
@@ -384,11 +388,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         rx = 2 * x + col_set
         kc = _key(keys_ptr, K_COL_BAND)
         s += _tone(kc, v, 0, b, rx, C_CBF0, C_CBA0) + _tone(kc, v, 1, b, rx, C_CBF0, C_CBA0) + _tone(kc, v, 2, b, rx, C_CBF0, C_CBA0)
-    if FLAGS & 8589934592:  # diagonal banding: tones along both axes, a phase per frame and tone
+    if FLAGS & 8589934592:  # diagonal banding: tones along both axes, a phase per frame and tone, and the sensor's
         ry = 2 * y + row_set
         rx = 2 * x + col_set
         kd = _key(keys_ptr, K_DIAG_BAND)
-        s += _diag_tone(kd, v, 0, b, ry, rx) + _diag_tone(kd, v, 1, b, ry, rx) + _diag_tone(kd, v, 2, b, ry, rx)
+        s += _diag_tone(kd, v, 0, b, sensor, ry, rx) + _diag_tone(kd, v, 1, b, sensor, ry, rx) + _diag_tone(kd, v, 2, b, sensor, ry, rx)
     if FLAGS & 262144:  # defect lines: the sensor column's offset here, the row's below
         s += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64),
                           _col(v, C_LCD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
