@@ -217,6 +217,22 @@ def skewed_dark_current(dn, rng, exposure=0.0, k=1.0, **_):
     rate = 1.2 * np.exp(0.7 * np.random.default_rng(31).standard_normal(dn.shape))
     return dn + k * rng.poisson(rate * exposure)
 
+
+def raised_floor(dn, rng, **_):
+    """A camera that stores nothing under 2 DN below black (made outside rawaug): the lower
+    tail of the read noise piles up there (a quarter of a bias frame at K 0.75)."""
+    return np.maximum(dn, -2.0)
+
+
+def frame_locked_tone(dn, rng, **_):
+    """Interference locked to the frame start (made outside rawaug): 0.7 DN at 0.23 cycles per
+    sensor column and 0.17 per sensor row, at the same place in every frame."""
+    _, h, w = dn.shape
+    y, x = np.arange(2 * h)[:, None], np.arange(2 * w)[None, :]
+    t = 0.7 * np.cos(2 * np.pi * (0.23 * x + 0.17 * y) + 0.5)
+    return dn + np.stack([t[0::2, 0::2], t[0::2, 1::2], t[1::2, 1::2], t[1::2, 0::2]])  # R, G1, B, G2 (RGGB)
+
+
 MEASURED = {"CodeMap", "LowFreq", "ReadDist", "LineMap"}  # the measured fallbacks; every other effect is physical
 
 
@@ -247,6 +263,8 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "row gain": (None, None, row_driver_gains, ["RowGain"]),
          "offset pattern": (None, None, offset_pattern, ["FPN"]),
          "skewed dark current": (None, None, skewed_dark_current, ["Dark"]),
+         "raised floor": (None, None, raised_floor, ["Clip"]),
+         "frame-locked tone": (None, None, frame_locked_tone, ["DiagBand"]),
          "none": (None, None, None, []), "none_series": (None, None, None, [])}
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 # every other case: two levels, no series; the gain jitter's pairs at five levels (one degree
@@ -271,7 +289,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 # they run with the slow rates below, to keep the default run short
 SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
               "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
-              "skewed dark current"}
+              "skewed dark current", "raised floor", "frame-locked tone"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])

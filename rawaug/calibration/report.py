@@ -209,6 +209,12 @@ def _markdown(profile, params, figures, warnings_list):
         num = lambda v, f: "-" if v is None else format(v, f)  # noqa: E731
         lines.append(f"| {p.iso:g} | {p.k:.4g} | {num(p.sigma_tl, '.4g')} | {num(p.lam, '.3f')} | {num(p.sigma_r, '.4g')} "
                      f"| {sg} | {fmt(r2t)} | {fmt(r2g)} |")
+    clipped = [(p.iso, p.extra["black_floor"]) for p in params if p.extra.get("black_floor")]
+    if clipped:
+        lines += ["", "Bias frames clipped from below (no value under a floor): the read noise and the colour bias "
+                  "were fitted to the values above the clip (censored probability plot), the row noise scaled up by "
+                  "the share of the noise the clip hides; the clip itself is the loop's `Clip`.", ""]
+        lines += [f"- ISO {iso:g}: floor {c['floor_dn']:g} DN, {100 * c['fraction']:.1f} % of the noise below it" for iso, c in clipped]
     lines += ["", "## Joint model: log(sigma) = slope log(K) + intercept + N(0, resid^2)", "",
               "| relation | slope | intercept | residual sigma |", "|---|---|---|---|"]
     for name, rel in (("sigma_TL", profile.tukey_scale), ("sigma_r", profile.row_scale), ("sigma_G", profile.gaussian_scale)):

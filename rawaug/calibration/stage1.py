@@ -19,12 +19,14 @@ import numpy as np
 from scipy import stats
 
 from ..statistics import SPIKE_Z, beyond_dark, significant_spikes, stuck_outliers, written_codes
+from .censored import black_floor, censored_read_noise, clipped_share
 from .joint import IsoParameters
 from .kernels import pair_tile_stats, pixel_extremes
+from .read_noise import (LAMBDA_GRID, ReadNoiseEstimate, estimate_read_noise, sample_indices,  # noqa: F401 (re-exported)
+                         subsample)
 
 # Packed channels read out from the same sensor row (see rawaug.bayer).
 SENSOR_ROWS = ((0, 1), (2, 3))
-LAMBDA_GRID = np.round(np.arange(-0.5, 1.0 + 1e-9, 0.05), 4)  # PPCC coarse grid
 
 
 def _packed(x, name) -> np.ndarray:
@@ -149,98 +151,26 @@ def read_residual(bias_dn: np.ndarray, row_means: np.ndarray | None = None, excl
     return r[keep]
 
 
-# ----------------------------------------------------------------------------- read noise
-@dataclass
-class ReadNoiseEstimate:
-    """Read noise of a row-corrected bias residual.
-
-    lam : Tukey-lambda shape maximizing the probability-plot correlation (PPCC).
-    sigma_tl : Tukey-lambda scale, DN (slope of the probability plot at ``lam``).
-    sigma_g : Gaussian scale, DN (slope of the normal probability plot).
-    r2_tukey, r2_gauss : R^2 of the two probability plots.
-    ppcc_grid : (lambda, PPCC) on the coarse grid, for the PPCC plot.
-    n_samples : values used (after subsampling).
-    """
-
-    lam: float
-    sigma_tl: float
-    sigma_g: float
-    r2_tukey: float
-    r2_gauss: float
-    ppcc_grid: tuple = ()
-    n_samples: int = 0
-    std_dn: float = 0.0
-
-
-def _tukey_ppf(p, lam):
-    """Standard Tukey-lambda quantile function (same as scipy.stats.tukeylambda.ppf)."""
-    if abs(lam) < 1e-9:
-        return np.log(p) - np.log1p(-p)
-    return (p**lam - (1.0 - p) ** lam) / lam
-
-
-def _filliben(n):
-    v = np.empty(n)
-    v[-1] = 0.5 ** (1.0 / n)
-    v[0] = 1.0 - v[-1]
-    i = np.arange(2, n)
-    v[1:-1] = (i - 0.3175) / (n + 0.365)
-    return v
-
-
-def _ppcc(sorted_x, osm, lam):
-    q = _tukey_ppf(osm, lam)
-    return float(np.corrcoef(q, sorted_x)[0, 1])
-
-
-def sample_indices(n: int, max_samples: int | None, seed: int = 0) -> np.ndarray | None:
-    """Indices of up to ``max_samples`` of ``n`` values drawn without replacement (None: all)."""
-    if max_samples is None or n <= max_samples:
-        return None
-    return np.random.default_rng(seed).choice(n, size=int(max_samples), replace=False)
-
-
-def subsample(values: np.ndarray, max_samples: int | None, seed: int = 0) -> np.ndarray:
-    """Up to ``max_samples`` values drawn without replacement (all of them when fewer)."""
-    flat = np.asarray(values).ravel()
-    idx = sample_indices(flat.size, max_samples, seed)
-    return (flat if idx is None else flat[idx]).astype(np.float64)
-
-
-def estimate_read_noise(residual_dn, *, max_samples: int | None = 200_000, seed: int = 0) -> ReadNoiseEstimate:
-    """Tukey-lambda read noise of a row-corrected residual (DN), by PPCC.
-
-    ``lambda`` is found on a grid over [-0.5, 1] and refined with ``scipy.stats.ppcc_max``;
-    ``sigma_TL`` is the least-squares slope of the sorted values against
-    ``scipy.stats.tukeylambda.ppf`` at that lambda. ``max_samples`` random values are used
-    (None: all); the benchmark shows what subsampling costs in accuracy.
-    """
-    x = np.sort(subsample(residual_dn, max_samples, seed))
-    if x.size < 100:
-        raise ValueError(f"read-noise fit needs at least 100 values, got {x.size}")
-    if not np.all(np.isfinite(x)):
-        raise ValueError("residual_dn holds NaN or Inf values")
-    if x[0] == x[-1]:
-        raise ValueError(f"residual_dn is constant ({x[0]}): no read noise to fit")
-    osm = _filliben(x.size)
-    grid = [(float(lam), _ppcc(x, osm, lam)) for lam in LAMBDA_GRID]
-    best = max(range(len(grid)), key=lambda i: grid[i][1])
-    lo = LAMBDA_GRID[max(best - 1, 0)]
-    hi = LAMBDA_GRID[min(best + 1, len(LAMBDA_GRID) - 1)]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        try:
-            lam = float(stats.ppcc_max(x, brack=(float(lo), float(LAMBDA_GRID[best]), float(hi)), dist="tukeylambda"))
-        except ValueError:  # bracket condition not met at the grid edge: keep the grid value
-            lam = float(LAMBDA_GRID[best])
-    if not (LAMBDA_GRID[0] - 0.05 <= lam <= LAMBDA_GRID[-1] + 0.05) or _ppcc(x, osm, lam) < grid[best][1]:
-        lam = float(LAMBDA_GRID[best])
-    q = stats.tukeylambda.ppf(osm, lam)
-    slope_tl, _, r_tl, _, _ = stats.linregress(q, x)
-    z = stats.norm.ppf(osm)
-    slope_g, _, r_g, _, _ = stats.linregress(z, x)
-    return ReadNoiseEstimate(lam=lam, sigma_tl=float(slope_tl), sigma_g=float(slope_g), r2_tukey=float(r_tl**2),
-                             r2_gauss=float(r_g**2), ppcc_grid=tuple(grid), n_samples=int(x.size), std_dn=float(x.std()))
+def bias_frame_noise(bias_dn, exclude=None, *, max_samples: int | None = 200_000,
+                     seed: int = 0) -> tuple[ReadNoiseEstimate, float, tuple | None]:
+    """(read noise, row noise sigma_r in DN, channel locations in DN or None) of one packed
+    bias frame, ``exclude`` (a (4, h, w) mask: dead pixels, impulses) left out: the
+    row-corrected residual's PPCC fit (``estimate_read_noise``); or, for a frame clipped from
+    below (``censored.black_floor``), the censored fit of each channel (``_censored_channels``),
+    the row noise scaled up by the share the clip hides (``censored.clipped_share``), and the
+    channel locations the clip moves the means away from."""
+    bias = _packed(bias_dn, "bias_dn")
+    row = estimate_row_noise(bias)
+    floor = black_floor(bias)
+    if floor is None:
+        return estimate_read_noise(read_residual(bias, row.row_means, exclude=exclude), max_samples=max_samples,
+                                   seed=seed), row.sigma_r, None
+    keep = ~defect_mask(bias)
+    if exclude is not None:
+        keep &= ~np.asarray(exclude, dtype=bool)
+    sigma_r = row.sigma_r / max(1.0 - clipped_share(bias[keep], floor), 0.05)
+    read, location = _censored_channels([[bias[c][keep[c]]] for c in range(4)], floor, sigma_r, max_samples, seed)
+    return read, sigma_r, location
 
 
 # ----------------------------------------------------------------------------- colour bias, banding, quantization
@@ -500,6 +430,24 @@ def _thin(x, y, n, seed):
     return x[idx], y[idx]
 
 
+def _censored_channels(channel_values, floor: float, sigma_r: float, max_samples, seed):
+    """(read noise, (4,) locations in DN) of bias frames clipped from below at ``floor``: the
+    censored fit (``censored_read_noise``) of each channel's values, pooled as the median
+    lambda and the rms scales, less the row noise they hold (they are not row-corrected: a
+    clip leaves no row mean to subtract)."""
+    fits = [censored_read_noise(np.concatenate(v), floor, max_samples=max_samples and max_samples // 4, seed=seed + c)
+            for c, v in enumerate(channel_values)]
+    reads = [f[0] for f in fits]
+    rms = lambda values: float(np.sqrt(np.mean(np.square(values))))  # noqa: E731
+    sigma_g = rms([r.sigma_g for r in reads])
+    shrink = float(np.sqrt(max(1.0 - sigma_r**2 / max(sigma_g**2, 1e-12), 0.25)))
+    read = ReadNoiseEstimate(lam=float(np.median([r.lam for r in reads])), sigma_tl=shrink * rms([r.sigma_tl for r in reads]),
+                             sigma_g=shrink * sigma_g, r2_tukey=float(np.mean([r.r2_tukey for r in reads])),
+                             r2_gauss=float(np.mean([r.r2_gauss for r in reads])), ppcc_grid=reads[0].ppcc_grid,
+                             n_samples=int(sum(r.n_samples for r in reads)), std_dn=shrink * sigma_g)
+    return read, tuple(f[1] for f in fits)
+
+
 def _load(item, what):
     array = item() if callable(item) else item
     return np.asarray(array)
@@ -533,12 +481,21 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
     rows, biases, samples, shapes = [], [], [], []
     first_bias = lo = hi = extremes = None
     per_frame = max(1, (max_samples or 0) // len(bias_frames)) if max_samples else None
+    floor, clipped, channel_values = None, [], [[] for _ in range(4)]  # a clip from below (``censored``)
     for i, item in enumerate(bias_frames):
         bias = _packed(_load(item, "bias"), f"ISO {iso:g} bias frame {i}")
         shapes.append(bias.shape)
         if bias.shape != shapes[0]:
             raise ValueError(f"ISO {iso:g}: bias frames differ in size: {shapes[0]} vs {bias.shape} (frame {i})")
+        if i == 0:
+            floor = black_floor(bias)
         without = _without_defects(bias)  # the defect lines found once per frame
+        if floor is not None:  # each channel's values as they are: the censored fit's
+            clipped.append(clipped_share(without[np.isfinite(without)], floor))
+            for c in range(4):
+                v = without[c][np.isfinite(without[c])]
+                idx = sample_indices(v.size, per_frame and max(1, per_frame // 4), seed + 10 * i + c)
+                channel_values[c].append(v if idx is None else v[idx])
         color = _mean(without, (1, 2), keepdims=True)  # estimate_color_bias
         centered = without - color
         row = _row_noise(centered)  # estimate_row_noise
@@ -573,10 +530,17 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
             n_spikes = int(spike.sum())
             keep = lambda i, w: ~((spike[w] & (frame[w] == i)) | (dead[w] if dead is not None else False))  # noqa: E731
             residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])
-    read = estimate_read_noise(residual, max_samples=max_samples, seed=seed)
-    tell(f"ISO {iso:g}: read noise fitted")
     read_var = float(np.median([r.read_variance_dn2 for r in rows]))
     sigma_r = float(np.median([r.sigma_r for r in rows]))
+    censored = None
+    if floor is None:
+        read = estimate_read_noise(residual, max_samples=max_samples, seed=seed)
+    else:  # clipped from below: row offsets move a row's mean by the unclipped share of them only
+        sigma_r /= max(1.0 - float(np.median(clipped)), 0.05)
+        read, location = _censored_channels(channel_values, floor, sigma_r, max_samples, seed)
+        read_var = read.sigma_g**2
+        censored = {"floor_dn": floor, "fraction": float(np.median(clipped)), "location_dn": location}
+    tell(f"ISO {iso:g}: read noise fitted")
     pairs = [tuple(_packed(_load(x, "flat"), f"ISO {iso:g} flat pair {j}") for x in pair) for j, pair in enumerate(flat_pairs)]
     for j, (a, b) in enumerate(pairs):
         if a.shape != shapes[0] or b.shape != shapes[0]:
@@ -587,8 +551,9 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
     gain = estimate_gain(pairs, tile=tile, saturation_dn=saturation_dn, black_clip_dn=black_clip_dn,
                          read_variance_dn2=total_read_var)
     tell(f"ISO {iso:g}: gain K = {gain.k:.4g} DN/e-")
-    color = np.median(np.stack(biases), axis=0)
+    color = np.median(np.stack(biases), axis=0) if censored is None else np.asarray(censored["location_dn"])
     extra = {
+        "black_floor": censored,  # a clip from below (None: none): its level, the share of values on it
         "r2_tukey": read.r2_tukey,
         "r2_gauss": read.r2_gauss,
         "ppcc_grid": [list(p) for p in read.ppcc_grid],

@@ -235,7 +235,7 @@ class _Collected:
 
 
 def _run_manifest(args, path):
-    from ..calibration.stage1 import estimate_read_noise, estimate_row_noise, read_residual
+    from ..calibration.stage1 import bias_frame_noise
     from ..statistics import spike_outliers, stuck_outliers
     from .diagnose import FrameStack, channel_offsets
     from ..calibration.command import calibrate, options_from, visit_frames
@@ -255,15 +255,14 @@ def _run_manifest(args, path):
     stacks, measured, settings = [], {}, {}  # settings: label -> what the report's curves need
     for iso, frames in sorted(bias.items()):
         frames = np.stack(frames).astype(np.float64)
-        row = estimate_row_noise(frames[0])
         dead = stuck_outliers(frames.min(axis=0), frames.max(axis=0), frames[0]) if len(frames) >= 3 else None
         if dead is not None:  # impulses: bright single-frame events beyond the dark ones (``spike_outliers``)
             dead = dead | spike_outliers(frames)[0]
-        read = estimate_read_noise(read_residual(frames[0], row.row_means, exclude=dead))  # dead pixels and spikes left out
+        read, sigma_r, _ = bias_frame_noise(frames[0], exclude=dead)  # dead pixels and spikes left out; a clip's censoring too
         k = profile.k_at_iso(iso) if iso else 1.0
         settings[f"ISO {iso:g}"] = {"kind": "bias", "iso": iso, "k": k, "exposure_s": bias_exposure[iso], "level_dn": None}
         stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}", base={"sigma_tl": read.sigma_tl, "lambda": read.lam,
-                                                                        "sigma_g": read.sigma_g, "sigma_r": row.sigma_r}))
+                                                                        "sigma_g": read.sigma_g, "sigma_r": sigma_r}))
         measured[iso] = (stacks[-1].base, channel_offsets(frames), k, stacks[-1])
     for (iso, exposure), frames in sorted(darks.items()):
         if iso not in measured or len(frames) < 2:

@@ -24,6 +24,7 @@ from scipy.stats import f as f_dist
 from scipy.stats import norm
 
 from ..augment import RawNoiseAugment, parse_model
+from ..calibration.censored import black_floor, clipped_share
 from ..effects.gain_nonlinearity import fit_rates, linear_rates
 from ..effects.k_records import value_at_k
 from ..profile import NoiseProfile
@@ -187,7 +188,7 @@ class Residual:
         return asdict(self)
 
 
-PILOT_STEPS = 3  # offset fits per bias synthesis (the error shrinks by the clipped fraction per step)
+PILOT_STEPS = 3  # offset fits per bias synthesis (Newton steps: a clip makes the mean move less than the offset)
 
 
 def channel_offsets(frames) -> list[float]:
@@ -264,8 +265,9 @@ def fitted_offsets(profile: NoiseProfile, stack: FrameStack, seed: int = 0, mode
     model with effects (and no offsets of its own) it is fitted with them, as calibration
     would fit them jointly: a clip, a code map or hot pixels move the mean, and the offsets
     are whatever puts the model's channel means at the stack's (pilot syntheses with their
-    own seeds; a clip makes the mean move less than the offset, hence a few fixed-point
-    steps). A stack with ``offsets_of`` takes that bias stack's."""
+    own seeds; a clip makes the mean move less than the offset, by the share of the noise
+    under it: each step divides by that, ``mean_slope``). A stack with ``offsets_of`` takes
+    that bias stack's."""
     if stack.offsets_of is not None:
         return fitted_offsets(profile, stack.offsets_of, seed, model)
     fixed = synthesis_fixed(profile, stack)
@@ -278,8 +280,17 @@ def fitted_offsets(profile: NoiseProfile, stack: FrameStack, seed: int = 0, mode
         fixed["color_bias_dn"] = offsets
         pilot = _one(profile, stack, tokens, fixed, torch.Generator().manual_seed(int(seed) + 7_777_777 + step))
         delta = repaired(pilot.astype(np.float64)).mean(axis=(0, 2, 3)) - target
-        offsets = [float(o - d) for o, d in zip(offsets, delta)]
+        offsets = [float(o - d / mean_slope(pilot[:, c])) for c, (o, d) in enumerate(zip(offsets, delta))]
     return offsets
+
+
+def mean_slope(values) -> float:
+    """How far the mean of synthesized ``values`` moves per DN of offset: 1, but under a clip
+    from below (a pile-up at the lowest value, ``censored.black_floor``), where the values on
+    it do not move: 1 less the share of the noise below it (``censored.clipped_share``; at
+    least 0.1)."""
+    floor = black_floor(values)
+    return 1.0 if floor is None else max(1.0 - clipped_share(values, floor), 0.1)
 
 
 def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int, model: str | None = None,
