@@ -97,6 +97,12 @@ def _coefficients(raw, fy, fx):
 FIXED_P = 1e-3  # a tone's fixed part is kept where its frames' mean coefficient stands out of their spread this surely
 
 
+def _spread(c) -> float:
+    """Variance (ddof 1) of complex values about their mean."""
+    c = np.asarray(c)
+    return float(np.sum(np.abs(c - c.mean()) ** 2)) / (c.shape[0] - 1)
+
+
 def fixed_amplitude(x, x_models, coherent: float) -> float:
     """Amplitude (DN) of the part of a tone that is the same in every frame, from each frame's
     Fourier coefficient ``x`` (N,) and those of the model's syntheses (a list of (N,)): the
@@ -105,12 +111,9 @@ def fixed_amplitude(x, x_models, coherent: float) -> float:
     syntheses (the model's own fixed patterns at that frequency), as 2 sqrt(.) / ``coherent``
     (sum of the window). 0 unless the mean stands out of the spread (N |mean|^2 / s^2 over
     the F(2, 2 (N - 1)) quantile at FIXED_P), and for fewer than 3 frames."""
-    def excess(c):
+    def excess(c):  # (|mean|^2, what the spread leaves in it)
         c = np.asarray(c)
-        n = c.shape[0]
-        mean = c.mean()
-        s2 = float(np.sum(np.abs(c - mean) ** 2)) / (n - 1)
-        return float(abs(mean) ** 2), s2 / n
+        return float(abs(c.mean()) ** 2), _spread(c) / c.shape[0]
 
     x = np.asarray(x)
     n = x.shape[0]
@@ -122,12 +125,6 @@ def fixed_amplitude(x, x_models, coherent: float) -> float:
     model = float(np.mean([p - sp for p, sp in map(excess, x_models)])) if len(x_models) else 0.0
     f2 = power - spread - max(model, 0.0)
     return 2.0 * np.sqrt(f2) / coherent if f2 > 0 else 0.0
-
-
-def _spread(c) -> float:
-    """Variance (ddof 1) of complex values about their mean."""
-    c = np.asarray(c)
-    return float(np.sum(np.abs(c - c.mean()) ** 2)) / (c.shape[0] - 1)
 
 
 def spread_amplitude(x, x_models, coherent: float) -> float:
