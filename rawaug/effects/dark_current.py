@@ -23,12 +23,16 @@ offsets and read noise of the bias frames of the same ISO) by ``mean_dn`` (the d
 ``temporal_std`` (its shot noise), ``fixed_std`` and ``fixed_pixel_var`` (DSNU). Estimated by ``estimate``: the
 mean excess over the model gives the rate, the excess white fixed-pattern variance
 (``fixed_pixel_var``: the dark shot noise left in an N-frame mean, ``Glow`` and ``FPN``
-shading cancel) gives DSNU.
+shading cancel) gives DSNU, solved for through the same statistic (``log_normal_spread``:
+it leaves out a heavy tail's far cells).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
+from scipy import optimize
 
 from ..engine import layout as L
 from ..statistics import fixed_pixel_var
@@ -74,8 +78,44 @@ def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, kin
         return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [0.0], "dsnu": [0.0]}
     # the white fixed spread over the model's: its dark shot noise, glow and shading cancel
     excess = fixed_pixel_var(frames) - float(np.mean([fixed_pixel_var(s) for s in base]))
-    dsnu = float(np.sqrt(max(excess, 0.0)) / signal_dn)
+    dsnu = log_normal_spread(excess, base[0], signal_dn / k, k)
     return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [signal_dn / (k * float(exposure_s))], "dsnu": [dsnu]}
+
+
+DSNU_MAX = 20.0  # relative spread searched up to (log-normal b = 2.45)
+
+
+def log_normal_spread(excess_dn2: float, base, signal_e: float, k: float, seed: int = 0) -> float:
+    """Relative spread ``dsnu`` of a log-normal rate map of mean ``signal_e`` electrons whose
+    ``fixed_pixel_var`` excess over the stack ``base`` (N, 4, h, w) in DN is ``excess_dn2``.
+    ``fixed_pixel_var`` leaves out cells beyond ``OUTLIER_SIGMAS`` robust sigmas, and a
+    log-normal's tail reaches there (a sigma of 0.8 in log loses a third of its variance):
+    the map is planted on ``base`` with its shot noise (Gaussian, common random numbers) and
+    its spread solved for, so that the excess is measured as the frames' was."""
+    if excess_dn2 <= 0.0 or signal_e <= 0.0:
+        return 0.0
+    rng = np.random.default_rng(seed)
+    g = rng.standard_normal(base.shape[1:])
+    z = rng.standard_normal(base.shape)
+    floor = fixed_pixel_var(base)
+
+    def excess_of(b):
+        lam = signal_e * np.exp(b * g - 0.5 * b * b)
+        return fixed_pixel_var(base + k * (lam + np.sqrt(lam) * z)) - floor - excess_dn2
+
+    # the trimmed excess rises with b, then falls once most of the tail is left out: the
+    # smallest root, on a grid in b first
+    grid = np.linspace(0.0, math.sqrt(math.log1p(DSNU_MAX**2)), 13)
+    values = [excess_of(grid[0])]
+    if values[0] >= 0.0:
+        return 0.0
+    for lo, hi in zip(grid[:-1], grid[1:]):
+        values.append(excess_of(hi))
+        if values[-1] >= 0.0:
+            b = optimize.brentq(excess_of, lo, hi, xtol=1e-4)
+            return float(math.sqrt(math.expm1(b * b)))
+    b = grid[int(np.argmax(values))]  # more than any log-normal leaves: the spread that leaves most
+    return float(math.sqrt(math.expm1(b * b)))
 
 
 def combine(records: list[dict]) -> dict:

@@ -5,7 +5,7 @@ Physics: a crystal defect or a metal impurity in a photodiode raises its leakage
 orders of magnitude (EMVA 1288 shows them as the long tail of the DSNU histogram). Such a
 pixel collects ``rate * t`` electrons in the dark: invisible in bias frames, bright in long
 exposures, and Poisson like every other electron. ``Hot`` is a fixed offset in DN, the same at
-every exposure; ``Dark`` is the Gaussian spread of the other pixels' rates.
+every exposure; ``Dark`` is the log-normal spread of the other pixels' rates.
 
 Stage (DN, before shot noise): ``s -> s + K * t * median_e_per_s * exp(log_std * z)`` at the
 pixels where a seeded U(0, 1) pattern falls below ``density``, ``z`` a seeded standard normal
