@@ -286,8 +286,9 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 
 
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
-# they run with the slow rates below, to keep the default run short
-SLOW_CASES = {"crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
+# they run with the slow rates below, to keep the default run short ("Col" is found on a
+# manifest by test_loop_diagnoses_the_central_view_of_large_frames)
+SLOW_CASES = {"Col", "crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
               "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
               "skewed dark current", "raised floor", "frame-locked tone"}
 

@@ -13,6 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "rea
 import run as real_noise  # noqa: E402
 
 
+@pytest.mark.slow  # 25 s: a loop and three trainings
 def test_real_noise_benchmark_smoke(tmp_path):
     assert real_noise.main(["--out", str(tmp_path), "--smoke", "--dark", str(tmp_path / "absent.raw")]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
