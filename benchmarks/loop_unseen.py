@@ -346,6 +346,27 @@ def locked_tone(dn, rng, **_):
     return dn + np.stack([t[0::2, 0::2], t[0::2, 1::2], t[1::2, 1::2], t[1::2, 0::2]])
 
 
+def noisy_pixels(dn, rng, **_):
+    """Noisy pixels: 0.5 % of the pixels (fixed) read with 6 DN more temporal noise (Gaussian, new in every frame), in every kind of frame."""
+    where = np.random.default_rng(61).random(dn.shape) < 0.005
+    return dn + where * rng.normal(0.0, 6.0, dn.shape)
+
+
+def thermal_gradient(dn, rng, exposure=0.0, k=1.0, **_):
+    """Dark current rising across the sensor (a warm readout chain on the right): 0.5 e-/s at the left edge to 4 e-/s at the right, with its shot noise."""
+    x = np.arange(2 * dn.shape[2]) / (2 * dn.shape[2] - 1)
+    rate = 0.5 + 3.5 * x
+    rate = np.stack([rate[0::2], rate[1::2], rate[1::2], rate[0::2]])[:, None, :]  # R, G2 on even sensor columns
+    return dn + k * rng.poisson(np.broadcast_to(rate * exposure, dn.shape))
+
+
+def leaky_rows(dn, rng, exposure=0.0, k=1.0, **_):
+    """Leaky rows: sensor rows 41 and 100 collect 12 e-/s more dark current, Poisson, so they show in long exposures and not in bias frames."""
+    leaky = np.isin(np.arange(2 * dn.shape[1]), (41, 100))
+    rows = np.stack([leaky[0::2], leaky[0::2], leaky[1::2], leaky[1::2]])[:, :, None]  # R, G1 on even sensor rows
+    return dn + rows * k * rng.poisson(12.0 * exposure, dn.shape)
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -353,7 +374,7 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  impulses, column_flicker, reset_transient, noisy_frames,
                                  pdaf_pixels, row_gain, charge_sharing, lens_shading, companded_raw, channel_black,
                                  ramp_jitter, pixel_prnu, dark_current, dsnu, pixel_offsets, column_offsets, soft_knee,
-                                 hot_pixels, black_clip, fixed_tone, locked_tone)}
+                                 hot_pixels, black_clip, fixed_tone, locked_tone, noisy_pixels, thermal_gradient, leaky_rows)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
