@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, dark_columns, dark_hot_pixels, dark_offset, frame_gain, frame_noise, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_offset, frame_gain, frame_noise, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -278,6 +278,38 @@ def test_leaky_columns_estimate_round_trip_and_none_in_white_dark_stacks():
     assert dark_columns.empty(white[0]) and not dark_columns.empty(est)
     with pytest.raises(ValueError, match="dark stacks"):
         dark_columns.estimate(meas, base, K, exposure_s=4.0, kind="bias")
+
+
+DARK_ROW = {"seed": 79, "density": 0.03, "median_e_per_s": 15.0, "log_std": 0.3}
+
+
+def test_leaky_rows_lie_along_whole_sensor_rows_and_round_trip():
+    from rawaug.effects.dark_rows import _ROW_SETS
+
+    dark = {"model": "G+P*", "sigma_g": 2.0, "exposure_s": 4.0}
+    meas = synth({"DarkRow": DARK_ROW}, batch=6, size=128, **dark)
+    assert dark_rows.bright_rows(synth({"DarkRow": DARK_ROW}, batch=4, size=128, model="G+P*", exposure_s=0.0))[0] == 0.0
+    # both packed channels of a leaky sensor row carry it (sensor row means, DN = electrons at K = 1)
+    f = meas.mean(axis=(0, 3))
+    for chans in _ROW_SETS:
+        a, b = f[chans[0]], f[chans[1]]
+        leaky = a - np.median(a) > 20.0  # 15 e-/s x 4 s = 60 e- in median
+        assert leaky.any() and np.array_equal(leaky, b - np.median(b) > 20.0)
+        assert not np.any((meas.mean(axis=(0, 2))[list(chans)] - np.median(meas) > 20.0))  # no leaky column
+    base = [synth({}, batch=6, size=128, seed=s, **dark) for s in range(1, 5)]
+    est = dark_rows.estimate(meas, base, K, exposure_s=4.0, kind="dark")
+    m = 0.03 * 256
+    assert abs(est["density"] - 0.03) < 5 * math.sqrt(0.03 / 256), est
+    assert abs(math.log(est["median_e_per_s"] / 15.0)) < 5 * 0.3 / math.sqrt(m), est
+    assert abs(est["log_std"] - 0.3) < 0.15, est
+    white = [dark_rows.estimate(synth({}, batch=6, size=128, seed=s, **dark), base, K, exposure_s=4.0, kind="dark")
+             for s in range(20, 30)]
+    assert all(w["density"] == 0.0 for w in white), white
+    assert dark_rows.empty(white[0]) and not dark_rows.empty(est)
+    cols = dark_columns.estimate(meas, base, K, exposure_s=4.0, kind="dark")
+    assert cols["density"] == 0.0, cols  # rows are no columns
+    with pytest.raises(ValueError, match="dark stacks"):
+        dark_rows.estimate(meas, base, K, exposure_s=4.0, kind="bias")
 
 
 def test_dark_offset_moves_the_black_level_with_exposure_and_adds_no_noise():

@@ -20,6 +20,7 @@ LOOP_EFFECTS = {
     "Hot": {"seed": 13, "density": 0.01, "log_std": 0.5, "k": [1.0], "median_dn": [50.0]},
     "DarkHot": {"seed": 61, "density": 0.03, "median_e_per_s": 5.0, "log_std": 0.5},  # before the Poisson draw
     "DarkCol": {"seed": 71, "density": 0.08, "median_e_per_s": 4.0, "log_std": 0.4},  # ... keyed by the sensor column
+    "DarkRow": {"seed": 83, "density": 0.08, "median_e_per_s": 4.0, "log_std": 0.4},  # ... keyed by the sensor row
     "DarkOffset": {"k": [1.0, 3.0], "dn_per_s": [-0.6, 0.4]},  # signed, either gain
     "FrameGain": {"sigma": 0.02},
     "FrameNoise": {"k": [1.0, 3.0], "log_std": [0.3, 0.1]},

@@ -145,9 +145,10 @@ def dark_hot_named(seed):
     return abs(rec["density"] - 2e-3) < 5 * (2e-3 / n) ** 0.5 and abs(np.log(rec["median_e_per_s"] / 10.0)) < 5 * 0.4 / 74**0.5
 
 
-# effects only dark frames show: leaky columns (3 e-/s more in 2 % of the sensor columns) and
+# effects only dark frames show: leaky columns or rows (8 e-/s more in 2 % of the sensor lines) and
 # a black level that sags 0.4 DN per second of exposure (no electrons: no shot noise)
 DARK_ONLY = {"DarkCol": {"seed": 73, "density": 0.02, "median_e_per_s": 8.0, "log_std": 0.3},
+             "DarkRow": {"seed": 89, "density": 0.02, "median_e_per_s": 8.0, "log_std": 0.3},
              "DarkOffset": {"k": [K], "dn_per_s": [-0.4]}}
 
 
@@ -166,6 +167,11 @@ def dark_only_named(token, seed):
         from rawaug.effects.dark_columns import bright_columns
 
         seeded = bright_columns(measured_stack(effects, seed=seed, n=2, size=96, exposure_s=100.0).frames_dn)[0]
+        return abs(rec["density"] - seeded) <= 1 / 192 + 1e-12 and abs(np.log(rec["median_e_per_s"] / 8.0)) < 0.5
+    if token == "DarkRow":  # the same along the sensor rows
+        from rawaug.effects.dark_rows import bright_rows
+
+        seeded = bright_rows(measured_stack(effects, seed=seed, n=2, size=96, exposure_s=100.0).frames_dn)[0]
         return abs(rec["density"] - seeded) <= 1 / 192 + 1e-12 and abs(np.log(rec["median_e_per_s"] / 8.0)) < 0.5
     # the mean of 6 x 4 x 96 x 96 pixels and their temporal variance: ~0.04 DN, 0.008 DN/s over 5 s
     return abs(rec["dn_per_s"][0] + 0.4) < 0.05
@@ -229,6 +235,7 @@ def charge_sharing_named(seed):
 
 # each check: seed -> the effect named, nothing left and its estimate within bounds
 NAMED = {"DarkHot": dark_hot_named, "DarkCol": lambda seed: dark_only_named("DarkCol", seed),
+         "DarkRow": lambda seed: dark_only_named("DarkRow", seed),
          "DarkOffset": lambda seed: dark_only_named("DarkOffset", seed), "Spikes": spikes_named, "ColRTS": telegraph_columns_named,
          "ChargeShare": charge_sharing_named}
 

@@ -68,6 +68,8 @@ _RGF, _RGT = L.COLUMN["rowgain_fixed"], L.COLUMN["rowgain_frame"]
 _ROWGAIN_PATTERN, _ROWGAIN_FRAME = L.STREAM["rowgain_pattern"], L.STREAM["rowgain_frame"]
 _DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_log_std"]
 _DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
+_DRD, _DRE, _DRL = L.COLUMN["drow_density"], L.COLUMN["drow_e"], L.COLUMN["drow_log_std"]
+_DROW_WHERE, _DROW_SIZE = L.STREAM["drow_where"], L.STREAM["drow_size"]
 _DOFF = L.COLUMN["dark_offset"]
 _DRIFT = L.COLUMN["black_drift"]
 _RG = L.COLUMN["read_gain"]
@@ -335,6 +337,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 q = (sensor * 2 + col_set) * w + x
                 if unit(draw(keys[_DCOL_WHERE], q)) < v[_DCD]:
                     s += k * v[_DCE] * math.exp(v[_DCL] * symmetric(normal, draw(keys[_DCOL_SIZE], q)))
+            if stages & L.DARK_ROW:  # a leaky sensor row's dark electrons, keyed by the row
+                q = (sensor * 2 + row_set) * h + y
+                if unit(draw(keys[_DROW_WHERE], q)) < v[_DRD]:
+                    s += k * v[_DRE] * math.exp(v[_DRL] * symmetric(normal, draw(keys[_DROW_SIZE], q)))
             share = (stages & L.CHARGE_SHARE) != 0 and math.isfinite(s)  # shot deviations mixed with the raw neighbours'
             if share:
                 gain = s_pixel / s_photo if s_photo != 0.0 else 1.0

@@ -44,6 +44,7 @@ C_CGS = _column("colgain_sigma")
 C_RGF, C_RGT = _column("rowgain_fixed"), _column("rowgain_frame")
 C_GGR, C_GGPY, C_GGPX, C_GGOY, C_GGOX = (_column(n) for n in ("ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox"))
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
+C_DRD, C_DRE, C_DRL = _column("drow_density"), _column("drow_e"), _column("drow_log_std")
 C_DOFF = _column("dark_offset")
 C_DRIFT = _column("black_drift")
 C_RG = _column("read_gain")
@@ -87,6 +88,7 @@ K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
 K_ROWGAIN, K_ROWGAIN_FRAME = S["rowgain_pattern"], S["rowgain_frame"]
 K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
+K_DROW_WHERE, K_DROW_SIZE = S["drow_where"], S["drow_size"]
 K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
 K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["crts_state"]
 K_DIAG_BAND = S["diag_band"]
@@ -271,6 +273,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         q = ((sensor * 2 + col_set) * W + x).to(tl.uint64)
         leaky = unit(draw(_key(keys_ptr, K_DCOL_WHERE), q)) < _col(v, C_DCD)
         dark = k * _col(v, C_DCE) * tl.exp(_col(v, C_DCL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DCOL_SIZE), q)))
+        s += tl.where(leaky, dark, 0.0)
+    if FLAGS & 35184372088832:  # leaky rows: a sensor row's dark electrons, before shot noise (keyed by the row)
+        q = ((sensor * 2 + row_set) * H + y).to(tl.uint64)
+        leaky = unit(draw(_key(keys_ptr, K_DROW_WHERE), q)) < _col(v, C_DRD)
+        dark = k * _col(v, C_DRE) * tl.exp(_col(v, C_DRL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DROW_SIZE), q)))
         s += tl.where(leaky, dark, 0.0)
     if FLAGS & 17592186044416:  # charge sharing: the shot deviations of this pixel and its raw neighbours, mixed
         if FLAGS & 6:
