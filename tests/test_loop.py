@@ -240,7 +240,9 @@ NAMED = {"DarkHot": dark_hot_named, "DarkCol": lambda seed: dark_only_named("Dar
          "ChargeShare": charge_sharing_named}
 
 
-@pytest.mark.parametrize("token", list(NAMED))
+# DarkRow is DarkCol's code along the other axis: in the default run its round trip is checked
+# (tests/test_effects_loop.py), its naming with the slow rates below
+@pytest.mark.parametrize("token", [pytest.param(t, marks=pytest.mark.slow) if t == "DarkRow" else t for t in NAMED])
 def test_loop_names_the_effect_and_estimates_it(token):
     assert NAMED[token](300)
 
