@@ -63,35 +63,50 @@ class DarkColumns(NoiseEffect):
         validate_population(cls.token, params, "sensor columns")
 
 
-def bright_columns(frames):
-    """(fraction of sensor columns, their excess DN) of a stack (N, 4, h, w; DN): the sensor
-    columns of the stack mean brighter than their neighbours by the defect-line threshold, a
-    column counted once over the two packed channels it crosses."""
+_ROW_SETS = tuple(tuple(c for c in range(4) if L.ROW_SET[c] == s) for s in (0, 1))
+
+
+def bright_lines(frames, along: str = "columns"):
+    """(fraction of sensor lines, their excess DN) of a stack (N, 4, h, w; DN): the sensor
+    columns (or rows) of the stack mean brighter than their neighbours by the defect-line
+    threshold, a line counted once over the two packed channels it crosses."""
     mean = without_stuck(frames).mean(axis=0)
-    _, _, cols, res = defect_line_residuals(mean)
-    excess, n = [], 0
-    for chans in _COL_SETS:
+    rows, row_res, cols, col_res = defect_line_residuals(mean)
+    mask, res, sets, n = (cols, col_res, _COL_SETS, mean.shape[2]) if along == "columns" else (rows, row_res, _ROW_SETS, mean.shape[1])
+    excess, count = [], 0
+    for chans in sets:
         line = res[list(chans)].mean(axis=0)
-        bright = cols[list(chans)].any(axis=0) & (line > 0)
+        bright = mask[list(chans)].any(axis=0) & (line > 0)
         excess += line[bright].tolist()
-        n += int(bright.sum())
-    return n / (2 * mean.shape[2]), np.asarray(excess)
+        count += int(bright.sum())
+    return count / (2 * n), np.asarray(excess)
 
 
-def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, seed: int = 71, **_) -> dict:
-    """DarkCol population from a dark stack (N, 4, h, w) in DN of ``exposure_s`` seconds at
-    gain ``k`` (DN per electron), against stacks of the same shape synthesized by the model."""
+def bright_columns(frames):
+    """``bright_lines`` along the sensor columns."""
+    return bright_lines(frames, "columns")
+
+
+def line_population(frames, synthesized, k: float, exposure_s, kind, seed: int, token: str, along: str) -> dict:
+    """Population of leaky sensor lines (``along`` "columns" or "rows") from a dark stack
+    (N, 4, h, w) in DN of ``exposure_s`` seconds at gain ``k`` (DN per electron), against
+    stacks of the same shape synthesized by the model."""
     if kind != "dark" or not exposure_s:
-        raise ValueError("DarkCol is measured on dark stacks with their exposure_s")
+        raise ValueError(f"{token} is measured on dark stacks with their exposure_s")
     frames = np.asarray(frames, dtype=np.float64)
-    fraction, excess = bright_columns(frames)
-    base = float(np.mean([bright_columns(s)[0] for s in synthesized])) if synthesized else 0.0
+    fraction, excess = bright_lines(frames, along)
+    base = float(np.mean([bright_lines(s, along)[0] for s in synthesized])) if synthesized else 0.0
     density = max(fraction - base, 0.0)
     if density == 0.0 or excess.size == 0:
         return {"seed": int(seed), "density": 0.0, "median_e_per_s": 0.0, "log_std": 0.0}
     logs = np.log(excess / (float(k) * float(exposure_s)))  # electrons per second above the neighbours
     return {"seed": int(seed), "density": min(density, 0.1), "median_e_per_s": float(math.exp(logs.mean())),
             "log_std": float(logs.std(ddof=1)) if excess.size > 1 else 0.0}
+
+
+def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, seed: int = 71, **_) -> dict:
+    """DarkCol population from a dark stack (``line_population`` along the columns)."""
+    return line_population(frames, synthesized, k, exposure_s, kind, seed, "DarkCol", "columns")
 
 
 def combine(records: list[dict]) -> dict:

@@ -22,19 +22,15 @@ model's, their excess in electrons per second, on the frames as measured.
 """
 from __future__ import annotations
 
-import math
-
-import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import defect_line_residuals, without_stuck
 from .base import PHOTON, NoiseEffect, pattern_key, register
+from .dark_columns import _ROW_SETS, bright_lines, line_population  # noqa: F401 (_ROW_SETS: the rows' channel pairs)
 from .dark_hot_pixels import combine as combine_populations, validate_population
 
 STATISTICS = ("defect_lines",)
 RAW_FRAMES = True  # the leaky rows are defect lines: estimated before their repair
-_ROW_SETS = tuple(tuple(c for c in range(4) if L.ROW_SET[c] == s) for s in (0, 1))
 
 
 @register
@@ -61,34 +57,13 @@ class DarkRows(NoiseEffect):
 
 
 def bright_rows(frames):
-    """(fraction of sensor rows, their excess DN) of a stack (N, 4, h, w; DN): the sensor rows
-    of the stack mean brighter than their neighbours by the defect-line threshold, a row
-    counted once over the two packed channels it crosses."""
-    mean = without_stuck(frames).mean(axis=0)
-    rows, res, _, _ = defect_line_residuals(mean)
-    excess, n = [], 0
-    for chans in _ROW_SETS:
-        line = res[list(chans)].mean(axis=0)
-        bright = rows[list(chans)].any(axis=0) & (line > 0)
-        excess += line[bright].tolist()
-        n += int(bright.sum())
-    return n / (2 * mean.shape[1]), np.asarray(excess)
+    """``bright_lines`` along the sensor rows."""
+    return bright_lines(frames, "rows")
 
 
 def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, seed: int = 79, **_) -> dict:
-    """DarkRow population from a dark stack (N, 4, h, w) in DN of ``exposure_s`` seconds at
-    gain ``k`` (DN per electron), against stacks of the same shape synthesized by the model."""
-    if kind != "dark" or not exposure_s:
-        raise ValueError("DarkRow is measured on dark stacks with their exposure_s")
-    frames = np.asarray(frames, dtype=np.float64)
-    fraction, excess = bright_rows(frames)
-    base = float(np.mean([bright_rows(s)[0] for s in synthesized])) if synthesized else 0.0
-    density = max(fraction - base, 0.0)
-    if density == 0.0 or excess.size == 0:
-        return {"seed": int(seed), "density": 0.0, "median_e_per_s": 0.0, "log_std": 0.0}
-    logs = np.log(excess / (float(k) * float(exposure_s)))  # electrons per second above the neighbours
-    return {"seed": int(seed), "density": min(density, 0.1), "median_e_per_s": float(math.exp(logs.mean())),
-            "log_std": float(logs.std(ddof=1)) if excess.size > 1 else 0.0}
+    """DarkRow population from a dark stack (``line_population`` along the rows)."""
+    return line_population(frames, synthesized, k, exposure_s, kind, seed, "DarkRow", "rows")
 
 
 def combine(records: list[dict]) -> dict:
