@@ -284,7 +284,7 @@ DARK_ROW = {"seed": 79, "density": 0.03, "median_e_per_s": 15.0, "log_std": 0.3}
 
 
 def test_leaky_rows_lie_along_whole_sensor_rows_and_round_trip():
-    from rawaug.effects.dark_rows import _ROW_SETS
+    from rawaug.effects.dark_columns import _ROW_SETS
 
     dark = {"model": "G+P*", "sigma_g": 2.0, "exposure_s": 4.0}
     meas = synth({"DarkRow": DARK_ROW}, batch=6, size=128, **dark)

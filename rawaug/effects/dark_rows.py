@@ -26,7 +26,7 @@ import torch
 
 from ..engine import layout as L
 from .base import PHOTON, NoiseEffect, pattern_key, register
-from .dark_columns import _ROW_SETS, bright_lines, line_population  # noqa: F401 (_ROW_SETS: the rows' channel pairs)
+from .dark_columns import bright_lines, line_population
 from .dark_hot_pixels import combine as combine_populations, validate_population
 
 STATISTICS = ("defect_lines",)
