@@ -681,7 +681,12 @@ def two_state(values, threshold):
     """Which rows of ``values`` (M, N) show two states: variance (ddof 1) over ``threshold`` and,
     with N >= 4, at least 2 values on each side of the largest gap (one extreme value of
     heavy-tailed read noise is not a state); and (step, share of high values) of those."""
-    seen = values.var(axis=1, ddof=1) > threshold
+    return two_state_of(values, values.var(axis=1, ddof=1) > threshold)
+
+
+def two_state_of(values, high):
+    """``two_state`` given the rows of high variance ``high`` (M,), a mask it does not modify."""
+    seen = high.copy()
     step, share = two_levels(values[seen])
     n = values.shape[1]
     if n >= 4:
@@ -691,6 +696,28 @@ def two_state(values, threshold):
     return seen, step, share
 
 
+def pixel_variances(frames):
+    """Of a stack (N, 4, h, w): (temporal variance (ddof 1) of each pixel, flat over (4, h, w),
+    DN^2; the median of those)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    n = frames.shape[0]
+    var = frames.reshape(n, -1).var(axis=0, ddof=1)
+    return var, max(float(median(var)), 1e-12)
+
+
+def trimmed_variances(values):
+    """Temporal variance (ddof 1) of each row of ``values`` (M, N >= 3) without its value
+    farthest from the row's mean: one extreme value of a heavy-tailed read noise (or one
+    telegraph frame) does not make a pixel noisy."""
+    values = np.asarray(values, dtype=np.float64)
+    n = values.shape[1]
+    mean = values.mean(axis=1, keepdims=True)
+    lo, hi = values.min(axis=1), values.max(axis=1)
+    far = np.where(hi - mean[:, 0] >= mean[:, 0] - lo, hi, lo)
+    sq = np.einsum("ij,ij->i", values - mean, values - mean) - (far - mean[:, 0]) ** 2 * n / (n - 1)
+    return np.maximum(sq, 0.0) / (n - 2)
+
+
 def two_state_pixels(frames):
     """Of a stack (N, 4, h, w): (mask of the pixels that flicker between two states, flat over
     (4, h, w); their steps (DN); their shares of high frames; the median temporal variance,
@@ -698,30 +725,54 @@ def two_state_pixels(frames):
     x that median and the rule of ``two_state`` holds."""
     frames = np.asarray(frames, dtype=np.float64)
     n = frames.shape[0]
-    values = frames.reshape(n, -1).T
-    var = max(float(median(values.var(axis=1, ddof=1))), 1e-12)
-    return (*two_state(values, flicker_threshold(n) * var), var)
+    var, med = pixel_variances(frames)
+    return (*two_state_of(frames.reshape(n, -1).T, var > flicker_threshold(n) * med), med)
 
 
-_last_flicker = threading.local()  # the last read-only stack's flickering mask on this thread
+_last_states = threading.local()  # the last read-only stack's pixel states on this thread
+
+
+def pixel_states(frames):
+    """((4, h, w) mask of the pixels that flicker between two states (random telegraph pixels,
+    ``two_state_pixels``), (4, h, w) mask of those whose temporal variance is as high but that
+    show no two states and stay as high without their most extreme value (noisy pixels:
+    ``trimmed_variances`` over ``flicker_threshold`` of N - 1 frames x the median variance)). Computed once for the same read-only array in a row
+    (the battery's repaired view: ``tile_corr``, ``flicker_fraction`` and ``noisy_fraction``
+    read it)."""
+    if getattr(_last_states, "source", None) is frames:
+        return _last_states.result
+    arr = np.asarray(frames, dtype=np.float64)
+    n, shape = arr.shape[0], arr.shape[1:]
+    var, med = pixel_variances(arr)
+    high = var > flicker_threshold(n) * med
+    flick = two_state_of(arr.reshape(n, -1).T, high)[0]
+    rows = np.flatnonzero(high & ~flick)
+    noisy = np.zeros_like(high)
+    noisy[rows] = trimmed_variances(arr.reshape(n, -1)[:, rows].T) > flicker_threshold(n - 1) * med
+    result = (flick.reshape(shape), noisy.reshape(shape))
+    if isinstance(frames, np.ndarray) and not frames.flags.writeable:
+        for m in result:
+            m.flags.writeable = False
+        _last_states.source, _last_states.result = frames, result
+    return result
 
 
 def flickering(frames):
-    """(4, h, w) mask of the pixels that flicker between two states (random telegraph pixels),
-    ``two_state_pixels``. Computed once for the same read-only array in a row (the battery's
-    repaired view: ``tile_corr`` and ``flicker_fraction`` both read it)."""
-    if getattr(_last_flicker, "source", None) is frames:
-        return _last_flicker.result
-    mask = two_state_pixels(np.asarray(frames))[0].reshape(np.shape(frames)[1:])
-    if isinstance(frames, np.ndarray) and not frames.flags.writeable:
-        mask.flags.writeable = False
-        _last_flicker.source, _last_flicker.result = frames, mask
-    return mask
+    """(4, h, w) mask of the pixels that flicker between two states (``pixel_states``)."""
+    return pixel_states(frames)[0]
 
 
 def flicker_fraction(frames, level_dn=None):
     """Fraction of the pixels that flicker (``flickering``)."""
     return float(flickering(frames).mean())
+
+
+def noisy_fraction(frames, level_dn=None):
+    """Fraction of the pixels whose temporal variance is a flickering pixel's, with or without
+    their most extreme value, but that show no two states (``pixel_states``): noisy pixels,
+    whose extra temporal noise is unimodal. A heavy read-noise tail's single extreme values,
+    and telegraph pixels high or low in all but one frame, do not count."""
+    return float(pixel_states(frames)[1].mean())
 
 
 def flickering_columns(frames):
@@ -1212,6 +1263,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("frame_noise_spread", frame_noise_spread, min_frames=3, kind="bias"),
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
         Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),
+        Statistic("noisy_fraction", noisy_fraction, min_frames=4, kind="bias", pixel_fraction=True),
         Statistic("spike_fraction", spike_fraction, min_frames=3, kind="bias", pixel_fraction=True),
         Statistic("col_flicker_fraction", col_flicker_fraction, min_frames=4, kind="bias", line_fraction=True, view="lines"),
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_offset, frame_gain, frame_noise, impulses, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_offset, frame_gain, frame_noise, impulses, noisy_pixels, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -1049,6 +1049,50 @@ def test_telegraph_pixels_jump_between_two_levels_and_are_estimated():
     assert telegraph.estimate(base[0], base[1:], K)["density"] == 0.0  # white noise does not flicker
     with pytest.raises(ValueError, match="bias stacks"):
         telegraph.estimate(f, base, K, kind="dark")
+
+
+NOISY = {"seed": 83, "density": 0.02, "log_std": 0.3, "k": [K], "median_dn": [6.0]}
+
+
+def test_noisy_pixels_are_fixed_gaussian_and_estimated():
+    f = synth({"Noisy": NOISY}, batch=40, size=64)
+    var = f.var(axis=0, ddof=1)
+    where = var > 4.0  # 1 DN^2 of read noise, chi-square of 39 degrees: no white pixel; every noisy one above 2 DN
+    n = where.size
+    assert abs(where.mean() - 0.02) < 5 * math.sqrt(0.02 / n), where.mean()
+    again = synth({"Noisy": NOISY}, batch=40, size=64, seed=5).var(axis=0, ddof=1) > 4.0
+    assert (where & again).sum() / (where | again).sum() > 0.95  # the same pixels in every call
+    # unimodal and Gaussian, unlike a telegraph pixel's two states: the kurtosis of each pixel's
+    # standardized values is a normal sample's, 3 (n - 1) / (n + 1) = 2.85 for n = 40
+    z = (f[:, where] - f[:, where].mean(axis=0)) / f[:, where].std(axis=0, ddof=1)
+    assert abs(float(np.mean(z**4)) - 3 * 39 / 41) < 5 * math.sqrt(24 / z.size), float(np.mean(z**4))
+    logs = np.log(np.sqrt(var[where] - 1.0))  # the extra noise: log-normal about 6 DN, spread 0.3 (+ 0.11 of the sample variance)
+    assert abs(float(np.median(logs)) - math.log(6.0)) < 5 * 0.32 * 1.25 / math.sqrt(logs.size)
+    assert abs(float(logs.std()) - math.hypot(0.3, 0.5 * math.sqrt(2 / 39))) < 0.05
+    # the estimate from 8 frames: about half the noisy pixels stand out and show no two states
+    base = [synth({}, batch=8, size=64, seed=s) for s in range(1, 5)]
+    est = noisy_pixels.estimate(synth({"Noisy": NOISY}, batch=8, size=64, seed=7), base, K)
+    assert abs(est["density"] - 0.02) < 3 * math.sqrt(0.02 / n / 0.5), est  # ~160 pixels counted
+    assert abs(math.log(est["median_dn"][0] / 6.0)) < 0.15 and abs(est["log_std"] - 0.3) < 0.1, est
+    white = [noisy_pixels.estimate(synth({}, batch=8, size=64, seed=s), base, K) for s in range(20, 30)]
+    assert all(noisy_pixels.empty(w) for w in white), white
+    with pytest.raises(ValueError, match="bias stacks"):
+        noisy_pixels.estimate(f, base, K, kind="dark")
+
+
+def test_noisy_fraction_tells_noisy_pixels_from_telegraph_pixels():
+    """Of the pixels of high temporal variance in 8 frames, about half of the noisy ones show no
+    two states (``noisy_fraction``) and few telegraph ones do (those high or low in all but one
+    frame: 2 x 8 x 0.5^8 = 6 %, and those with a small step)."""
+    from rawaug.statistics import flicker_fraction, noisy_fraction
+
+    noisy = synth({"Noisy": NOISY}, batch=8, size=64)
+    rts = synth({"RTS": {**RTS, "high": 0.5}}, batch=8, size=64)
+    n = noisy[0].size
+    assert noisy_fraction(noisy) > 0.3 * 0.02 and flicker_fraction(noisy) > 0.3 * 0.02
+    assert noisy_fraction(rts) < 0.15 * flicker_fraction(rts) and flicker_fraction(rts) > 0.8 * 0.02
+    white = synth({}, batch=8, size=64)
+    assert noisy_fraction(white) <= 2 / n and flicker_fraction(white) <= 2 / n  # 1e-6 of a white pixel
 
 
 DEAD = {"seed": 47, "density": 0.01, "levels_dn": [-40.0, -40.0, -40.0, 300.0]}  # 3/4 stuck low, 1/4 stuck high

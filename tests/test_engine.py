@@ -53,6 +53,7 @@ LOOP_EFFECTS = {
                 "row_block_dn": [[0.0] * 4 + [1.5] * 4, [0.3] * 8], "col_block_dn": [[0.0, 0.7] * 4, [0.0] * 7 + [2.0]],
                 "frame_h": 40, "frame_w": 64},  # larger than the test inputs' 24 rows: a window per sample
     "Shared": {"k": [1.0, 3.0], "sigma_dn": [0.9, 1.6]},
+    "Noisy": {"seed": 89, "density": 0.05, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [4.0, 7.0]},  # a new normal per frame
     "RTS": {"seed": 43, "density": 0.05, "high": 0.3, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [15.0, 30.0]},
     "Dead": {"seed": 47, "density": 0.02, "levels_dn": [-3.0, 0.0, 2.5, 40.0, 400.0]},
     "RowDrift": {"k": [1.0, 3.0], "octave_dn": [[0.0, 0.4, 0.0, 0.9, 1.3, 0.5, 0.2, 0.1], [0.2] * 8]},

@@ -70,6 +70,8 @@ _DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_
 _DCOL_WHERE, _DCOL_SIZE = L.STREAM["dcol_where"], L.STREAM["dcol_size"]
 _DRD, _DRE, _DRL = L.COLUMN["drow_density"], L.COLUMN["drow_e"], L.COLUMN["drow_log_std"]
 _DROW_WHERE, _DROW_SIZE = L.STREAM["drow_where"], L.STREAM["drow_size"]
+_NZD, _NZM, _NZL = L.COLUMN["noisy_density"], L.COLUMN["noisy_median"], L.COLUMN["noisy_log_std"]
+_NOISY_WHERE, _NOISY_SIZE, _NOISY_READ = L.STREAM["noisy_where"], L.STREAM["noisy_size"], L.STREAM["noisy_read"]
 _DOFF = L.COLUMN["dark_offset"]
 _DRIFT = L.COLUMN["black_drift"]
 _RG = L.COLUMN["read_gain"]
@@ -402,6 +404,9 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.RTS:  # a telegraph pixel's step, in the frames where it is high
                 if unit(draw(keys[_RTS_WHERE], p)) < v[_RTD] and unit(draw(keys[_RTS_STATE], g)) < v[_RTH]:
                     s += v[_RTM] * math.exp(v[_RTL] * symmetric(normal, draw(keys[_RTS_SIZE], p)))
+            if stages & L.NOISY:  # a noisy pixel's own temporal noise, new in every frame
+                if unit(draw(keys[_NOISY_WHERE], p)) < v[_NZD]:
+                    s += v[_NZM] * math.exp(v[_NZL] * symmetric(normal, draw(keys[_NOISY_SIZE], p))) * symmetric(normal, draw(keys[_NOISY_READ], g))
             if stages & L.READ_TABLE:  # measured quantiles on a grid of normal scores, linear between
                 s += read_gain * v[_RQ_SCALE] * table_at(read_lut, int(v[_RQ_REC]) * 4 + c, symmetric(normal, draw(keys[_READ], g)))
             elif stages & L.READ_TUKEY:

@@ -53,6 +53,7 @@ GAIN_GRID = 1 << 42  # measured fallback: a periodic grid of pixel gains on the 
 BLACK_DRIFT = 1 << 43  # black level drifting over a sequence of frames (AR(1) across consecutive frames), all channels
 CHARGE_SHARE = 1 << 44  # charge sharing: each shot deviation mixed with its four raw neighbours' (diffusion, inter-pixel capacitance)
 DARK_ROW = 1 << 45  # leaky rows: sparse sensor rows with a high dark-current rate, before shot noise
+NOISY = 1 << 46  # noisy pixels: sparse pixels with extra Gaussian temporal noise, new in every frame
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -110,6 +111,7 @@ COLUMNS = (
     "share_c", "share_x", "share_y",  # charge sharing: weights of the pixel's own, a horizontal and a vertical neighbour's shot deviation
     "dband_f0", "dband_f1", "dband_f2",  # diagonal banding: amplitude (DN) of each tone's part fixed in phase (the sensor's)
     "drow_density", "drow_e", "drow_log_std",  # leaky rows: share of sensor rows, median electrons this exposure, log-normal spread
+    "noisy_density", "noisy_median", "noisy_log_std",  # noisy pixels: share, median extra noise (DN), log-normal spread
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -125,7 +127,7 @@ STREAMS = (
     "rts_where", "rts_size", "rts_state", "dead_where", "dead_level", "row_drift", "row_drift_phase",
     "col_band", "dhot_where", "dhot_size", "colgain_pattern", "diag_band", "dcol_where", "dcol_size",
     "spike_where", "spike_size", "crts_where", "crts_size", "crts_state", "rowgain_pattern", "rowgain_frame",
-    "drow_where", "drow_size",
+    "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -45,6 +45,7 @@ C_RGF, C_RGT = _column("rowgain_fixed"), _column("rowgain_frame")
 C_GGR, C_GGPY, C_GGPX, C_GGOY, C_GGOX = (_column(n) for n in ("ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox"))
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DRD, C_DRE, C_DRL = _column("drow_density"), _column("drow_e"), _column("drow_log_std")
+C_NZD, C_NZM, C_NZL = _column("noisy_density"), _column("noisy_median"), _column("noisy_log_std")
 C_DOFF = _column("dark_offset")
 C_DRIFT = _column("black_drift")
 C_RG = _column("read_gain")
@@ -89,6 +90,7 @@ K_COLGAIN = S["colgain_pattern"]
 K_ROWGAIN, K_ROWGAIN_FRAME = S["rowgain_pattern"], S["rowgain_frame"]
 K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
 K_DROW_WHERE, K_DROW_SIZE = S["drow_where"], S["drow_size"]
+K_NOISY_WHERE, K_NOISY_SIZE, K_NOISY_READ = S["noisy_where"], S["noisy_size"], S["noisy_read"]
 K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
 K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["crts_state"]
 K_DIAG_BAND = S["diag_band"]
@@ -340,6 +342,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         flips = (unit(draw(_key(keys_ptr, K_RTS_WHERE), p)) < _col(v, C_RTD)) & (unit(draw(_key(keys_ptr, K_RTS_STATE), g)) < _col(v, C_RTH))
         step = _col(v, C_RTM) * tl.exp(_col(v, C_RTL) * _normal(draw(_key(keys_ptr, K_RTS_SIZE), p)))
         s += tl.where(flips, step, 0.0)
+    if FLAGS & 70368744177664:  # noisy pixels: the pixel's own temporal noise, new in every frame
+        noisy = unit(draw(_key(keys_ptr, K_NOISY_WHERE), p)) < _col(v, C_NZD)
+        size = _col(v, C_NZM) * tl.exp(_col(v, C_NZL) * _normal(draw(_key(keys_ptr, K_NOISY_SIZE), p)))
+        s += tl.where(noisy, size * _normal(draw(_key(keys_ptr, K_NOISY_READ), g)), 0.0)
     read_gain = 1.0
     if FLAGS & 274877906944:  # frame-to-frame read-noise level: this frame's factor on the base read noise
         read_gain = _col(v, C_RG)

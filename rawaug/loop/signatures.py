@@ -35,7 +35,7 @@ KIND = {
     "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
     "neighbour_corr": "lag_correlations", "row_tone": "row_tone_spectrum",
     "col_tone": "col_tone_spectrum", "diag_tone": "diag_tone_bins",
-    "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram",
+    "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram", "noisy_fraction": "temporal_histogram",
     "stuck_fraction": "temporal_histogram", "spike_fraction": "temporal_histogram", "frame_noise_spread": "temporal_histogram",
     "col_flicker_fraction": "col_tone_spectrum", "flat_gain_spread": "frame_means_relative",
 }  # every other statistic: the histogram of the pixel values
