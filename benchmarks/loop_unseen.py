@@ -367,6 +367,27 @@ def leaky_rows(dn, rng, exposure=0.0, k=1.0, **_):
     return dn + rows * k * rng.poisson(12.0 * exposure, dn.shape)
 
 
+def dark_telegraph(dn, rng, exposure=0.0, k=1.0, **_):
+    """Telegraph dark current: 0.5 % of the pixels (fixed) switch between two dark-current rates 25 e-/s apart, a state per frame (high in half the frames), with its shot noise: long exposures show two states, bias frames nothing."""
+    where = np.random.default_rng(71).random(dn.shape) < 0.005
+    high = rng.random(dn.shape) < 0.5
+    return dn + k * rng.poisson(where * high * 25.0 * exposure)
+
+
+def noisy_columns(dn, rng, **_):
+    """Noisy columns: 1 % of the sensor columns (fixed) read with 4 DN more temporal noise, Gaussian, new at every pixel and frame (not a column offset)."""
+    noisy = np.random.default_rng(73).random(2 * dn.shape[2]) < 0.01
+    cols = np.stack([noisy[0::2], noisy[1::2], noisy[1::2], noisy[0::2]])[:, None, :]  # R, G2 on even sensor columns
+    return dn + cols * rng.normal(0.0, 4.0, dn.shape)
+
+
+def adc_banks(dn, rng, level=0.0, **_):
+    """Four interleaved column ADCs: sensor column c read with gain 1.00, 1.012, 0.99, 1.006 (c mod 4) on the whole signal, black-subtracted."""
+    gain = np.array([1.0, 1.012, 0.99, 1.006])[np.arange(2 * dn.shape[2]) % 4]
+    g = np.stack([gain[0::2], gain[1::2], gain[1::2], gain[0::2]])[:, None, :]
+    return dn * g
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -374,7 +395,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  impulses, column_flicker, reset_transient, noisy_frames,
                                  pdaf_pixels, row_gain, charge_sharing, lens_shading, companded_raw, channel_black,
                                  ramp_jitter, pixel_prnu, dark_current, dsnu, pixel_offsets, column_offsets, soft_knee,
-                                 hot_pixels, black_clip, fixed_tone, locked_tone, noisy_pixels, thermal_gradient, leaky_rows)}
+                                 hot_pixels, black_clip, fixed_tone, locked_tone, noisy_pixels, thermal_gradient, leaky_rows,
+                                 dark_telegraph, noisy_columns, adc_banks)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
