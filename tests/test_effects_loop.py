@@ -1082,8 +1082,8 @@ def test_noisy_pixels_are_fixed_gaussian_and_estimated():
 
 def test_noisy_fraction_tells_noisy_pixels_from_telegraph_pixels():
     """Of the pixels of high temporal variance in 8 frames, about half of the noisy ones show no
-    two states (``noisy_fraction``) and few telegraph ones do (those high or low in all but one
-    frame: 2 x 8 x 0.5^8 = 6 %, and those with a small step)."""
+    two states and stay high without their most extreme value (``noisy_fraction``); telegraph
+    pixels show two states, or (high or low in all but one frame) are not high without it."""
     from rawaug.statistics import flicker_fraction, noisy_fraction
 
     noisy = synth({"Noisy": NOISY}, batch=8, size=64)

@@ -16,11 +16,13 @@ Profile entry (the noise in DN per gain: one record per calibrated K)::
     Noisy: {seed: 83, density: 0.005, log_std: 0.3, k: [K, ...], median_dn: [...]}
 
 Detected by ``noisy_fraction`` (pixels of bias and dark stacks of >= 4 frames whose temporal
-variance a white pixel exceeds with probability 1e-6 and that show no two states: about half
-of the noisy pixels that stand out, few telegraph pixels) and ``flicker_fraction`` (the other
-half). Estimated by ``estimate`` on bias stacks: the upper tail of the pixels' temporal
-variances as the model's syntheses plus a population of noisy pixels made from the syntheses'
-own pixels (``combine``: one population over the ISOs, the noise per gain).
+variance a white pixel exceeds with probability 1e-6, with and without their most extreme
+value, and that show no two states: a heavy read-noise tail's single extreme values and
+telegraph pixels do not count) and ``flicker_fraction`` (noisy pixels whose values happen to
+split in two groups). Estimated by ``estimate`` on bias stacks: the upper tail of the pixels'
+temporal variances without their most extreme value as the model's syntheses plus a
+population of noisy pixels made from the syntheses' own pixels (``combine``: one population
+over the ISOs, the noise per gain).
 """
 from __future__ import annotations
 
