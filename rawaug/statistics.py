@@ -736,9 +736,9 @@ def pixel_states(frames):
     """((4, h, w) mask of the pixels that flicker between two states (random telegraph pixels,
     ``two_state_pixels``), (4, h, w) mask of those whose temporal variance is as high but that
     show no two states and stay as high without their most extreme value (noisy pixels:
-    ``trimmed_variances`` over ``flicker_threshold`` of N - 1 frames x the median variance)). Computed once for the same read-only array in a row
-    (the battery's repaired view: ``tile_corr``, ``flicker_fraction`` and ``noisy_fraction``
-    read it)."""
+    ``trimmed_variances`` over ``flicker_threshold`` of N - 1 frames x the median variance)).
+    Computed once for the same read-only array in a row (the battery's repaired view:
+    ``tile_corr``, ``flicker_fraction`` and ``noisy_fraction`` read it)."""
     if getattr(_last_states, "source", None) is frames:
         return _last_states.result
     arr = np.asarray(frames, dtype=np.float64)
