@@ -3,11 +3,12 @@ round trips and parameter validation."""
 import math
 
 import numpy as np
+from scipy import stats
 import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_offset, frame_gain, frame_noise, impulses, noisy_pixels, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_telegraph, dark_offset, frame_gain, frame_noise, impulses, noisy_pixels, noisy_columns, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -924,6 +925,11 @@ def test_effects_replay_bit_exactly():
     ("DarkHot", {"seed": 1, "density": 0.01, "median_e_per_s": -1.0, "log_std": 0.0}, "median_e_per_s must be >= 0, got -1.0"),
     ("DarkHot", {"seed": 1, "density": 0.01, "median_e_per_s": float("nan"), "log_std": 0.0}, "DarkHot.median_e_per_s must be finite"),
     ("DarkHot", {"density": 0.01, "median_e_per_s": 1.0, "log_std": 0.0}, "seed"),
+    ("NoisyCol", {"seed": 1, "density": 0.2, "log_std": 0.0, "k": [1.0], "median_dn": [3.0]}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
+    ("NoisyCol", {"seed": 1, "density": 0.01, "log_std": -0.5, "k": [1.0], "median_dn": [3.0]}, "log_std must be >= 0, got -0.5"),
+    ("NoisyCol", {"density": 0.01, "log_std": 0.0, "k": [1.0], "median_dn": [3.0]}, "seed"),
+    ("DarkRTS", {"seed": 1, "density": 0.01, "high": 1.5, "median_e_per_s": 1.0, "log_std": 0.0}, r"high \(share of frames in the high state\) must be in \(0, 1\), got 1.5"),
+    ("DarkRTS", {"seed": 1, "density": 0.01, "high": 0.5, "median_e_per_s": -2.0, "log_std": 0.0}, "median_e_per_s must be >= 0, got -2.0"),
     ("DarkCol", {"seed": 1, "density": 0.2, "median_e_per_s": 1.0, "log_std": 0.0}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
     ("DarkCol", {"seed": 1, "density": 0.01, "median_e_per_s": 1.0, "log_std": -0.1}, "log_std must be >= 0, got -0.1"),
     ("DarkOffset", {"k": [1.0], "dn_per_s": [float("inf")]}, "finite"),
@@ -1049,6 +1055,95 @@ def test_telegraph_pixels_jump_between_two_levels_and_are_estimated():
     assert telegraph.estimate(base[0], base[1:], K)["density"] == 0.0  # white noise does not flicker
     with pytest.raises(ValueError, match="bias stacks"):
         telegraph.estimate(f, base, K, kind="dark")
+
+
+NOISY_COL = {"seed": 101, "density": 0.05, "log_std": 0.2, "k": [K], "median_dn": [3.0]}
+
+
+def test_noisy_columns_add_white_noise_along_whole_columns_and_are_estimated():
+    from rawaug.statistics import col_flicker_fraction, column_pixel_noise, noisy_col_fraction, sensor_col_means
+
+    f = synth({"NoisyCol": NOISY_COL}, batch=16, size=64)
+    v = column_pixel_noise(f)  # (128,) sensor columns: the pixels' median temporal variance
+    med = float(np.median(v))
+    noisy = v > 3.0 * med  # 1 DN^2 of read noise; a noisy column's pixels have ~10
+    n = noisy.size
+    assert abs(noisy.mean() - 0.05) < 5 * math.sqrt(0.05 / n), noisy.mean()
+    again = column_pixel_noise(synth({"NoisyCol": NOISY_COL}, batch=16, size=64, seed=5))
+    assert np.array_equal(again > 3.0 * float(np.median(again)), noisy)  # the same columns in every call
+    # white along the column: no column offset (the column means vary by the pixels' noise over
+    # 128 of them), the pixels of a noisy column uncorrelated
+    m = sensor_col_means(f)  # (16, 128)
+    assert m[:, noisy].var(axis=0, ddof=1).mean() < 3 * (10.0 / 128)
+    cols = np.flatnonzero(noisy)
+    x = f[:, [0, 3]][..., cols[cols % 2 == 0] // 2]  # R and G2 of the even noisy sensor columns: (16, 2, 64, m)
+    r = x - x.mean(axis=0)
+    corr = float(np.mean(r[:, :, 1:] * r[:, :, :-1]) / np.mean(r**2))
+    assert abs(corr) < 5 / math.sqrt(r[:, :, 1:].size), corr
+    # the extra noise: log-normal about 3 DN, spread 0.2, over ~6 columns: median within 0.3
+    extra = np.log(np.sqrt(v[noisy] * 15 / stats.chi2.median(15) - 1.0))
+    assert abs(float(np.median(extra)) - math.log(3.0)) < 0.3
+    assert noisy_col_fraction(f) == pytest.approx(noisy.mean())  # 6 robust sigmas: the same columns
+    base = [synth({}, batch=8, size=64, seed=s) for s in range(1, 5)]
+    est = noisy_columns.estimate(synth({"NoisyCol": NOISY_COL}, batch=8, size=64, seed=7), base, K)
+    assert abs(est["density"] - noisy.mean()) <= 1 / n + 1e-12, est  # within one column of the pattern's
+    assert abs(math.log(est["median_dn"][0] / 3.0)) < 0.3, est
+    white = [noisy_columns.estimate(synth({}, batch=8, size=64, seed=s), base, K) for s in range(20, 30)]
+    assert all(noisy_columns.empty(w) for w in white), white
+    # telegraph columns (ColRTS) move the whole column: taken out with its frame means
+    colrts = synth({"ColRTS": {"seed": 79, "density": 0.05, "high": 0.5, "log_std": 0.2, "k": [K], "median_dn": [6.0]}},
+                   batch=8, size=64)
+    assert noisy_col_fraction(colrts) == 0.0 and col_flicker_fraction(colrts) > 0.02
+    with pytest.raises(ValueError, match="bias stacks"):
+        noisy_columns.estimate(f, base, K, kind="dark")
+
+
+DARK_RTS = {"seed": 97, "density": 0.01, "high": 0.4, "median_e_per_s": 25.0, "log_std": 0.3}
+
+
+def test_dark_telegraph_pixels_switch_their_dark_current_and_are_estimated():
+    dark = {"model": "G+P*", "sigma_g": 2.0}
+    assert not (synth({"DarkRTS": DARK_RTS}, batch=12, size=64, exposure_s=0.0, **dark).var(axis=0, ddof=1) > 30.0).any()
+    f = synth({"DarkRTS": DARK_RTS}, batch=12, size=64, exposure_s=4.0, **dark)  # steps of ~100 e- (K = 1)
+    spread = f.max(axis=0) - f.min(axis=0)
+    where = spread > 50.0  # read noise 2 DN, shot noise of the step 10 DN: two states 100 DN apart
+    n = where.size
+    # the density, less those high or low in all 12 frames (0.4^12 + 0.6^12 ~ 0.2 %)
+    assert abs(where.mean() - 0.01) < 5 * math.sqrt(0.01 / n), where.mean()
+    high = f[:, where] > 0.5 * (f[:, where].max(axis=0) + f[:, where].min(axis=0))  # above the midpoint of its two states
+    assert abs(high.mean() - 0.4) < 5 * math.sqrt(0.24 / high.size), high.mean()
+    # the step grows with the exposure and is electrons: 4 x as large at 16 s, its variance in
+    # the high state the step (shot noise, K = 1) plus the read noise's 4 DN^2
+    g = synth({"DarkRTS": DARK_RTS}, batch=12, size=64, exposure_s=16.0, seed=3, **dark)
+    again = g.max(axis=0) - g.min(axis=0) > 200.0
+    assert (where & again).sum() / (where | again).sum() > 0.95  # the same pixels (a few sit in one state in all 12 frames)
+    G = g[:, where & again]
+    up = G > 0.5 * (G.max(axis=0) + G.min(axis=0))
+    count = up.sum(axis=0)
+    level = (G * up).sum(axis=0) / np.maximum(count, 1)  # each pixel's mean in its high frames: 16 s of its rate (K = 1)
+    assert abs(float(np.median(np.log(level / 16.0))) - math.log(25.0)) < 5 * 0.3 * 1.25 / math.sqrt(level.size)
+    # shot noise: the high frames' variance about their mean is the step in electrons plus the
+    # read noise's 4 DN^2 (pooled over the pixels with two high frames or more)
+    ok = count >= 2
+    dof = int((count[ok] - 1).sum())
+    ss = float((((G - level) * up)[:, ok] ** 2).sum())
+    assert abs(ss / float(((count[ok] - 1) * (level[ok] + 4.0)).sum()) - 1.0) < 5 * math.sqrt(2 / dof), (ss, dof)
+    low = G[~up]
+    assert abs(low.var() - 4.0) < 5 * 4.0 * math.sqrt(2 / low.size)  # the low state: read noise only
+    # round trip from 8 darks of 4 s, against the model's darks: ~160 pixels
+    base = [synth({}, batch=8, size=64, seed=s, exposure_s=4.0, **dark) for s in range(1, 5)]
+    meas = synth({"DarkRTS": DARK_RTS}, batch=8, size=64, exposure_s=4.0, seed=7, **dark)
+    est = dark_telegraph.estimate(meas, base, K, exposure_s=4.0, kind="dark")
+    assert abs(est["density"] - 0.01) < 3 * math.sqrt(0.01 / n / 0.5), est
+    assert abs(math.log(est["median_e_per_s"] / 25.0)) < 0.1 and abs(est["log_std"] - 0.3) < 0.1, est
+    assert abs(est["high"] - 0.4) < 0.1, est
+    white = [dark_telegraph.estimate(synth({}, batch=8, size=64, seed=s, exposure_s=4.0, **dark), base, K, exposure_s=4.0,
+                                     kind="dark") for s in range(20, 30)]
+    assert all(dark_telegraph.empty(w) for w in white), white
+    with pytest.raises(ValueError, match="dark stacks"):
+        dark_telegraph.estimate(meas, base, K, exposure_s=4.0, kind="bias")
+    both = dark_telegraph.combine([est, {**est, "density": 0.0}, {**est, "median_e_per_s": 4 * est["median_e_per_s"]}])
+    assert both["density"] == est["density"] and both["median_e_per_s"] == pytest.approx(2 * est["median_e_per_s"])
 
 
 NOISY = {"seed": 83, "density": 0.02, "log_std": 0.3, "k": [K], "median_dn": [6.0]}

@@ -19,6 +19,7 @@ LOOP_EFFECTS = {
             "frame_h": 48, "frame_w": 64},  # larger than the test inputs: a window per sample
     "Hot": {"seed": 13, "density": 0.01, "log_std": 0.5, "k": [1.0], "median_dn": [50.0]},
     "DarkHot": {"seed": 61, "density": 0.03, "median_e_per_s": 5.0, "log_std": 0.5},  # before the Poisson draw
+    "DarkRTS": {"seed": 97, "density": 0.05, "high": 0.4, "median_e_per_s": 6.0, "log_std": 0.4},  # ... in some frames
     "DarkCol": {"seed": 71, "density": 0.08, "median_e_per_s": 4.0, "log_std": 0.4},  # ... keyed by the sensor column
     "DarkRow": {"seed": 83, "density": 0.08, "median_e_per_s": 4.0, "log_std": 0.4},  # ... keyed by the sensor row
     "DarkOffset": {"k": [1.0, 3.0], "dn_per_s": [-0.6, 0.4]},  # signed, either gain
@@ -54,6 +55,7 @@ LOOP_EFFECTS = {
                 "frame_h": 40, "frame_w": 64},  # larger than the test inputs' 24 rows: a window per sample
     "Shared": {"k": [1.0, 3.0], "sigma_dn": [0.9, 1.6]},
     "Noisy": {"seed": 89, "density": 0.05, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [4.0, 7.0]},  # a new normal per frame
+    "NoisyCol": {"seed": 103, "density": 0.1, "log_std": 0.3, "k": [1.0, 3.0], "median_dn": [3.0, 5.0]},  # ... keyed by the sensor column
     "RTS": {"seed": 43, "density": 0.05, "high": 0.3, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [15.0, 30.0]},
     "Dead": {"seed": 47, "density": 0.02, "levels_dn": [-3.0, 0.0, 2.5, 40.0, 400.0]},
     "RowDrift": {"k": [1.0, 3.0], "octave_dn": [[0.0, 0.4, 0.0, 0.9, 1.3, 0.5, 0.2, 0.1], [0.2] * 8]},

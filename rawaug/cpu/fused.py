@@ -72,6 +72,10 @@ _DRD, _DRE, _DRL = L.COLUMN["drow_density"], L.COLUMN["drow_e"], L.COLUMN["drow_
 _DROW_WHERE, _DROW_SIZE = L.STREAM["drow_where"], L.STREAM["drow_size"]
 _NZD, _NZM, _NZL = L.COLUMN["noisy_density"], L.COLUMN["noisy_median"], L.COLUMN["noisy_log_std"]
 _NOISY_WHERE, _NOISY_SIZE, _NOISY_READ = L.STREAM["noisy_where"], L.STREAM["noisy_size"], L.STREAM["noisy_read"]
+_TDD, _TDE, _TDL, _TDH = L.COLUMN["drts_density"], L.COLUMN["drts_e"], L.COLUMN["drts_log_std"], L.COLUMN["drts_high"]
+_DRTS_WHERE, _DRTS_SIZE, _DRTS_STATE = L.STREAM["drts_where"], L.STREAM["drts_size"], L.STREAM["drts_state"]
+_NCD, _NCM, _NCL = L.COLUMN["ncol_density"], L.COLUMN["ncol_median"], L.COLUMN["ncol_log_std"]
+_NCOL_WHERE, _NCOL_SIZE, _NCOL_READ = L.STREAM["ncol_where"], L.STREAM["ncol_size"], L.STREAM["ncol_read"]
 _DOFF = L.COLUMN["dark_offset"]
 _DRIFT = L.COLUMN["black_drift"]
 _RG = L.COLUMN["read_gain"]
@@ -335,6 +339,9 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.DARK_HOT:  # a hot pixel's dark electrons: the median this exposure times its log-normal factor
                 if unit(draw(keys[_DHOT_WHERE], p)) < v[_DHD]:
                     s += k * v[_DHE] * math.exp(v[_DHL] * symmetric(normal, draw(keys[_DHOT_SIZE], p)))
+            if stages & L.DARK_RTS:  # a dark-current telegraph pixel's step of electrons, in the frames where it is high
+                if unit(draw(keys[_DRTS_WHERE], p)) < v[_TDD] and unit(draw(keys[_DRTS_STATE], g)) < v[_TDH]:
+                    s += k * v[_TDE] * math.exp(v[_TDL] * symmetric(normal, draw(keys[_DRTS_SIZE], p)))
             if stages & L.DARK_COL:  # a leaky sensor column's dark electrons, keyed by the column
                 q = (sensor * 2 + col_set) * w + x
                 if unit(draw(keys[_DCOL_WHERE], q)) < v[_DCD]:
@@ -407,6 +414,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.NOISY:  # a noisy pixel's own temporal noise, new in every frame
                 if unit(draw(keys[_NOISY_WHERE], p)) < v[_NZD]:
                     s += v[_NZM] * math.exp(v[_NZL] * symmetric(normal, draw(keys[_NOISY_SIZE], p))) * symmetric(normal, draw(keys[_NOISY_READ], g))
+            if stages & L.NOISY_COL:  # a noisy sensor column's extra temporal noise, new at every pixel and frame
+                q = (sensor * 2 + col_set) * w + x
+                if unit(draw(keys[_NCOL_WHERE], q)) < v[_NCD]:
+                    s += v[_NCM] * math.exp(v[_NCL] * symmetric(normal, draw(keys[_NCOL_SIZE], q))) * symmetric(normal, draw(keys[_NCOL_READ], g))
             if stages & L.READ_TABLE:  # measured quantiles on a grid of normal scores, linear between
                 s += read_gain * v[_RQ_SCALE] * table_at(read_lut, int(v[_RQ_REC]) * 4 + c, symmetric(normal, draw(keys[_READ], g)))
             elif stages & L.READ_TUKEY:

@@ -2,5 +2,5 @@
 (in this order: the paper's stages, then the effects the closed loop can add)."""
 from .base import EFFECTS, DrawContext, NoiseEffect, register  # noqa: F401
 from . import color_bias, quantization, read_noise, row_noise, shot_noise  # noqa: F401
-from . import column_noise, dark_shading, hot_pixels, dark_hot_pixels, dark_columns, dark_rows, defect_lines, black_clip, frame_black_level, black_drift, dark_offset, prnu, charge_sharing, column_gain, row_gain, frame_gain, dark_current, amp_glow, gain_nonlinearity, crosstalk, frame_noise, banding, column_banding, diagonal_banding, row_pattern, row_channel, read_map, shared_pixel, telegraph, noisy_pixels, column_telegraph, impulses, dead_pixels, row_drift  # noqa: F401
+from . import column_noise, dark_shading, hot_pixels, dark_hot_pixels, dark_columns, dark_rows, defect_lines, black_clip, frame_black_level, black_drift, dark_offset, prnu, charge_sharing, column_gain, row_gain, frame_gain, dark_current, amp_glow, gain_nonlinearity, crosstalk, frame_noise, banding, column_banding, diagonal_banding, row_pattern, row_channel, read_map, shared_pixel, telegraph, dark_telegraph, noisy_pixels, noisy_columns, column_telegraph, impulses, dead_pixels, row_drift  # noqa: F401
 from . import low_frequency, code_map, read_distribution, line_profile, gain_grid  # noqa: F401  (measured fallbacks, tried last)

@@ -70,49 +70,87 @@ class Telegraph(NoiseEffect):
             raise ValueError(f"effect 'RTS': log_std must be >= 0, got {params.get('log_std')}")
 
 
-def _detected(steps, share, n, sigma, threshold, rng):
-    """(fraction detected, log steps of the detected) of telegraph pixels with ``steps`` (DN)
-    in the high state with probability ``share``, over ``n`` frames of white noise ``sigma``,
-    by the rule of ``flickering``."""
+def _detected(steps, share, n, sigma, threshold, rng, shot_k=0.0):
+    """(fraction detected, log steps of the detected, their shares of high frames) of telegraph pixels with ``steps`` (DN)
+    in the high state with probability ``share``, over ``n`` frames of white noise ``sigma``
+    (and, with ``shot_k`` > 0, the shot noise of a step of dark electrons: variance
+    ``shot_k x step`` in its high frames), by the rule of ``flickering``."""
     states = rng.random((steps.size, n)) < share
-    values = steps[:, None] * states + sigma * rng.standard_normal((steps.size, n))
-    seen, step, _ = two_state(values, threshold)
-    return float(seen.mean()), np.log(np.maximum(step, 1e-6))
+    high = steps[:, None] * states
+    noise = np.sqrt(sigma**2 + shot_k * high) if shot_k else sigma
+    values = high + noise * rng.standard_normal((steps.size, n))
+    seen, step, high = two_state(values, threshold)
+    return float(seen.mean()), np.log(np.maximum(step, 1e-6)), high
 
 
-def estimate(frames, synthesized, k: float, seed: int = 41, kind: str = "bias", **_) -> dict:
-    """RTS parameters at gain ``k`` from a bias stack (N >= 3, 4, h, w) in DN.
+def _robust(x):
+    """(median, IQR / 1.349) of ``x``: a normal sample's mean and sd, robust to a few far ones."""
+    q1, q2, q3 = np.percentile(x, [25, 50, 75])
+    return float(q2), float((q3 - q1) / 1.349)
 
-    The flickering pixels are those whose step stands out of the read noise: the detected
-    steps are the larger ones. The population (density, median, log_std) is the one whose
-    detected part, simulated over the same frames and noise by the same rule, matches the
-    measured one (a few fixed-point rounds on the detected fraction and the detected steps'
-    log mean and spread)."""
+
+def population(frames, synthesized, seed: int, shot_k: float = 0.0):
+    """(density, share of high frames, log median step (DN), log spread) of the telegraph
+    pixels of a stack (N >= 3, 4, h, w; DN) beyond the model's (its ``synthesized`` stacks),
+    or None when it shows none.
+
+    The flickering pixels are those whose step stands out of the noise: the detected steps
+    are the larger ones. The population is the one whose detected part, simulated over the
+    same frames and noise by the same rule (``_detected``) and mixed with the model's own
+    detected pixels in their share, matches the measured one: a few fixed-point rounds on the
+    log steps' median and spread (``_robust``) and the mean share of high frames; the density
+    is the found fraction over the detected one."""
     frames = np.asarray(frames, dtype=np.float64)
-    if kind != "bias" or frames.shape[0] < 3:
-        raise ValueError("RTS is measured on bias stacks of >= 3 frames")
     n = frames.shape[0]
     seen, step, share, median_var = two_state_pixels(frames)
-    base = float(np.mean([two_state_pixels(s)[0].mean() for s in synthesized])) if synthesized else 0.0
+    model = [two_state_pixels(s) for s in synthesized]
+    base = float(np.mean([m[0].mean() for m in model])) if model else 0.0
     found = max(float(seen.mean()) - base, 0.0)
-    step = step[step > 0]
-    if found == 0.0 or step.size < 2:
-        return {"seed": int(seed), "density": 0.0, "high": 0.5, "log_std": 0.0, "k": [float(k)], "median_dn": [0.0]}
-    high = float(np.clip(share.mean(), 0.05, 0.95))
+    keep = step > 0
+    if found == 0.0 or keep.sum() < 2:
+        return None
+    # the detected pixels hold the model's own too (a heavy read-noise tail, a hot pixel's shot
+    # noise): the simulated population is matched mixed with those, in their share ``w``
+    logs, share = np.log(step[keep]), share[keep]
+    own = [(np.log(m[1][m[1] > 0]), m[2][m[1] > 0]) for m in model]
+    model_logs = np.concatenate([o[0] for o in own]) if model else np.zeros(0)
+    model_share = np.concatenate([o[1] for o in own]) if model else np.zeros(0)
+    w = min(base / float(seen.mean()), 0.8) if model_logs.size else 0.0
+    target_mean, target_sd = _robust(logs)
+    target_share = float(share.mean())
+    high = float(np.clip(target_share, 0.05, 0.95))
     sigma = np.sqrt(median_var * (n - 1) / stats.chi2.median(n - 1))
     threshold = flicker_threshold(n) * median_var
-    logs = np.log(step)
-    target_mean, target_sd = float(logs.mean()), float(max(logs.std(ddof=1), 1e-3))
     mu, sd, fraction = target_mean, target_sd, 1.0
     z = np.random.default_rng(seed).standard_normal(SIMULATED)
     for _ in range(ROUNDS):
-        fraction, sim = _detected(np.exp(mu + sd * z), high, n, sigma, threshold, np.random.default_rng(seed + 1))
+        rng = np.random.default_rng(seed + 1)
+        fraction, sim, sim_share = _detected(np.exp(mu + sd * z), high, n, sigma, threshold, rng, shot_k)
         if sim.size < 2:
             break
-        mu += target_mean - float(sim.mean())
-        sd = float(np.clip(sd * target_sd / max(float(sim.std(ddof=1)), 1e-3), 0.0, 2.0))
-    return {"seed": int(seed), "density": min(found / max(fraction, 0.05), 0.1), "high": high, "log_std": sd,
-            "k": [float(k)], "median_dn": [float(math.exp(mu))]}
+        mixed = sim
+        if w:
+            mixed = np.concatenate([sim, rng.choice(model_logs, int(round(sim.size * w / (1.0 - w))))])
+        got_mean, got_sd = _robust(mixed)
+        mu += target_mean - got_mean
+        sd = float(np.clip(sd * target_sd / max(got_sd, 1e-3), 1e-3, 2.0))
+        # the detected are nearer half and half
+        got_share = (1.0 - w) * float(sim_share.mean()) + (w * float(model_share.mean()) if w else 0.0)
+        high = float(np.clip(high + target_share - got_share, 0.05, 0.95))
+    return min(found / max(fraction, 0.05), 0.1), high, mu, sd
+
+
+def estimate(frames, synthesized, k: float, seed: int = 41, kind: str = "bias", **_) -> dict:
+    """RTS parameters at gain ``k`` from a bias stack (N >= 3, 4, h, w) in DN: the telegraph
+    pixels' ``population`` beyond the model's."""
+    frames = np.asarray(frames, dtype=np.float64)
+    if kind != "bias" or frames.shape[0] < 3:
+        raise ValueError("RTS is measured on bias stacks of >= 3 frames")
+    found = population(frames, synthesized, seed)
+    if found is None:
+        return {"seed": int(seed), "density": 0.0, "high": 0.5, "log_std": 0.0, "k": [float(k)], "median_dn": [0.0]}
+    density, high, mu, sd = found
+    return {"seed": int(seed), "density": density, "high": high, "log_std": sd, "k": [float(k)], "median_dn": [float(math.exp(mu))]}
 
 
 def empty(params) -> bool:

@@ -54,6 +54,8 @@ BLACK_DRIFT = 1 << 43  # black level drifting over a sequence of frames (AR(1) a
 CHARGE_SHARE = 1 << 44  # charge sharing: each shot deviation mixed with its four raw neighbours' (diffusion, inter-pixel capacitance)
 DARK_ROW = 1 << 45  # leaky rows: sparse sensor rows with a high dark-current rate, before shot noise
 NOISY = 1 << 46  # noisy pixels: sparse pixels with extra Gaussian temporal noise, new in every frame
+DARK_RTS = 1 << 47  # dark-current telegraph: sparse pixels whose dark-current rate takes two states, a state per frame, before shot noise
+NOISY_COL = 1 << 48  # noisy columns: sparse sensor columns whose pixels read with extra Gaussian temporal noise, new at every pixel and frame
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -112,6 +114,8 @@ COLUMNS = (
     "dband_f0", "dband_f1", "dband_f2",  # diagonal banding: amplitude (DN) of each tone's part fixed in phase (the sensor's)
     "drow_density", "drow_e", "drow_log_std",  # leaky rows: share of sensor rows, median electrons this exposure, log-normal spread
     "noisy_density", "noisy_median", "noisy_log_std",  # noisy pixels: share, median extra noise (DN), log-normal spread
+    "drts_density", "drts_e", "drts_log_std", "drts_high",  # dark-current telegraph: share, median step (electrons this exposure), spread, share high
+    "ncol_density", "ncol_median", "ncol_log_std",  # noisy columns: share of sensor columns, median extra noise (DN), log-normal spread
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -128,6 +132,7 @@ STREAMS = (
     "col_band", "dhot_where", "dhot_size", "colgain_pattern", "diag_band", "dcol_where", "dcol_size",
     "spike_where", "spike_size", "crts_where", "crts_size", "crts_state", "rowgain_pattern", "rowgain_frame",
     "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
+    "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

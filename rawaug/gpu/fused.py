@@ -46,6 +46,8 @@ C_GGR, C_GGPY, C_GGPX, C_GGOY, C_GGOX = (_column(n) for n in ("ggrid_record", "g
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DRD, C_DRE, C_DRL = _column("drow_density"), _column("drow_e"), _column("drow_log_std")
 C_NZD, C_NZM, C_NZL = _column("noisy_density"), _column("noisy_median"), _column("noisy_log_std")
+C_TDD, C_TDE, C_TDL, C_TDH = _column("drts_density"), _column("drts_e"), _column("drts_log_std"), _column("drts_high")
+C_NCD, C_NCM, C_NCL = _column("ncol_density"), _column("ncol_median"), _column("ncol_log_std")
 C_DOFF = _column("dark_offset")
 C_DRIFT = _column("black_drift")
 C_RG = _column("read_gain")
@@ -90,6 +92,8 @@ K_COLGAIN = S["colgain_pattern"]
 K_ROWGAIN, K_ROWGAIN_FRAME = S["rowgain_pattern"], S["rowgain_frame"]
 K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
 K_DROW_WHERE, K_DROW_SIZE = S["drow_where"], S["drow_size"]
+K_DRTS_WHERE, K_DRTS_SIZE, K_DRTS_STATE = S["drts_where"], S["drts_size"], S["drts_state"]
+K_NCOL_WHERE, K_NCOL_SIZE, K_NCOL_READ = S["ncol_where"], S["ncol_size"], S["ncol_read"]
 K_NOISY_WHERE, K_NOISY_SIZE, K_NOISY_READ = S["noisy_where"], S["noisy_size"], S["noisy_read"]
 K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
 K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["crts_state"]
@@ -271,6 +275,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         dhot = unit(draw(_key(keys_ptr, K_DHOT_WHERE), p)) < _col(v, C_DHD)
         dark = k * _col(v, C_DHE) * tl.exp(_col(v, C_DHL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DHOT_SIZE), p)))
         s += tl.where(dhot, dark, 0.0)
+    if FLAGS & 140737488355328:  # dark-current telegraph: a pixel's step of electrons in the frames where it is high, before shot noise
+        high = (unit(draw(_key(keys_ptr, K_DRTS_WHERE), p)) < _col(v, C_TDD)) & (unit(draw(_key(keys_ptr, K_DRTS_STATE), g)) < _col(v, C_TDH))
+        step = k * _col(v, C_TDE) * tl.exp(_col(v, C_TDL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DRTS_SIZE), p)))
+        s += tl.where(high, step, 0.0)
     if FLAGS & 17179869184:  # leaky columns: a sensor column's dark electrons, before shot noise (keyed by the column)
         q = ((sensor * 2 + col_set) * W + x).to(tl.uint64)
         leaky = unit(draw(_key(keys_ptr, K_DCOL_WHERE), q)) < _col(v, C_DCD)
@@ -346,6 +354,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         noisy = unit(draw(_key(keys_ptr, K_NOISY_WHERE), p)) < _col(v, C_NZD)
         size = _col(v, C_NZM) * tl.exp(_col(v, C_NZL) * _normal(draw(_key(keys_ptr, K_NOISY_SIZE), p)))
         s += tl.where(noisy, size * _normal(draw(_key(keys_ptr, K_NOISY_READ), g)), 0.0)
+    if FLAGS & 281474976710656:  # noisy columns: a sensor column's extra temporal noise, new at every pixel and frame
+        q = ((sensor * 2 + col_set) * W + x).to(tl.uint64)
+        noisy_col = unit(draw(_key(keys_ptr, K_NCOL_WHERE), q)) < _col(v, C_NCD)
+        size = _col(v, C_NCM) * tl.exp(_col(v, C_NCL) * _normal(draw(_key(keys_ptr, K_NCOL_SIZE), q)))
+        s += tl.where(noisy_col, size * _normal(draw(_key(keys_ptr, K_NCOL_READ), g)), 0.0)
     read_gain = 1.0
     if FLAGS & 274877906944:  # frame-to-frame read-noise level: this frame's factor on the base read noise
         read_gain = _col(v, C_RG)
