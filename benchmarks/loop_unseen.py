@@ -388,6 +388,28 @@ def adc_banks(dn, rng, level=0.0, **_):
     return dn * g
 
 
+def row_telegraph(dn, rng, **_):
+    """Row telegraph noise: 1 % of the sensor rows (fixed) sit 3 DN high or low, a new choice in every frame (a trap in a row driver)."""
+    flick = np.random.default_rng(79).random(2 * dn.shape[1]) < 0.01
+    step = flick * np.where(rng.random(2 * dn.shape[1]) < 0.5, 3.0, -3.0)
+    return dn + np.stack([step[0::2], step[0::2], step[1::2], step[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
+def wide_codes(dn, rng, **_):
+    """ADC differential non-linearity with wide codes: every code 8k + 4 is 1.8 codes wide, taking 0.4 of each neighbour's input range (no code missing)."""
+    v = dn + 0.5  # whole codes by the floor
+    q = np.floor(v)
+    f, r = v - q, q % 8
+    return np.where((r == 3) & (f >= 0.6), q + 1.0, np.where((r == 5) & (f < 0.4), q - 1.0, q))
+
+
+def split_black(dn, rng, **_):
+    """Two readout halves with a black-level clamp each: the left and the right half of the sensor columns each move by 0.7 DN rms from frame to frame, independently."""
+    w = dn.shape[2]
+    off = rng.normal(0.0, 0.7, 2)
+    return dn + np.where(np.arange(w) < w // 2, off[0], off[1])[None, None, :]
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -396,7 +418,7 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  pdaf_pixels, row_gain, charge_sharing, lens_shading, companded_raw, channel_black,
                                  ramp_jitter, pixel_prnu, dark_current, dsnu, pixel_offsets, column_offsets, soft_knee,
                                  hot_pixels, black_clip, fixed_tone, locked_tone, noisy_pixels, thermal_gradient, leaky_rows,
-                                 dark_telegraph, noisy_columns, adc_banks)}
+                                 dark_telegraph, noisy_columns, adc_banks, row_telegraph, wide_codes, split_black)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
