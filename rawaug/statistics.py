@@ -784,21 +784,35 @@ def noisy_fraction(frames, level_dn=None):
     return float(pixel_states(frames)[1].mean())
 
 
-def flickering_columns(frames):
-    """Of a stack (N, 4, h, w; DN): (mask over the 2w sensor columns of those whose frame means
-    -- less the column's mean over frames and each frame's mean -- show two states by the
-    pixels' rule (``two_state`` over ``flicker_threshold`` x the median column's temporal
-    variance), their steps (DN), their shares of high frames)."""
-    m = sensor_col_means(np.asarray(frames, dtype=np.float64))  # (N, 2w)
+def flickering_lines(m):
+    """Of sensor-line means (N, L; DN): (mask over the L lines of those whose frame means -- less
+    the line's mean over frames and each frame's mean -- show two states by the pixels' rule
+    (``two_state`` over ``flicker_threshold`` x the median line's temporal variance), their
+    steps (DN), their shares of high frames)."""
     m = m - m.mean(axis=0, keepdims=True) - m.mean(axis=1, keepdims=True) + m.mean()
     values = m.T
     var = max(float(median(values.var(axis=1, ddof=1))), 1e-12)
     return two_state(values, flicker_threshold(values.shape[1]) * var)
 
 
+def flickering_columns(frames):
+    """``flickering_lines`` of a stack's (N, 4, h, w; DN) 2w sensor columns."""
+    return flickering_lines(sensor_col_means(np.asarray(frames, dtype=np.float64)))
+
+
+def flickering_rows(frames):
+    """``flickering_lines`` of a stack's (N, 4, h, w; DN) 2h sensor rows."""
+    return flickering_lines(sensor_row_means(np.asarray(frames, dtype=np.float64)))
+
+
 def col_flicker_fraction(frames, level_dn=None):
     """Fraction of the sensor columns with two states (``flickering_columns``)."""
     return float(flickering_columns(frames)[0].mean())
+
+
+def row_flicker_fraction(frames, level_dn=None):
+    """Fraction of the sensor rows with two states (``flickering_rows``)."""
+    return float(flickering_rows(frames)[0].mean())
 
 
 NOISY_LINE_Z = 6.0  # robust sigmas (over the sensor columns) above the median column: a noisy column
@@ -1313,6 +1327,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("noisy_fraction", noisy_fraction, min_frames=4, kind="bias", pixel_fraction=True),
         Statistic("spike_fraction", spike_fraction, min_frames=3, kind="bias", pixel_fraction=True),
         Statistic("col_flicker_fraction", col_flicker_fraction, min_frames=4, kind="bias", line_fraction=True, view="lines"),
+        Statistic("row_flicker_fraction", row_flicker_fraction, min_frames=4, kind="bias", line_fraction=True, view="lines"),
         Statistic("noisy_col_fraction", noisy_col_fraction, min_frames=4, kind="bias", column_fraction=True),
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
         Statistic("row_tone", row_tone, kind="bias"),

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_telegraph, dark_offset, frame_gain, frame_noise, impulses, noisy_pixels, noisy_columns, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, row_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_telegraph, dark_offset, frame_gain, frame_noise, impulses, noisy_pixels, noisy_columns, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -420,6 +420,32 @@ def test_telegraph_columns_estimate_round_trip_and_none_in_white_stacks():
     assert all(column_telegraph.empty(w) for w in white), white
     with pytest.raises(ValueError, match="bias or dark stacks"):
         column_telegraph.estimate(meas[:3], base, K, kind="bias")
+
+
+def test_telegraph_rows_jump_between_two_levels_and_are_estimated():
+    from rawaug.statistics import col_flicker_fraction, row_flicker_fraction, sensor_row_means
+
+    frames = synth({"RowRTS": COLRTS}, batch=40, size=64)
+    m = sensor_row_means(frames)  # (40, 128) DN; white noise of 1 DN over 128 pixels: 0.09 DN
+    m = m - m.mean(axis=1, keepdims=True)
+    jumpy = m.std(axis=0) > 1.0  # a 6 DN step in 30 % of the frames: sd 2.7 DN
+    assert abs(int(jumpy.sum()) - 0.05 * 128) < 5 * math.sqrt(0.05 * 128), int(jumpy.sum())
+    for row in np.flatnonzero(jumpy):
+        v = m[:, row]
+        high = v > v.min() + 0.5 * (v.max() - v.min())
+        assert abs(high.mean() - 0.3) < 5 * math.sqrt(0.3 * 0.7 / 40), high.mean()  # a state per frame
+        assert v[high].std() < 0.3 and v[~high].std() < 0.3  # two levels, the row noise apart
+    assert col_flicker_fraction(frames) == 0.0 and row_flicker_fraction(frames) > 0.8 * jumpy.mean()
+    base = [synth({}, batch=12, size=64, seed=s) for s in range(1, 5)]
+    est = row_telegraph.estimate(synth({"RowRTS": COLRTS}, batch=12, size=64, seed=3), base, K, kind="bias")
+    n = 0.05 * 128
+    assert abs(est["density"] - jumpy.mean()) < 5 * math.sqrt(0.05 / 128), est
+    assert abs(math.log(est["median_dn"][0] / 6.0)) < 5 * 0.2 / math.sqrt(n), est
+    assert abs(est["high"] - 0.3) < 5 * math.sqrt(0.21 / (12 * n)), est
+    white = [row_telegraph.estimate(synth({}, batch=12, size=64, seed=s), base, K, kind="bias") for s in range(20, 30)]
+    assert all(row_telegraph.empty(w) for w in white), white
+    with pytest.raises(ValueError, match="RowRTS is measured on bias or dark stacks"):
+        row_telegraph.estimate(frames[:3], base, K, kind="bias")
 
 
 def test_frame_noise_scales_each_frame_read_noise_and_keeps_its_mean_variance():
@@ -937,6 +963,8 @@ def test_effects_replay_bit_exactly():
     ("FrameNoise", {"k": [1.0], "log_std": [1.5]}, r"log_std \(spread of the log read-noise scale over frames\) must be in \[0, 1\], got 1.5"),
     ("ColRTS", {"seed": 1, "density": 0.01, "high": 0.0, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, r"high \(share of frames in the high state\) must be in \(0, 1\), got 0.0"),
     ("ColRTS", {"density": 0.01, "high": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, "seed"),
+    ("RowRTS", {"seed": 1, "density": 0.3, "high": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, r"density \(fraction of sensor rows\) must be in \[0, 0.1\], got 0.3"),
+    ("RowRTS", {"seed": 1, "density": 0.01, "high": 1.0, "log_std": 0.0, "k": [1.0], "median_dn": [5.0]}, r"high \(share of frames in the high state\) must be in \(0, 1\), got 1.0"),
     ("Spikes", {"density": 0.5, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]}, r"density \(fraction of pixels per frame\) must be in \[0, 0.01\], got 0.5"),
     ("Spikes", {"density": 0.0, "density_per_s": -1e-3, "log_std": 0.0, "k": [1.0], "median_dn": [10.0]}, "density_per_s"),
     ("DarkOffset", {"k": [1.0, 2.0], "dn_per_s": [1.0]}, "one value per k"),

@@ -26,6 +26,7 @@ LOOP_EFFECTS = {
     "FrameGain": {"sigma": 0.02},
     "FrameNoise": {"k": [1.0, 3.0], "log_std": [0.3, 0.1]},
     "ColRTS": {"seed": 79, "density": 0.1, "high": 0.4, "log_std": 0.3, "k": [1.0, 3.0], "median_dn": [5.0, 9.0]},
+    "RowRTS": {"seed": 109, "density": 0.1, "high": 0.6, "log_std": 0.3, "k": [1.0, 3.0], "median_dn": [4.0, 7.0]},
     "Spikes": {"density": 0.01, "density_per_s": 0.005, "log_std": 0.5, "k": [1.0, 3.0], "median_dn": [40.0, 90.0]},
     "Clip": {"floor_dn": -3.0},
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},

@@ -76,6 +76,8 @@ _TDD, _TDE, _TDL, _TDH = L.COLUMN["drts_density"], L.COLUMN["drts_e"], L.COLUMN[
 _DRTS_WHERE, _DRTS_SIZE, _DRTS_STATE = L.STREAM["drts_where"], L.STREAM["drts_size"], L.STREAM["drts_state"]
 _NCD, _NCM, _NCL = L.COLUMN["ncol_density"], L.COLUMN["ncol_median"], L.COLUMN["ncol_log_std"]
 _NCOL_WHERE, _NCOL_SIZE, _NCOL_READ = L.STREAM["ncol_where"], L.STREAM["ncol_size"], L.STREAM["ncol_read"]
+_RRD, _RRM, _RRL, _RRH = L.COLUMN["rrts_density"], L.COLUMN["rrts_median"], L.COLUMN["rrts_log_std"], L.COLUMN["rrts_high"]
+_RRTS_WHERE, _RRTS_SIZE, _RRTS_STATE = L.STREAM["rrts_where"], L.STREAM["rrts_size"], L.STREAM["rrts_state"]
 _DOFF = L.COLUMN["dark_offset"]
 _DRIFT = L.COLUMN["black_drift"]
 _RG = L.COLUMN["read_gain"]
@@ -437,6 +439,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 q = (sensor * 2 + col_set) * w + x
                 if unit(draw(keys[_CRTS_WHERE], q)) < v[_CRD] and unit(draw(keys[_CRTS_STATE], (b * 2 + col_set) * w + x)) < v[_CRH]:
                     s += v[_CRM] * math.exp(v[_CRL] * symmetric(normal, draw(keys[_CRTS_SIZE], q)))
+            if stages & L.ROW_RTS:  # a telegraph row's step, in the frames where it is high
+                q = (sensor * 2 + row_set) * h + y
+                if unit(draw(keys[_RRTS_WHERE], q)) < v[_RRD] and unit(draw(keys[_RRTS_STATE], (b * 2 + row_set) * h + y)) < v[_RRH]:
+                    s += v[_RRM] * math.exp(v[_RRL] * symmetric(normal, draw(keys[_RRTS_SIZE], q)))
             if stages & L.COL:
                 s += v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
                 s += v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))

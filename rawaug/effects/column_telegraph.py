@@ -47,6 +47,7 @@ class ColumnTelegraph(NoiseEffect):
     order = READ + 7
     flag = L.COL_RTS
     columns = ("crts_density", "crts_median", "crts_log_std", "crts_high")
+    lines = "sensor columns"  # what its density is a fraction of
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
@@ -62,7 +63,7 @@ class ColumnTelegraph(NoiseEffect):
     def validate_params(cls, params):
         validate_records(cls.token, params, ("median_dn",), nonnegative=("median_dn",))
         check_seed(cls.token, params)
-        check_density(cls.token, params, of="sensor columns")
+        check_density(cls.token, params, of=cls.lines)
         high = _number(params.get("high"), f"{cls.token}.high")
         if not 0.0 < high < 1.0:
             raise ValueError(f"effect {cls.token!r}: high (share of frames in the high state) must be in (0, 1), got {high}")
@@ -74,11 +75,18 @@ def estimate(frames, synthesized, k: float, kind=None, seed: int = 79, **_) -> d
     """ColRTS record at gain ``k`` from a bias or dark stack (N >= 4, 4, h, w) in DN, against
     stacks of the same shape synthesized by the model (``combine`` of this stack alone; what it
     saw is kept under ``"_seen"`` for ``combine`` over stacks)."""
+    return line_estimate("ColRTS", flickering_columns, frames, synthesized, k, kind, seed)
+
+
+def line_estimate(token, flickering, frames, synthesized, k, kind, seed) -> dict:
+    """A telegraph-line record (``ColRTS``, ``RowRTS``) at gain ``k`` from a bias or dark stack
+    (N >= 4, 4, h, w; DN), its two-state lines by ``flickering`` (mask, steps, shares), against
+    the model's ``synthesized`` stacks."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind not in ("bias", "dark") or frames.shape[0] < 4:
-        raise ValueError("ColRTS is measured on bias or dark stacks of >= 4 frames")
-    seen, step, share = flickering_columns(frames)
-    base = float(np.mean([flickering_columns(s)[0].mean() for s in synthesized])) if synthesized else 0.0
+        raise ValueError(f"{token} is measured on bias or dark stacks of >= 4 frames")
+    seen, step, share = flickering(frames)
+    base = float(np.mean([flickering(s)[0].mean() for s in synthesized])) if synthesized else 0.0
     n = frames.shape[0]
     record = {"seed": int(seed), "k": [float(k)], "_seen": {"n_frames": n, "detected": max(float(seen.mean()) - base, 0.0),
                                                             "false": base, "columns": np.flatnonzero(seen).tolist(), "width": int(seen.size),

@@ -56,6 +56,7 @@ DARK_ROW = 1 << 45  # leaky rows: sparse sensor rows with a high dark-current ra
 NOISY = 1 << 46  # noisy pixels: sparse pixels with extra Gaussian temporal noise, new in every frame
 DARK_RTS = 1 << 47  # dark-current telegraph: sparse pixels whose dark-current rate takes two states, a state per frame, before shot noise
 NOISY_COL = 1 << 48  # noisy columns: sparse sensor columns whose pixels read with extra Gaussian temporal noise, new at every pixel and frame
+ROW_RTS = 1 << 49  # row telegraph noise: sparse sensor rows with two offsets, a state per frame
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -116,6 +117,7 @@ COLUMNS = (
     "noisy_density", "noisy_median", "noisy_log_std",  # noisy pixels: share, median extra noise (DN), log-normal spread
     "drts_density", "drts_e", "drts_log_std", "drts_high",  # dark-current telegraph: share, median step (electrons this exposure), spread, share high
     "ncol_density", "ncol_median", "ncol_log_std",  # noisy columns: share of sensor columns, median extra noise (DN), log-normal spread
+    "rrts_density", "rrts_median", "rrts_log_std", "rrts_high",  # row telegraph: share of sensor rows, step (DN), spread, share high
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -133,6 +135,7 @@ STREAMS = (
     "spike_where", "spike_size", "crts_where", "crts_size", "crts_state", "rowgain_pattern", "rowgain_frame",
     "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
+    "rrts_where", "rrts_size", "rrts_state",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -48,6 +48,7 @@ C_DRD, C_DRE, C_DRL = _column("drow_density"), _column("drow_e"), _column("drow_
 C_NZD, C_NZM, C_NZL = _column("noisy_density"), _column("noisy_median"), _column("noisy_log_std")
 C_TDD, C_TDE, C_TDL, C_TDH = _column("drts_density"), _column("drts_e"), _column("drts_log_std"), _column("drts_high")
 C_NCD, C_NCM, C_NCL = _column("ncol_density"), _column("ncol_median"), _column("ncol_log_std")
+C_RRD, C_RRM, C_RRL, C_RRH = _column("rrts_density"), _column("rrts_median"), _column("rrts_log_std"), _column("rrts_high")
 C_DOFF = _column("dark_offset")
 C_DRIFT = _column("black_drift")
 C_RG = _column("read_gain")
@@ -94,6 +95,7 @@ K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
 K_DROW_WHERE, K_DROW_SIZE = S["drow_where"], S["drow_size"]
 K_DRTS_WHERE, K_DRTS_SIZE, K_DRTS_STATE = S["drts_where"], S["drts_size"], S["drts_state"]
 K_NCOL_WHERE, K_NCOL_SIZE, K_NCOL_READ = S["ncol_where"], S["ncol_size"], S["ncol_read"]
+K_RRTS_WHERE, K_RRTS_SIZE, K_RRTS_STATE = S["rrts_where"], S["rrts_size"], S["rrts_state"]
 K_NOISY_WHERE, K_NOISY_SIZE, K_NOISY_READ = S["noisy_where"], S["noisy_size"], S["noisy_read"]
 K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
 K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["crts_state"]
@@ -406,6 +408,12 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         flick = (unit(draw(_key(keys_ptr, K_CRTS_WHERE), q)) < _col(v, C_CRD)) & \
             (unit(draw(_key(keys_ptr, K_CRTS_STATE), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64))) < _col(v, C_CRH))
         step = _col(v, C_CRM) * tl.exp(_col(v, C_CRL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_CRTS_SIZE), q)))
+        s += tl.where(flick, step, 0.0)
+    if FLAGS & 562949953421312:  # row telegraph noise: a telegraph row's step, in the frames where it is high
+        q = ((sensor * 2 + row_set) * H + y).to(tl.uint64)
+        flick = (unit(draw(_key(keys_ptr, K_RRTS_WHERE), q)) < _col(v, C_RRD)) & \
+            (unit(draw(_key(keys_ptr, K_RRTS_STATE), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64))) < _col(v, C_RRH))
+        step = _col(v, C_RRM) * tl.exp(_col(v, C_RRL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_RRTS_SIZE), q)))
         s += tl.where(flick, step, 0.0)
     if FLAGS & 256:  # column noise: per frame and fixed
         s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))

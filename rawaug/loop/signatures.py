@@ -38,7 +38,7 @@ KIND = {
     "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram", "noisy_fraction": "temporal_histogram",
     "stuck_fraction": "temporal_histogram", "spike_fraction": "temporal_histogram", "frame_noise_spread": "temporal_histogram",
     "col_flicker_fraction": "col_tone_spectrum", "flat_gain_spread": "frame_means_relative",
-    "noisy_col_fraction": "column_noise",
+    "noisy_col_fraction": "column_noise", "row_flicker_fraction": "row_tone_spectrum",
 }  # every other statistic: the histogram of the pixel values
 LABEL = {
     "radial_spectrum": ("radial frequency (cycles/pixel)", "power (DN^2)", True),
