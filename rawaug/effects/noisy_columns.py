@@ -37,6 +37,7 @@ from ..engine import layout as L
 from ..statistics import column_pixel_noise, median, noisy_columns
 from .base import DARK, NoiseEffect, pattern_key, register
 from .k_records import _number, check_density, check_seed, validate_records, value_at_k
+from .noisy_pixels import combine  # noqa: F401  (one population over the bias stacks, the noise per gain: Noisy's)
 
 STATISTICS = ("noisy_col_fraction", "read_noise_spread", "noisy_fraction", "flicker_fraction")  # its pixels are noisy ones
 
@@ -88,22 +89,6 @@ def estimate(frames, synthesized, k: float, seed: int = 101, kind: str = "bias",
     logs = np.log(extra)
     return {"seed": int(seed), "density": min(density, 0.1), "log_std": float(logs.std(ddof=1)), "k": [float(k)],
             "median_dn": [float(math.exp(float(median(logs))))]}
-
-
-def combine(records: list[dict]) -> dict:
-    """One population from the bias stacks: density and log spread the medians over the stacks
-    that found any (a stack whose read noise hides the columns finds few), the noise per gain
-    the geometric mean of those stacks at that K."""
-    seen = [r for r in records if r["density"] > 0]
-    if not seen:
-        return {**records[0], "k": [float(records[0]["k"][0])], "median_dn": [0.0]}
-    by_k: dict = {}
-    for r in seen:
-        by_k.setdefault(float(r["k"][0]), []).append(r["median_dn"][0])
-    ks = sorted(by_k)
-    return {"seed": seen[0]["seed"], "density": float(np.median([r["density"] for r in seen])),
-            "log_std": float(np.median([r["log_std"] for r in seen])), "k": ks,
-            "median_dn": [float(np.exp(np.mean(np.log(by_k[k])))) for k in ks]}
 
 
 def empty(params) -> bool:
