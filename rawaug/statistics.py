@@ -849,6 +849,86 @@ def noisy_col_fraction(frames, level_dn=None):
     return float(noisy_columns(frames)[0].mean())
 
 
+TAP_WINDOW = 16  # sensor lines each side of a gap whose levels are compared (a readout tap's edge)
+TAP_TRIM = 2  # lines left out at each end of a window's sorted values: a flickering or defect line does not count
+TAP_P = 1e-3  # chance that a stack with one black level shows an edge along an axis
+
+
+def _line_residuals(m):
+    """Sensor-line means (N, L) less each line's mean over frames and each frame's mean."""
+    return m - m.mean(axis=0, keepdims=True) - m.mean(axis=1, keepdims=True) + m.mean()
+
+
+def tap_steps(m, window: int = TAP_WINDOW):
+    """(L + 1,) of sensor-line means ``m`` (N >= 2, L; DN): at each gap g (before line g), the
+    temporal variance (ddof 1) of the step from the level of the ``window`` lines before it to
+    that of the ``window`` lines after it, of each frame's line residuals (less the line's mean
+    over frames and the frame's mean); NaN within ``window`` lines of an end. A level is the
+    mean of a window's values less the ``TAP_TRIM`` lowest and highest (94 % of a mean's
+    efficiency on Gaussian lines; a flickering or defect line does not move it). A black
+    level of its own per readout tap, new in every frame, steps at the tap's edges."""
+    n, lines = m.shape
+    out = np.full(lines + 1, np.nan)
+    if lines < 2 * window:
+        return out
+    r = _line_residuals(m)
+    v = np.sort(np.lib.stride_tricks.sliding_window_view(r, window, axis=1), axis=2)  # (N, L - window + 1, window): lines g..
+    level = v[:, :, TAP_TRIM:window - TAP_TRIM].mean(axis=2)
+    out[window:lines - window + 1] = (level[:, window:] - level[:, :-window]).var(axis=0, ddof=1)
+    return out
+
+
+def _change_point(r, lo: int, hi: int, first: int, last: int) -> int:
+    """The gap g in [first, last] that splits lines lo .. hi - 1 of the residuals ``r`` (N, L)
+    into two runs, each with a level of its own in every frame, with the least squared error."""
+    x = r[:, lo:hi]
+    c1 = np.concatenate([np.zeros((x.shape[0], 1)), np.cumsum(x, axis=1)], axis=1)  # sums of lines lo .. lo + j - 1
+    c2 = np.concatenate([np.zeros((x.shape[0], 1)), np.cumsum(x * x, axis=1)], axis=1)
+    j = np.arange(first - lo, last - lo + 1)
+    n = hi - lo
+    left = c2[:, j] - c1[:, j] ** 2 / j
+    right = (c2[:, -1:] - c2[:, j]) - (c1[:, -1:] - c1[:, j]) ** 2 / (n - j)
+    return int(lo + j[np.argmin((left + right).sum(axis=0))])
+
+
+def tap_edges(m, window: int = TAP_WINDOW, p: float = TAP_P) -> list[int]:
+    """Readout-tap edges (gaps, ascending: the first line of each new tap) of sensor-line means
+    ``m`` (N >= 3, L; DN): the gaps whose ``tap_steps`` exceed the median gap's by more than a
+    chi-square of N - 1 degrees does by chance at one of the gaps with probability ``p`` (over
+    its median), the largest within ``window`` gaps, each then placed by least squares
+    (``_change_point``) within ``window / 2`` lines of it."""
+    s = tap_steps(m, window)
+    ok = np.isfinite(s)
+    n = m.shape[0]
+    if ok.sum() < 3 or n < 3:
+        return []
+    med = float(np.median(s[ok]))
+    ratio = sstats.chi2.isf(p / ok.sum(), n - 1) / sstats.chi2.median(n - 1)
+    v = np.where(ok, s, -np.inf)
+    high = v > max(med, 1e-30) * ratio
+    peak = ndimage.maximum_filter1d(v, 2 * window + 1, mode="constant", cval=-np.inf)
+    r = _line_residuals(m)
+    lines = m.shape[1]
+    half = window // 2
+    return sorted({_change_point(r, max(g - window, 0), min(g + window, lines), max(g - half, 1), min(g + half, lines - 1))
+                   for g in np.flatnonzero(high & (v >= peak))})
+
+
+def tap_step_ratio(frames, level_dn=None):
+    """Largest ``tap_steps`` over the median gap's, over the sensor columns and the sensor rows:
+    near 1 to a few for a readout with one black level, the tap offsets' variance over the
+    lines' noise for a readout in taps (halves, quadrants) each with a black level of its own
+    that moves from frame to frame."""
+    f = np.asarray(frames, dtype=np.float64)
+    best = 1.0
+    for m in (sensor_col_means(f), sensor_row_means(f)):
+        s = tap_steps(m)
+        s = s[np.isfinite(s)]
+        if s.size >= 3:
+            best = max(best, float(s.max() / max(np.median(s), 1e-30)))
+    return best
+
+
 SPIKE_Z = 8.0  # robust sigmas above the pixel's other frames: a single-frame event, not noise
 
 
@@ -1329,6 +1409,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("col_flicker_fraction", col_flicker_fraction, min_frames=4, kind="bias", line_fraction=True, view="lines"),
         Statistic("row_flicker_fraction", row_flicker_fraction, min_frames=4, kind="bias", line_fraction=True, view="lines"),
         Statistic("noisy_col_fraction", noisy_col_fraction, min_frames=4, kind="bias", column_fraction=True),
+        Statistic("tap_step_ratio", tap_step_ratio, min_frames=3, kind="bias"),
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("col_tone", col_tone, kind="bias"),

@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, row_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_telegraph, dark_offset, frame_gain, frame_noise, impulses, noisy_pixels, noisy_columns, diagonal_banding, crosstalk, read_map, row_channel, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, row_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_telegraph, dark_offset, frame_gain, frame_noise, impulses, noisy_pixels, noisy_columns, diagonal_banding, crosstalk, read_map, row_channel, tap_black, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
-from rawaug.engine.layout import XTALK_LAGS
+from rawaug.engine.layout import COLUMN_SET, ROW_SET, XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
                                without_stuck)
 
@@ -954,6 +954,14 @@ def test_effects_replay_bit_exactly():
     ("NoisyCol", {"seed": 1, "density": 0.2, "log_std": 0.0, "k": [1.0], "median_dn": [3.0]}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
     ("NoisyCol", {"seed": 1, "density": 0.01, "log_std": -0.5, "k": [1.0], "median_dn": [3.0]}, "log_std must be >= 0, got -0.5"),
     ("NoisyCol", {"density": 0.01, "log_std": 0.0, "k": [1.0], "median_dn": [3.0]}, "seed"),
+    ("TapBlack", {"col_edges": [64], "row_edges": [], "k": [1.0], "sigma_dn": [0.5]}, "needs frame_h and frame_w"),
+    ("TapBlack", {"col_edges": [64, 32], "row_edges": [], "frame_h": 64, "frame_w": 64, "k": [1.0], "sigma_dn": [0.5]},
+     r"col_edges must be strictly increasing, got \[64, 32\]"),
+    ("TapBlack", {"col_edges": [], "row_edges": [128], "frame_h": 64, "frame_w": 64, "k": [1.0], "sigma_dn": [0.5]},
+     r"row_edges values must be whole sensor lines in \(0, 128\), got 128"),
+    ("TapBlack", {"col_edges": list(range(8, 72, 8)), "row_edges": [], "frame_h": 64, "frame_w": 64, "k": [1.0], "sigma_dn": [0.5]},
+     "col_edges must be a list of at most 7 sensor lines"),
+    ("TapBlack", {"col_edges": [64], "row_edges": [], "frame_h": 64, "frame_w": 64, "k": [1.0], "sigma_dn": [-0.5]}, "sigma_dn must be >= 0"),
     ("DarkRTS", {"seed": 1, "density": 0.01, "high": 1.5, "median_e_per_s": 1.0, "log_std": 0.0}, r"high \(share of frames in the high state\) must be in \(0, 1\), got 1.5"),
     ("DarkRTS", {"seed": 1, "density": 0.01, "high": 0.5, "median_e_per_s": -2.0, "log_std": 0.0}, "median_e_per_s must be >= 0, got -2.0"),
     ("DarkCol", {"seed": 1, "density": 0.2, "median_e_per_s": 1.0, "log_std": 0.0}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
@@ -1292,3 +1300,65 @@ def test_row_drift_is_shared_by_nearby_rows_and_its_spectrum_estimated():
     assert kept <= 1, kept
     with pytest.raises(ValueError, match="bias and dark stacks"):
         row_drift.estimate(f, base, K, level_dn=100.0)
+
+
+TAPS = {"col_edges": [37], "row_edges": [40], "frame_h": 32, "frame_w": 32, "k": [K], "sigma_dn": [1.0]}  # quadrants
+
+
+def _sensor(f):
+    """(N, 2h, 2w) raw mosaics of packed frames (N, 4, h, w)."""
+    n, _, h, w = f.shape
+    raw = np.empty((n, 2 * h, 2 * w))
+    for c in range(4):
+        raw[:, ROW_SET[c]::2, COLUMN_SET[c]::2] = f[:, c]
+    return raw
+
+
+def test_readout_taps_offset_each_tap_in_each_frame():
+    # 1e-3 DN of read noise: the frames are the taps' offsets
+    raw = _sensor(synth({"TapBlack": TAPS}, batch=400, size=32, sigma_g=1e-3))
+    quads = [raw[:, :40, :37], raw[:, :40, 37:], raw[:, 40:, :37], raw[:, 40:, 37:]]
+    assert max(np.abs(q - q.mean(axis=(1, 2), keepdims=True)).max() for q in quads) < 0.01  # one value per tap and frame
+    c = np.cov(np.stack([q.mean(axis=(1, 2)) for q in quads]))
+    n = raw.shape[0]
+    assert np.all(np.abs(np.diag(c) - 1.0) < 5 * math.sqrt(2 / (n - 1))), c  # sigma_dn 1: variance 1 per tap
+    off = c[~np.eye(4, dtype=bool)]
+    assert np.all(np.abs(off) < 5 / math.sqrt(n)), c  # independent taps
+    # an input smaller than the frame is a window of it: its edges where the window puts them
+    small = _sensor(synth({"TapBlack": TAPS}, batch=64, size=16, sigma_g=1e-3))
+    cols = {int(j) + 1 for r in small for j in np.flatnonzero(np.abs(np.diff(r[0])) > 0.1)}
+    rows = {int(j) + 1 for r in small for j in np.flatnonzero(np.abs(np.diff(r[:, 0])) > 0.1)}
+    assert len(cols) > 3 and all(j % 2 == 1 for j in cols), cols  # the odd sensor column 37 - 2 x offset
+    assert len(rows) > 3 and all(j % 2 == 0 for j in rows), rows
+
+
+def test_readout_taps_are_found_and_estimated():
+    from rawaug.statistics import sensor_col_means, tap_edges, tap_step_ratio
+
+    base = [synth({}, batch=32, size=64, seed=s) for s in range(1, 4)]
+    two = {**TAPS, "row_edges": [], "frame_h": 64, "frame_w": 64, "col_edges": [61]}
+    f = synth({"TapBlack": two}, batch=32, size=64, seed=5)
+    assert tap_edges(sensor_col_means(f)) == [61]
+    assert tap_step_ratio(f) > 20 * max(tap_step_ratio(b) for b in base)
+    est = tap_black.estimate(f, base, K, kind="bias")
+    seen = est.pop("_seen")
+    assert est["col_edges"] == [61] and est["row_edges"] == [] and seen["edges"]["col"] == [61]
+    # sigma^2 from 32 frames and 2 taps: the variance of the taps' difference, 31 degrees of freedom
+    assert abs(est["sigma_dn"][0] ** 2 - 1.0) < 5 * math.sqrt(2 / 31), est
+    quads = tap_black.estimate(synth({"TapBlack": {**TAPS, "frame_h": 64, "frame_w": 64}}, batch=32, size=64, seed=6),
+                               base, K, kind="dark")
+    assert quads["col_edges"] == [37] and quads["row_edges"] == [40], quads
+    assert abs(quads["sigma_dn"][0] ** 2 - 1.0) < 5 * math.sqrt(2 / 31), quads
+    # over stacks: an edge one stack of three finds is not the sensor's; the offsets per gain
+    low = tap_black.estimate(synth({"TapBlack": {**two, "sigma_dn": [0.5]}}, batch=32, size=64, seed=7), base, K, kind="bias")
+    one = tap_black.estimate(synth({"TapBlack": {**two, "col_edges": [20]}}, batch=32, size=64, seed=8), base, 2 * K, kind="bias")
+    both = tap_black.combine([{**est, "_seen": seen}, low, one])
+    assert both["col_edges"] == [61] and both["k"] == [K, 2 * K], both
+    assert abs(both["sigma_dn"][0] ** 2 - (1.0 + 0.25) / 2) < 5 * math.sqrt(2 / 31) / 2, both
+    # ELD-model stacks: no edge in 20 seeds
+    white = [tap_black.estimate(synth({}, batch=8, size=64, seed=s), base, K, kind="bias") for s in range(20, 40)]
+    assert all(tap_black.empty(w) for w in white), [w["col_edges"] + w["row_edges"] for w in white]
+    with pytest.raises(ValueError, match="bias or dark stacks of >= 3 frames"):
+        tap_black.estimate(f, base, K, kind="flat")
+    with pytest.raises(ValueError, match="bias or dark stacks of >= 3 frames"):
+        tap_black.estimate(f[:2], base, K, kind="bias")

@@ -30,6 +30,8 @@ LOOP_EFFECTS = {
     "Spikes": {"density": 0.01, "density_per_s": 0.005, "log_std": 0.5, "k": [1.0, 3.0], "median_dn": [40.0, 90.0]},
     "Clip": {"floor_dn": -3.0},
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
+    "TapBlack": {"col_edges": [21, 60, 95], "row_edges": [30], "frame_h": 40, "frame_w": 64, "k": [1.0, 3.0],
+                 "sigma_dn": [0.6, 1.1]},  # an odd sensor column; larger than the test inputs' 24 rows: a window per sample
     "BlackDrift": {"k": [1.0, 3.0], "sigma_dn": [0.7, 1.5], "rho": [0.8, 0.8]},
     "PRNU": {"seed": 17, "sigma": 0.02},
     "ChargeShare": {"share_x": 0.04, "share_y": 0.02},  # neighbours' shot draws, through this pixel's gains

@@ -78,6 +78,10 @@ _NCD, _NCM, _NCL = L.COLUMN["ncol_density"], L.COLUMN["ncol_median"], L.COLUMN["
 _NCOL_WHERE, _NCOL_SIZE, _NCOL_READ = L.STREAM["ncol_where"], L.STREAM["ncol_size"], L.STREAM["ncol_read"]
 _RRD, _RRM, _RRL, _RRH = L.COLUMN["rrts_density"], L.COLUMN["rrts_median"], L.COLUMN["rrts_log_std"], L.COLUMN["rrts_high"]
 _RRTS_WHERE, _RRTS_SIZE, _RRTS_STATE = L.STREAM["rrts_where"], L.STREAM["rrts_size"], L.STREAM["rrts_state"]
+_TPS, _TPC0, _TPR0 = L.COLUMN["tap_sigma"], L.COLUMN["tap_c0"], L.COLUMN["tap_r0"]
+_TPOY, _TPOX, _TPH, _TPW, _TAP = L.COLUMN["tap_oy"], L.COLUMN["tap_ox"], L.COLUMN["tap_h"], L.COLUMN["tap_w"], L.STREAM["tap"]
+_TPE = L.TAP_EDGES
+_TAPS = _TPE + 1
 _DOFF = L.COLUMN["dark_offset"]
 _DRIFT = L.COLUMN["black_drift"]
 _RG = L.COLUMN["read_gain"]
@@ -310,6 +314,15 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             rmw = int(v[_RMW]) if v[_RMW] > 0.0 else w
             rmox = int(v[_RMOX])
             rm_row = v[_RMC0 + c] ** 2 + v[_RMY0 + min((y + int(v[_RMOY])) * _NB // rmh, _NB - 1)] ** 2
+        tap_row, tap_ox, tap_cols = 0, 0, 2.0 * w
+        if stages & L.TAP_BLACK:  # readout taps: this row's band of taps; the column's tap below
+            tap_ox = int(v[_TPOX])
+            tap_cols = 2.0 * (v[_TPW] if v[_TPW] > 0.0 else w)
+            sy = 2 * (y + int(v[_TPOY])) + row_set
+            tap_rows = 2.0 * (v[_TPH] if v[_TPH] > 0.0 else h)
+            for i in range(_TPE):
+                if sy >= v[_TPR0 + i] * tap_rows:
+                    tap_row += 1
         read_gain = v[_RG] if stages & L.FRAME_NOISE else 1.0  # this frame's factor on the base read noise
         row_gain = 1.0  # the sensor row's gain on the photo signal: its fixed part and this frame's
         if stages & L.ROW_GAIN:
@@ -459,6 +472,13 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.LOW_FREQ:
                 s += v[_LF] * lowfreq_at(normal, keys[_LOWFREQ], b, y, x, h, w, int(v[_LF_GH]), int(v[_LF_GW]))
             s += line
+            if stages & L.TAP_BLACK:  # this frame's offset of the pixel's tap
+                sx = 2 * (x + tap_ox) + col_set
+                tap = tap_row * _TAPS
+                for i in range(_TPE):
+                    if sx >= v[_TPC0 + i] * tap_cols:
+                        tap += 1
+                s += v[_TPS] * symmetric(normal, draw(keys[_TAP], b * _TAPS * _TAPS + tap))
             if stages & L.CODE_MAP:
                 code = math.floor(s + 0.5)
                 i = int(code - v[_CM_LO])

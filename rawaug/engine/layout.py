@@ -57,6 +57,8 @@ NOISY = 1 << 46  # noisy pixels: sparse pixels with extra Gaussian temporal nois
 DARK_RTS = 1 << 47  # dark-current telegraph: sparse pixels whose dark-current rate takes two states, a state per frame, before shot noise
 NOISY_COL = 1 << 48  # noisy columns: sparse sensor columns whose pixels read with extra Gaussian temporal noise, new at every pixel and frame
 ROW_RTS = 1 << 49  # row telegraph noise: sparse sensor rows with two offsets, a state per frame
+TAP_BLACK = 1 << 50  # readout taps: a grid of regions, each with a black-level offset of its own in every frame
+TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
@@ -118,6 +120,9 @@ COLUMNS = (
     "drts_density", "drts_e", "drts_log_std", "drts_high",  # dark-current telegraph: share, median step (electrons this exposure), spread, share high
     "ncol_density", "ncol_median", "ncol_log_std",  # noisy columns: share of sensor columns, median extra noise (DN), log-normal spread
     "rrts_density", "rrts_median", "rrts_log_std", "rrts_high",  # row telegraph: share of sensor rows, step (DN), spread, share high
+    "tap_sigma",  # readout taps: offset std per frame and tap (DN)
+    *(f"tap_c{i}" for i in range(TAP_EDGES)), *(f"tap_r{i}" for i in range(TAP_EDGES)),  # ... edges, fractions of the sensor lines (2: none)
+    "tap_oy", "tap_ox", "tap_h", "tap_w",  # ... the input's window of the measured frame (packed pixels; 0: the input is the sensor)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -135,7 +140,7 @@ STREAMS = (
     "spike_where", "spike_size", "crts_where", "crts_size", "crts_state", "rowgain_pattern", "rowgain_frame",
     "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
-    "rrts_where", "rrts_size", "rrts_state",
+    "rrts_where", "rrts_size", "rrts_state", "tap",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

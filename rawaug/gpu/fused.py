@@ -49,6 +49,9 @@ C_NZD, C_NZM, C_NZL = _column("noisy_density"), _column("noisy_median"), _column
 C_TDD, C_TDE, C_TDL, C_TDH = _column("drts_density"), _column("drts_e"), _column("drts_log_std"), _column("drts_high")
 C_NCD, C_NCM, C_NCL = _column("ncol_density"), _column("ncol_median"), _column("ncol_log_std")
 C_RRD, C_RRM, C_RRL, C_RRH = _column("rrts_density"), _column("rrts_median"), _column("rrts_log_std"), _column("rrts_high")
+C_TPS, C_TPC0, C_TPR0 = _column("tap_sigma"), _column("tap_c0"), _column("tap_r0")
+C_TPOY, C_TPOX, C_TPH, C_TPW = _column("tap_oy"), _column("tap_ox"), _column("tap_h"), _column("tap_w")
+TPE = tl.constexpr(L.TAP_EDGES)
 C_DOFF = _column("dark_offset")
 C_DRIFT = _column("black_drift")
 C_RG = _column("read_gain")
@@ -96,6 +99,7 @@ K_DROW_WHERE, K_DROW_SIZE = S["drow_where"], S["drow_size"]
 K_DRTS_WHERE, K_DRTS_SIZE, K_DRTS_STATE = S["drts_where"], S["drts_size"], S["drts_state"]
 K_NCOL_WHERE, K_NCOL_SIZE, K_NCOL_READ = S["ncol_where"], S["ncol_size"], S["ncol_read"]
 K_RRTS_WHERE, K_RRTS_SIZE, K_RRTS_STATE = S["rrts_where"], S["rrts_size"], S["rrts_state"]
+K_TAP = S["tap"]
 K_NOISY_WHERE, K_NOISY_SIZE, K_NOISY_READ = S["noisy_where"], S["noisy_size"], S["noisy_read"]
 K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
 K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["crts_state"]
@@ -481,6 +485,20 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 8796093022208:  # black level drifting over the frames of a sequence
         line += _col(v, C_DRIFT)
     s += line
+    if FLAGS & 1125899906842624:  # readout taps: this frame's offset of the pixel's tap
+        tph = _col(v, C_TPH)
+        tpw = _col(v, C_TPW)
+        rows = 2.0 * tl.where(tph > 0.0, tph, H.to(tl.float64))
+        cols = 2.0 * tl.where(tpw > 0.0, tpw, W.to(tl.float64))
+        sy = (2 * (y + _col(v, C_TPOY).to(tl.int64)) + row_set).to(tl.float64)
+        sx = (2 * (x + _col(v, C_TPOX).to(tl.int64)) + col_set).to(tl.float64)
+        tr = tl.zeros_like(g).to(tl.int64)
+        tc = tl.zeros_like(g).to(tl.int64)
+        for i in tl.static_range(TPE):
+            tr += (sy >= tl.load(v + C_TPR0 + i) * rows).to(tl.int64)
+            tc += (sx >= tl.load(v + C_TPC0 + i) * cols).to(tl.int64)
+        tap = (b.to(tl.int64) * (TPE + 1) + tr) * (TPE + 1) + tc
+        s += _col(v, C_TPS) * _normal(draw(_key(keys_ptr, K_TAP), tap.to(tl.uint64)))
     if FLAGS & 65536:  # measured code map: nearest code the camera uses
         code = tl.floor(s + 0.5)
         i = (code - _col(v, C_CM_LO)).to(tl.int64)

@@ -5,7 +5,8 @@ the radial 2-D power spectrum (``psd2d_lowfreq``), the spectrum of the row or co
 (row / column noise and shading), the histogram of the pixel values (read-noise shape,
 clipping), of the codes one by one (missing codes), of the stack-mean map (dark signal,
 DSNU, PRNU, hot pixels), of the per-pixel temporal std, the sorted line means (defect
-lines), the sorted sensor columns' pixel noise (noisy columns), the sorted frame means (black-level error; over their level, a flat's gain jitter),
+lines), the sorted sensor columns' pixel noise (noisy columns), the step variance at each gap between
+sensor lines (readout taps), the sorted frame means (black-level error; over their level, a flat's gain jitter),
 the frame means in the order taken (drift) or the correlation of neighbouring
 pixels' temporal noise at raw lags (crosstalk), of pairs in one tile and in adjacent tiles
 (a shared readout), the periodogram of the sensor-row or -column means (banding) or the
@@ -20,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..statistics import (CURVE_LAGS, col_tone_spectrum, column_pixel_noise, diag_tone_spectrum, lag_covariances, read_noise_profile,
-                          row_tone_spectrum, statistic_view, tile_pair_covariances)
+                          row_tone_spectrum, sensor_col_means, sensor_row_means, statistic_view, tap_steps,
+                          tile_pair_covariances)
 
 KIND = {
     "psd2d_lowfreq": "radial_spectrum",
@@ -38,7 +40,7 @@ KIND = {
     "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram", "noisy_fraction": "temporal_histogram",
     "stuck_fraction": "temporal_histogram", "spike_fraction": "temporal_histogram", "frame_noise_spread": "temporal_histogram",
     "col_flicker_fraction": "col_tone_spectrum", "flat_gain_spread": "frame_means_relative",
-    "noisy_col_fraction": "column_noise", "row_flicker_fraction": "row_tone_spectrum",
+    "noisy_col_fraction": "column_noise", "row_flicker_fraction": "row_tone_spectrum", "tap_step_ratio": "tap_steps",
 }  # every other statistic: the histogram of the pixel values
 LABEL = {
     "radial_spectrum": ("radial frequency (cycles/pixel)", "power (DN^2)", True),
@@ -55,6 +57,8 @@ LABEL = {
     "code_histogram": ("code (DN), one bin each, about the median", "fraction of pixels", False),
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
     "column_noise": ("sensor column (sorted)", "its pixels' median temporal variance, column means out (DN^2)", True),
+    "tap_steps": ("gap between sensor columns, then between sensor rows (16 lines from the ends left out)",
+                  "temporal variance of the step between the medians either side (DN^2)", True),
     "row_tone_spectrum": ("frequency (cycles per sensor row)", "temporal sensor-row-mean power (DN^2)", True),
     "col_tone_spectrum": ("frequency (cycles per sensor column)", "temporal sensor-column-mean power (DN^2)", True),
     "diag_tone_bins": ("bin of the 2-D periodogram off both axes, largest first", "power over the ring of bins around it", True),
@@ -128,6 +132,10 @@ def curve(kind: str, frames, edges=None):
     if kind == "column_noise":  # a noisy column stands out of the sorted curve
         v = np.sort(column_pixel_noise(frames))
         return np.arange(1, v.size + 1, dtype=np.float64), v
+    if kind == "tap_steps":  # a readout tap's edge stands out at its gap
+        steps = np.concatenate([tap_steps(sensor_col_means(frames)), tap_steps(sensor_row_means(frames))])
+        steps = steps[np.isfinite(steps)]
+        return np.arange(1, steps.size + 1, dtype=np.float64), steps
     if kind == "row_tone_spectrum":
         return row_tone_spectrum(frames)
     if kind == "col_tone_spectrum":
