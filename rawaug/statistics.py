@@ -37,12 +37,30 @@ def _centered(frames):
     return frames - frames.mean(axis=(2, 3), keepdims=True)
 
 
+_last_moments = threading.local()  # the last read-only stack's channel moments on this thread
+
+
+def channel_moments(frames):
+    """(mean, variance (ddof 0)) of each frame's channels, (N, 4) each, DN and DN^2: from the
+    sums of the values and of their squares (no centred copy of the stack). Computed once
+    for the same read-only array in a row (the battery's views)."""
+    if getattr(_last_moments, "source", None) is frames:
+        return _last_moments.result
+    n = frames.shape[2] * frames.shape[3]
+    mean = frames.sum(axis=(2, 3)) / n
+    var = np.maximum(np.einsum("ijkl,ijkl->ij", frames, frames) / n - mean**2, 0.0)
+    if isinstance(frames, np.ndarray) and not frames.flags.writeable:
+        _last_moments.source, _last_moments.result = frames, (mean, var)
+    return mean, var
+
+
 PARTITION_MIN = 64  # median: a selection along an axis this long or longer, a sort along a shorter one
 
 
 def median(x, axis=None, keepdims: bool = False):
-    """``np.median``'s values (NaN: NumPy's own), by a selection of the two middle order
-    statistics along a long axis (3-10x faster than a sort over a frame's pixels) and by
+    """``np.median``'s values (NaN: NumPy's own), by a selection of the upper middle order
+    statistic along a long axis and the largest value below it (3-10x faster than a sort over
+    a frame's pixels, 1.6x faster than selecting both) and by
     NumPy's vectorized sort along a short one (2x faster than a selection over a stack's N
     frames)."""
     x = np.asarray(x)
@@ -50,11 +68,13 @@ def median(x, axis=None, keepdims: bool = False):
         return np.median(x, axis=axis, keepdims=keepdims)
     v = x.ravel() if axis is None else np.moveaxis(x, axis, -1)
     n = v.shape[-1]
-    if n >= PARTITION_MIN:
-        v = np.partition(v, sorted({(n - 1) // 2, n // 2}), axis=-1)
+    if n >= PARTITION_MIN:  # one selection: the lower middle value is the largest below the upper one
+        v = np.partition(v, n // 2, axis=-1)
+        upper = v[..., n // 2]
+        out = 0.5 * (v[..., : n // 2].max(axis=-1) + upper) if n % 2 == 0 else 0.5 * (upper + upper)
     else:
         v = np.sort(v, axis=-1)
-    out = 0.5 * (v[..., (n - 1) // 2] + v[..., n // 2])
+        out = 0.5 * (v[..., (n - 1) // 2] + v[..., n // 2])
     if keepdims:
         out = np.expand_dims(out, tuple(range(x.ndim)) if axis is None else axis)
     return out
@@ -73,10 +93,27 @@ def _rms(values):
     return float(np.sqrt(np.mean(np.square(values))))
 
 
+_last_temporal = threading.local()  # the last read-only stack's temporal moments on this thread
+
+
+def temporal_moments(frames):
+    """(mean map, temporal variance map (ddof 1; 0 for one frame)), (4, h, w) each, of a stack
+    (N, 4, h, w), DN and DN^2. Computed once for the same read-only array in a row (the
+    battery's views): the mean map and the per-pixel variance serve several statistics."""
+    if getattr(_last_temporal, "source", None) is frames:
+        return _last_temporal.result
+    mean = frames.mean(axis=0)
+    var = frames.var(axis=0, ddof=1) if frames.shape[0] > 1 else np.zeros_like(mean)
+    if isinstance(frames, np.ndarray) and not frames.flags.writeable:
+        mean.flags.writeable = var.flags.writeable = False
+        _last_temporal.source, _last_temporal.result = frames, (mean, var)
+    return mean, var
+
+
 # ----------------------------------------------------------------- single-frame statistics
 def pixel_std(frames, level_dn=None):
     """Std of the pixels about their frame-channel mean (DN)."""
-    return _rms(_centered(frames))
+    return float(np.sqrt(channel_moments(frames)[1].mean()))
 
 
 def line_mean_variance(c, axis):
@@ -94,10 +131,9 @@ def _profile_excess(frames, axis):
     variance, per frame and channel (mean over them): 1 for independent pixels, above 1
     when whole lines share an offset. Insensitive to per-pixel noise of any size and to
     smooth shading."""
-    c = _centered(frames)
-    n = c.shape[axis]
-    line_var = line_mean_variance(c, axis) * n
-    return float((line_var / (c.var(axis=(2, 3)) + 1e-30)).mean())
+    n = frames.shape[axis]
+    line_var = line_mean_variance(frames, axis) * n  # differences of line means: no offset counts
+    return float((line_var / (channel_moments(frames)[1] + 1e-30)).mean())
 
 
 def row_excess(frames, level_dn=None):
@@ -239,8 +275,8 @@ def col_lowfreq(frames, level_dn=None):
 def psd2d_lowfreq(frames, level_dn=None):
     """2-D power spectrum: mean power in the low-frequency disk (radius below 1/16 of the
     Nyquist frequency, DC excluded) over the mean power of all non-DC frequencies."""
-    c = _centered(frames)
-    p = _power(sp_fft.rfft2(c.astype(np.float32), axes=(2, 3)))  # single precision: 2x faster, 1e-6 of the ratio
+    c = frames.astype(np.float32) - channel_moments(frames)[0][:, :, None, None].astype(np.float32)
+    p = _power(sp_fft.rfft2(c, axes=(2, 3)))  # single precision: 2x faster, 1e-6 of the ratio
     fy = np.fft.fftfreq(c.shape[2])[:, None]
     fx = np.fft.rfftfreq(c.shape[3])[None, :]
     radius = np.sqrt(fy**2 + fx**2) / 0.5
@@ -333,7 +369,7 @@ def hot_fraction(frames, level_dn=None):
     (hot or stuck-high pixels; the mean of N whole codes on its grid of 1/N,
     ``outside_fraction``). With one frame, the frame itself."""
     step = grid_step(frames) / frames.shape[0]
-    mean_map = frames.mean(axis=0).reshape(4, -1)
+    mean_map = temporal_moments(frames)[0].reshape(4, -1)
     return float(np.mean([outside_fraction(r, step, 8.0, upper_only=True) for r in mean_map]))
 
 
@@ -409,11 +445,11 @@ def mean_dn(frames, level_dn=None):
 # ----------------------------------------------------------------- stack statistics
 def temporal_std(frames, level_dn=None):
     """Per-pixel std across the stack (DN, rms over pixels)."""
-    return float(np.sqrt(frames.var(axis=0, ddof=1).mean()))
+    return float(np.sqrt(temporal_moments(frames)[1].mean()))
 
 
 def _mean_map(frames):
-    m = frames.mean(axis=0)
+    m = temporal_moments(frames)[0]
     return m - m.mean(axis=(1, 2), keepdims=True)
 
 
@@ -447,7 +483,7 @@ def fixed_pixel_var(frames, level_dn=None):
     temporal noise, +0.14 % of its variance for a heavy tail (Student t, 3 dof). Mean over
     channels; 0 for a model without a fixed pattern."""
     n = frames.shape[0]
-    mean = frames.mean(axis=0)
+    mean = temporal_moments(frames)[0]
     a = _double_difference(mean)  # (4, h-1, w-1)
     t = _double_difference(frames) - a  # (N, 4, h-1, w-1): the double differences of frames - mean
     ca, sa = robust_scale(a.reshape(4, -1), axis=1)
@@ -709,8 +745,7 @@ def pixel_variances(frames):
     """Of a stack (N, 4, h, w): (temporal variance (ddof 1) of each pixel, flat over (4, h, w),
     DN^2; the median of those)."""
     frames = np.asarray(frames, dtype=np.float64)
-    n = frames.shape[0]
-    var = frames.reshape(n, -1).var(axis=0, ddof=1)
+    var = temporal_moments(frames)[1].ravel()
     return var, max(float(median(var)), 1e-12)
 
 
@@ -937,7 +972,7 @@ def spike_scale(frames):
     variance as a Gaussian's sigma (what ``spikes`` measures single-frame events against)."""
     f = np.asarray(frames, dtype=np.float64)
     n = f.shape[0]
-    var = f.var(axis=0, ddof=1)
+    var = temporal_moments(f)[1]
     return np.sqrt(median(var.reshape(f.shape[1], -1), axis=1) / (sstats.chi2.median(n - 1) / (n - 1)))
 
 
@@ -951,23 +986,29 @@ def spikes(frames, scale=None):
     (the rule implies it for N >= 3); the rule is applied to those. ``scale``: the (4,)
     ``spike_scale`` if known (that of ``-frames`` is the same)."""
     f = np.asarray(frames, dtype=np.float64)
-    n = f.shape[0]
     mask = np.zeros(f.shape, dtype=bool)
-    if n < 3:
+    if f.shape[0] < 3:
         return mask
-    scale = (spike_scale(f) if scale is None else np.asarray(scale))[:, None, None]
-    top = f.max(axis=0)
-    cand = np.nonzero(top - f.mean(axis=0) > 4.5 * np.maximum(scale, 1e-9))
+    scale = spike_scale(f) if scale is None else np.asarray(scale)
+    mask[_spike_hits(f, f.max(axis=0) - f.mean(axis=0), scale, 1.0)] = True
+    return mask
+
+
+def _spike_hits(f, rise, scale, sign: float):
+    """(frame, channel, y, x) indices of the events of ``sign`` (1: bright, -1: dark) in a
+    stack ``f`` (N >= 3), given each pixel's ``rise`` (its highest value, or its lowest
+    negated, less its mean) and the (4,) ``scale`` (``spikes``' rule)."""
+    scale = np.asarray(scale)[:, None, None]
+    cand = np.nonzero(rise > 4.5 * np.maximum(scale, 1e-9))
     if cand[0].size == 0:
-        return mask
-    v = np.sort(f[(slice(None),) + cand], axis=0)  # (N, candidates)
+        return (np.zeros(0, dtype=np.intp),) * 4
+    v = np.sort(sign * f[(slice(None),) + cand], axis=0)  # (N, candidates)
     others = v[:-1]
     spread = others.std(axis=0, ddof=1)
     hit = (v[-1] - median(others, axis=0)) > SPIKE_Z * np.maximum(np.maximum(scale[cand[0], 0, 0], spread), 1e-9)
     sel = tuple(c[hit] for c in cand)
-    frame = f[(slice(None),) + sel].argmax(axis=0)
-    mask[(frame,) + sel] = True
-    return mask
+    frame = (sign * f[(slice(None),) + sel]).argmax(axis=0)
+    return (frame,) + sel
 
 
 def spike_fraction(frames, level_dn=None):
@@ -975,8 +1016,13 @@ def spike_fraction(frames, level_dn=None):
     stack's pixel values: heavy-tailed read noise makes both alike (at Tukey lambda -0.14 each
     ~5e-4), an impulse only bright ones."""
     f = np.asarray(frames, dtype=np.float64)
-    scale = spike_scale(f) if f.shape[0] >= 3 else None
-    return float(spikes(f, scale).mean() - spikes(-f, scale).mean())
+    if f.shape[0] < 3:
+        return 0.0
+    scale = spike_scale(f)
+    mean = temporal_moments(f)[0]
+    bright = _spike_hits(f, f.max(axis=0) - mean, scale, 1.0)[0].size
+    dark = _spike_hits(f, mean - f.min(axis=0), scale, -1.0)[0].size
+    return float((bright - dark) / f.size)
 
 
 def spike_outliers(frames):
@@ -1162,11 +1208,12 @@ def col_tone(frames, level_dn=None):
 def frame_mosaic(frames):
     """Each frame of a stack (N, 4, h, w) as its raw mosaic (N, 2h, 2w), less each channel's
     mean (DN), the channels at their sensor positions (``ROW_SET`` / ``COLUMN_SET``)."""
-    c = _centered(np.asarray(frames, dtype=np.float64))
-    n, _, h, w = c.shape
+    frames = np.asarray(frames, dtype=np.float64)
+    mean = channel_moments(frames)[0]
+    n, _, h, w = frames.shape
     raw = np.empty((n, 2 * h, 2 * w))
     for ch in range(4):
-        raw[:, ROW_SET[ch]::2, COLUMN_SET[ch]::2] = c[:, ch]
+        np.subtract(frames[:, ch], mean[:, ch, None, None], out=raw[:, ROW_SET[ch]::2, COLUMN_SET[ch]::2])
     return raw
 
 
@@ -1242,7 +1289,7 @@ def pixel_fixed_std(frames, level_dn=None):
     rows (robust: 1.4826 MAD / sqrt(2)), per channel, rms (DN). Smooth patterns (vignetting,
     uneven illumination of a flat) do not count; a white fixed pattern and temporal noise /
     sqrt(N) do."""
-    d = np.diff(frames.mean(axis=0), axis=2).reshape(4, -1)
+    d = np.diff(temporal_moments(frames)[0], axis=2).reshape(4, -1)
     _, scale = robust_scale(d, axis=1)
     return _rms(scale) / np.sqrt(2.0)
 

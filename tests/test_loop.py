@@ -671,3 +671,22 @@ def test_read_shape_refit_lightens_a_tail_the_model_overshoots_and_never_adds_on
     res, _ = diagnose(light, BASE, n_synth=8, seed=1)
     assert next(r for r in res if r.statistic == "tail_mass").z > 0
     assert read_shape_updates([light], {"bias": (res, None)}, BASE) == {}
+
+
+def test_a_battery_that_cannot_win_is_stopped_without_changing_the_outcome(monkeypatch):
+    # three stacks of a camera with three undeclared effects: once one candidate is acceptable,
+    # the others' batteries are diagnosed a stack at a time and stopped when their residual
+    # errors so far pass the best's whole battery; what is added, and its parameters, are those
+    # of the loop that judges every battery whole
+    from rawaug.loop import frames_loop
+
+    stacks = [measured_stack({**COL, **FPN, **HOT}, seed=seed, n=6, size=64, label=f"bias {seed}") for seed in (410, 411, 412)]
+    monkeypatch.setattr(frames_loop, "BOUND_CHUNK", 10**6)  # never part-way: every battery whole
+    whole = run_frame_loop(stacks, BASE, n_synth=6, seed=1)
+    monkeypatch.setattr(frames_loop, "BOUND_CHUNK", 1)
+    bounded = run_frame_loop(stacks, BASE, n_synth=6, seed=1)
+    assert bounded.added == whole.added and bounded.profile.to_dict() == whole.profile.to_dict()
+    stopped = [s for s in bounded.steps if s.note.startswith("not judged whole")]
+    assert stopped, [s.note for s in bounded.steps]
+    assert all(not s.battery_after for s in stopped)  # the part-way battery is not reported as a whole one
+    assert not [s for s in whole.steps if s.note.startswith("not judged whole")]

@@ -14,10 +14,13 @@ import csv
 import math
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
+from threadpoolctl import threadpool_limits
 
 from ..io import find_flat_pairs, group_by_iso, read_frame, read_manifest
 from ..io.manifest import ManifestEntry
@@ -103,6 +106,7 @@ class _FrameSource:
         self.spectrum = None
         self.seen: set[int] = set()  # id() of the entries read
         self._held = None  # (entry, frame): the reference, read ahead of its turn
+        self._shown: dict = {}  # is the last bias frame -> (its anomalies, its spectrum)
 
     def read(self, entry):
         if self._held is not None and self._held[0] is entry:
@@ -145,16 +149,23 @@ class _FrameSource:
                 step = estimate_quantization_step(frame.mosaic, max_values=200_000)
                 if step is not None:
                     self.quant_steps.append(step)
-                if len(self.quant_steps) <= 1 or entry is self._last_bias:
-                    self.notes += frame_anomalies(frame)
-                    self.spectrum = (centered_spectrum(frame.mosaic, 512), f"{Path(entry.path).name}, ISO {entry.iso:g}")
+                if entry is self._first or entry is self._last_bias:  # the first frame's anomalies and the last's
+                    self._shown[entry is self._last_bias] = (
+                        frame_anomalies(frame), (centered_spectrum(frame.mosaic, 512), f"{Path(entry.path).name}, ISO {entry.iso:g}"))
             if self.bar is not None:
                 self.bar.update(1)
             return frame.packed_dn()
 
         return load
 
-    _last_bias = None
+    _first = _last_bias = None
+
+    @property
+    def shown(self) -> tuple[list, object]:
+        """(the anomalies of the first bias frame and of the last one of the highest ISO, the
+        spectrum of that last one, else of the first), whatever order they were read in."""
+        parts = [self._shown[k] for k in (False, True) if k in self._shown]
+        return [n for notes, _ in parts for n in notes], parts[-1][1] if parts else None
 
 
 def input_paths(source: Path) -> list[Path]:
@@ -303,18 +314,26 @@ def _calibrate_frames(source: Path, args: CalibrationOptions, on_frame=None) -> 
         ref = frames.reference
         saturation = ref.white_level - float(np.max(ref.black_packed()))
         black_clip = -float(np.min(ref.black_packed()))
+        frames._first, frames._last_bias = plan[min(plan)][0][0], plan[max(plan)][0][-1]  # what the report shows of a frame
+
+        def one(item):
+            iso, (bias, pairs) = item
+            p = calibrate_iso([frames.loader(e) for e in bias], [(frames.loader(a), frames.loader(b)) for a, b in pairs], iso,
+                              max_samples=max_samples, saturation_dn=saturation, black_clip_dn=black_clip, progress=None)
+            bar.set_postfix_str(f"ISO {iso:g}: K={p.k:.3g}")
+            return p
+
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            for iso, (bias, pairs) in plan.items():
-                frames._last_bias = bias[-1] if iso == max(plan) else None
-                p = calibrate_iso([frames.loader(e) for e in bias],
-                                  [(frames.loader(a), frames.loader(b)) for a, b in pairs], iso,
-                                  max_samples=max_samples, saturation_dn=saturation, black_clip_dn=black_clip,
-                                  progress=None)
-                bar.set_postfix_str(f"ISO {iso:g}: K={p.k:.3g}")
-                params.append(p)
+            workers = min(len(plan), torch.get_num_threads())
+            if workers < 2:
+                params = [one(item) for item in plan.items()]
+            else:  # the ISOs on threads (reads and NumPy release the GIL), one BLAS thread each
+                with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(max_workers=workers) as pool:
+                    params = list(pool.map(one, plan.items()))
         frames.read_rest(entries)  # the frames calibration left out (unpaired flats, ...), for on_frame
-        notes += [str(w.message) for w in caught] + frames.notes
+        shown_notes, frames.spectrum = frames.shown
+        notes += [str(w.message) for w in caught] + shown_notes + frames.notes
     for note in notes:
         warnings.warn(note, CalibrationWarning, stacklevel=1)
     step = float(np.median(frames.quant_steps)) if frames.quant_steps else 1.0

@@ -111,6 +111,17 @@ class LoopResult:
 
 
 RESTORE_TOLERANCE = 1.05  # a battery's mean error moves by a few % between seeds of the syntheses
+BOUND_CHUNK = 6  # stacks a trial's battery is diagnosed in at a time, once it can be beaten
+
+
+class _Beaten(Exception):
+    """A trial's battery stopped part-way: its mean error can no longer beat the best
+    acceptable candidate's (``partial``: the sum of its residuals' errors so far; ``done``,
+    ``total``: the stacks diagnosed, of)."""
+
+    def __init__(self, partial: float, done: int, total: int):
+        super().__init__(partial, done, total)
+        self.partial, self.done, self.total = partial, done, total
 
 
 def _battery(diags) -> dict:
@@ -359,30 +370,40 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 return options
             skip |= left_out
 
-    def judged(trial, shared, step_no, which=None, known=None, refit_z=None):
+    def judged(trial, shared, step_no, which=None, known=None, refit_z=None, bound=None):
         # (diagnoses, stacks, profile, factors) of a trial model on ``which`` (default all
         # stacks); a base stage the candidate shares (``shared``) is re-fitted from the bias
         # stacks. ``known``: {"model": ..., "refitted": ...} diagnoses made already (the
         # screening's: the same seeds give the same results), filled in as it goes.
         # ``refit_z``: the row re-fit's threshold in spreads (default ``z_min``; a candidate's own ``REFIT_Z``).
+        # ``bound``: the battery's sum of residual errors that cannot win: the whole battery is
+        # then diagnosed BOUND_CHUNK stacks at a time and stopped (``_Beaten``) once the errors
+        # of its residuals so far (pooled ones left out: pooling may lower them) pass it.
         step_seed = seed + 1000 * step_no
         which = list(which or stacks)
         known = known if known is not None else {}
 
-        def run(prof, part, key):
+        def run(prof, part, key, bound=None):
             done = known.setdefault(key, {})
             missing = [st for st in part if st.label not in done]
-            done.update(diagnose_all(prof, step_seed, missing) if missing else {})
+            chunk = len(missing) if bound is None else BOUND_CHUNK
+            for i in range(0, len(missing), max(chunk, 1)):
+                done.update(diagnose_all(prof, step_seed, missing[i:i + chunk]))
+                if bound is None or i + chunk >= len(missing):
+                    continue
+                partial = sum(r.rel_error for st in part if st.label in done for r in done[st.label][0] if not r.pooled)
+                if partial > bound:
+                    raise _Beaten(partial, sum(st.label in done for st in part), len(part))
             return pool_residuals({st.label: done[st.label] for st in part}, z_min, rel_min)
 
         if not shared:
-            return run(trial, which, "model"), stacks, trial, {}
+            return run(trial, which, "model", bound), stacks, trial, {}
         # the re-fit reads the bias stacks only: the others are diagnosed once, with it or without
         got = run(trial, [st for st in stacks if st.kind == "bias"], "model")
         factors = (read_noise_factors(stacks, got, trial, model, z_min=z_min) if shared == "read noise"
                    else row_noise_factors(stacks, got, trial, z_min=refit_z or z_min))
         if not factors:
-            return run(trial, which, "model"), stacks, trial, factors
+            return run(trial, which, "model", bound), stacks, trial, factors
         refit_stacks, refitted = (apply_read_noise_factors(stacks, trial, factors, model) if shared == "read noise"
                                   else apply_row_noise_factors(stacks, trial, factors))
         key = "refitted"
@@ -396,7 +417,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                                            for st in bias if any(st.label in lambdas for lambdas in taken)}
                 refit_stacks, refitted, key = shaped_stacks, shaped, f"shaped {step}"
         labels_in = {st.label for st in which}
-        return run(refitted, [st for st in refit_stacks if st.label in labels_in], key), refit_stacks, refitted, factors
+        return run(refitted, [st for st in refit_stacks if st.label in labels_in], key, bound), refit_stacks, refitted, factors
 
     diags, diags_seed = diagnose_all(current, seed), seed
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
@@ -437,7 +458,19 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                                         before_b, {}, round=step_no, kind="measured" if _measured(token) else "physical",
                                         evidence_after=after.to_dict(), note="screened"), trial, None, stacks, {}, {}))
                     continue
-                new_diags, trial_stacks, trial, factors = judged(trial, shared, step_no, known=known, refit_z=refit_z)
+                # once a candidate is acceptable, a battery that cannot beat the best one's is stopped
+                best = [t[0].battery_after["mean_rel_error"] for t in trials if t[0].accepted]
+                bound = min(best) * sum(len(res) for res, _ in diags.values()) if best else None
+                try:
+                    new_diags, trial_stacks, trial, factors = judged(trial, shared, step_no, known=known, refit_z=refit_z,
+                                                                     bound=bound)
+                except _Beaten as beaten:
+                    after = next(r for r in screen[label][0] if r.statistic == evidence.statistic)
+                    trials.append((Step(token, params, False, evidence.to_dict(), label, err_before, err_after, after.z,
+                                        before_b, {}, round=step_no, kind="measured" if _measured(token) else "physical",
+                                        evidence_after=after.to_dict(),
+                                        note=f"beaten after {beaten.done} of {beaten.total} stacks"), trial, None, stacks, {}, {}))
+                    continue
                 if factors:
                     say(f"step {step_no}: {token} judged with the {shared} re-fitted ("
                         + ", ".join(f"{label} x{f:.3f}" for label, f in factors.items()) + ")")
@@ -461,6 +494,9 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             if step is not (chosen[0] if chosen else None):
                 if step.accepted:
                     step.accepted, step.note = False, f"acceptable, but {chosen[0].effect} explains more"
+                elif step.note.startswith("beaten"):  # not judged whole: it may be tried again
+                    step.note = (f"not judged whole: {chosen[0].effect} explains more (its battery's mean error passed "
+                                 f"the best's, {step.note[len('beaten '):]})")
                 else:
                     tried.add(step.effect)
                     step.note = ("rejected (its evidence did not improve by a fifth on its stack; the battery was not run)"
