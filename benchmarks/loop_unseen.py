@@ -410,6 +410,26 @@ def split_black(dn, rng, **_):
     return dn + np.where(np.arange(w) < w // 2, off[0], off[1])[None, None, :]
 
 
+def split_gain(dn, rng, **_):
+    """Two readout amplifiers of their own gain: the right half of the sensor columns read with 1.5 % more gain, on the signal and the noise alike (black-subtracted)."""
+    out = dn.copy()
+    out[:, :, dn.shape[2] // 2:] *= 1.015
+    return out
+
+
+def top_bottom_black(dn, rng, **_):
+    """A readout from both ends: the top and the bottom half of the sensor rows each with a black-level clamp of its own, moving by 0.6 DN rms from frame to frame, independently."""
+    h = dn.shape[1]
+    off = rng.normal(0.0, 0.6, 2)
+    return dn + np.where(np.arange(h) < h // 2, off[0], off[1])[None, :, None]
+
+
+def clamp_ramp(dn, rng, **_):
+    """The black clamp settling during readout: each frame's black level ramps linearly down the sensor rows, by 0.8 DN rms from the top row to the bottom one, a new slope in every frame."""
+    h = dn.shape[1]
+    return dn + rng.normal(0.0, 0.8) * (np.arange(h) / max(h - 1, 1) - 0.5)[None, :, None]
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -418,7 +438,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  pdaf_pixels, row_gain, charge_sharing, lens_shading, companded_raw, channel_black,
                                  ramp_jitter, pixel_prnu, dark_current, dsnu, pixel_offsets, column_offsets, soft_knee,
                                  hot_pixels, black_clip, fixed_tone, locked_tone, noisy_pixels, thermal_gradient, leaky_rows,
-                                 dark_telegraph, noisy_columns, adc_banks, row_telegraph, wide_codes, split_black)}
+                                 dark_telegraph, noisy_columns, adc_banks, row_telegraph, wide_codes, split_black,
+                                 split_gain, top_bottom_black, clamp_ramp)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
