@@ -44,14 +44,23 @@ def channel_moments(frames):
     """(mean, variance (ddof 0)) of each frame's channels, (N, 4) each, DN and DN^2: from the
     sums of the values and of their squares (no centred copy of the stack). Computed once
     for the same read-only array in a row (the battery's views)."""
-    if getattr(_last_moments, "source", None) is frames:
-        return _last_moments.result
-    n = frames.shape[2] * frames.shape[3]
-    mean = frames.sum(axis=(2, 3)) / n
-    var = np.maximum(np.einsum("ijkl,ijkl->ij", frames, frames) / n - mean**2, 0.0)
+    def compute():
+        n = frames.shape[2] * frames.shape[3]
+        mean = frames.sum(axis=(2, 3)) / n
+        return mean, np.maximum(np.einsum("ijkl,ijkl->ij", frames, frames) / n - mean**2, 0.0)
+
+    return _once(_last_moments, frames, compute)
+
+
+def _once(store, frames, compute):
+    """``compute()`` of ``frames``, kept in the thread-local ``store`` for the same read-only
+    array (the battery's views): the next statistic of that stack reads it again."""
+    if getattr(store, "source", None) is frames:
+        return store.result
+    result = compute()
     if isinstance(frames, np.ndarray) and not frames.flags.writeable:
-        _last_moments.source, _last_moments.result = frames, (mean, var)
-    return mean, var
+        store.source, store.result = frames, result
+    return result
 
 
 PARTITION_MIN = 64  # median: a selection along an axis this long or longer, a sort along a shorter one
@@ -100,14 +109,13 @@ def temporal_moments(frames):
     """(mean map, temporal variance map (ddof 1; 0 for one frame)), (4, h, w) each, of a stack
     (N, 4, h, w), DN and DN^2. Computed once for the same read-only array in a row (the
     battery's views): the mean map and the per-pixel variance serve several statistics."""
-    if getattr(_last_temporal, "source", None) is frames:
-        return _last_temporal.result
-    mean = frames.mean(axis=0)
-    var = frames.var(axis=0, ddof=1) if frames.shape[0] > 1 else np.zeros_like(mean)
-    if isinstance(frames, np.ndarray) and not frames.flags.writeable:
-        mean.flags.writeable = var.flags.writeable = False
-        _last_temporal.source, _last_temporal.result = frames, (mean, var)
-    return mean, var
+    def compute():
+        mean = frames.mean(axis=0)
+        var = frames.var(axis=0, ddof=1) if frames.shape[0] > 1 else np.zeros_like(mean)
+        mean.flags.writeable = var.flags.writeable = False  # shared: no statistic may change them
+        return mean, var
+
+    return _once(_last_temporal, frames, compute)
 
 
 # ----------------------------------------------------------------- single-frame statistics
@@ -824,8 +832,7 @@ def flickering_lines(m):
     the line's mean over frames and each frame's mean -- show two states by the pixels' rule
     (``two_state`` over ``flicker_threshold`` x the median line's temporal variance), their
     steps (DN), their shares of high frames)."""
-    m = m - m.mean(axis=0, keepdims=True) - m.mean(axis=1, keepdims=True) + m.mean()
-    values = m.T
+    values = _line_residuals(m).T
     var = max(float(median(values.var(axis=1, ddof=1))), 1e-12)
     return two_state(values, flicker_threshold(values.shape[1]) * var)
 
