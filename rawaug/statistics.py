@@ -12,6 +12,7 @@ column is one defect, not also hot pixels, heavy tails and low-frequency power.
 """
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from dataclasses import dataclass
@@ -1381,6 +1382,141 @@ def grid_excess(frames, level_dn=None):
     return max(period_excess(rel).values()) / max(float(rel.var(axis=(1, 2)).sum()), 1e-30)
 
 
+GAIN_WINDOW = 32  # sensor lines each side of a gap in the local fit of a flat's step (a light is smooth over 64 lines)
+GAIN_DEGREE = 3  # the light's local shape: a cubic (its slope, curvature and skew do not read as a step)
+GAIN_P = 1e-3  # chance that a flat of one gain shows an edge along an axis
+GAIN_TRIM = 0.05  # share of a line's values left out at each end of its profile's mean (dead, hot and PDAF pixels)
+
+
+@functools.lru_cache(maxsize=64)
+def step_kernel(window: int) -> np.ndarray:
+    """(2 window,) weights whose dot with 2 ``window`` lines is the step at their middle gap:
+    the least-squares coefficient of a step in a fit of a cubic, an alternation from line to
+    line (the two colours of a sensor line, each over its own mean: a light's slope shifts
+    them by half a pixel) and a step."""
+    x = np.arange(-window, window) + 0.5
+    alternation = np.where(np.arange(2 * window) % 2 == 0, 1.0, -1.0)
+    design = np.stack([x**j for j in range(GAIN_DEGREE + 1)] + [alternation, np.sign(x) / 2.0], axis=1)
+    out = np.linalg.pinv(design)[-1]
+    out.flags.writeable = False
+    return out
+
+
+def line_noise(p) -> float:
+    """Std of the white noise of a line profile ``p`` (L,), robust: from its second
+    differences between lines two apart (of one colour: a light's slope, an alternation from
+    line to line and a single step do not count), 1.4826 MAD / sqrt(6)."""
+    p = np.asarray(p, dtype=np.float64)
+    d = p[4:] - 2.0 * p[2:-2] + p[:-4]
+    return MAD_TO_SIGMA * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(6.0)
+
+
+def gain_steps(p, window: int = GAIN_WINDOW):
+    """(L + 1,) of a flat's log line profile ``p`` (L,): at each gap g (before line g), the
+    step of a local fit of a cubic plus a step over the ``window`` lines either side
+    (``step_kernel``), over its noise (``line_noise``); NaN within ``window`` lines of an end.
+    A readout tap with a gain of its own steps at its edges by the log of the gains' ratio;
+    a light's smooth shape does not step. Profiles are ``trimmed_line_means``."""
+    p = np.asarray(p, dtype=np.float64)
+    out = np.full(p.shape[0] + 1, np.nan)
+    if p.shape[0] < 2 * window + 5:
+        return out
+    w = step_kernel(window)
+    out[window:p.shape[0] - window + 1] = np.correlate(p, w, "valid") / max(line_noise(p) * float(np.linalg.norm(w)), 1e-30)
+    return out
+
+
+def flat_log_mosaic(frames) -> np.ndarray:
+    """(2h, 2w) log of a flat stack's mean frame (N, 4, h, w; DN) over each channel's mean, at
+    the channels' sensor positions: the light's shape and the sensor's gains, colour taken
+    out (a channel without signal: 0)."""
+    m = np.asarray(frames, dtype=np.float64).mean(axis=0)
+    h, w = m.shape[1:]
+    out = np.zeros((2 * h, 2 * w))
+    for ch in range(4):
+        level = float(m[ch].mean())
+        if level > 0:
+            out[ROW_SET[ch]::2, COLUMN_SET[ch]::2] = np.log(np.maximum(m[ch] / level, 1e-6))
+    return out
+
+
+def trimmed_line_means(x, axis: int) -> np.ndarray:
+    """Means along ``axis`` of a 2-D map, each less its ``GAIN_TRIM`` lowest and highest
+    values (a dead or hot pixel does not move a line; 97 % of a mean's efficiency on Gaussian
+    values): the line profile across the other axis."""
+    x = np.sort(np.asarray(x, dtype=np.float64), axis=axis)
+    n = x.shape[axis]
+    cut = int(GAIN_TRIM * n)
+    return np.take(x, np.arange(cut, n - cut), axis=axis).mean(axis=axis)
+
+
+def gain_edges(p, window: int = GAIN_WINDOW, p_value: float = GAIN_P) -> list[int]:
+    """Gain edges (gaps, ascending: the first line of each new tap) of a flat's log line
+    profile ``p``: the gaps whose ``gain_steps`` stand out further than a normal does at one
+    of the gaps with probability ``p_value``, each the largest within ``window`` gaps."""
+    z = np.abs(gain_steps(p, window))
+    ok = np.isfinite(z)
+    if ok.sum() < 3:
+        return []
+    v = np.where(ok, z, -np.inf)
+    peak = ndimage.maximum_filter1d(v, 2 * window + 1, mode="constant", cval=-np.inf)
+    high = v > sstats.norm.isf(p_value / (2 * ok.sum()))
+    return [int(g) for g in np.flatnonzero(high & (v >= peak))]
+
+
+def flat_gain_edges(log_mosaic) -> dict:
+    """{"col": gaps, "row": gaps}: the gain edges (``gain_edges``) of a flat's log mosaic
+    (``flat_log_mosaic``) along its sensor columns and along its sensor rows."""
+    return {"col": gain_edges(trimmed_line_means(log_mosaic, 0)), "row": gain_edges(trimmed_line_means(log_mosaic, 1))}
+
+
+def gain_step_z(frames, level_dn=None):
+    """Largest ``gain_steps`` (absolute) of a flat stack over its sensor columns and its sensor
+    rows: about 3 for a sensor of one gain under a smooth light; at the edge of a readout tap
+    with a gain of its own, the step over its noise."""
+    mosaic = flat_log_mosaic(frames)
+    z = np.concatenate([gain_steps(trimmed_line_means(mosaic, 0)), gain_steps(trimmed_line_means(mosaic, 1))])
+    z = np.abs(z[np.isfinite(z)])
+    return float(z.max()) if z.size else 0.0
+
+
+def tap_log_gains(log_mosaic, col_edges, row_edges) -> tuple[np.ndarray, np.ndarray]:
+    """((T_r, T_c) log gains of mean 0, their (T_r, T_c) standard errors) of the readout taps
+    cut by ``col_edges`` and ``row_edges`` (sensor lines) from a flat's log mosaic: at each
+    edge, in each band of taps across it, the step of the band's line profile
+    (``step_kernel``; its window up to ``GAIN_WINDOW`` lines, within the next edges) is the
+    log of the two taps' gain ratio; the log gains are the weighted least-squares fit of those
+    steps (a light's smooth shape never enters)."""
+    lm = np.asarray(log_mosaic, dtype=np.float64)
+    ce, re = [int(e) for e in col_edges], [int(e) for e in row_edges]
+    tr, tc = len(re) + 1, len(ce) + 1
+    bounds = {"col": [0, *ce, lm.shape[1]], "row": [0, *re, lm.shape[0]]}
+    eqs, vals, weights = [], [], []
+    for axis, other in (("col", "row"), ("row", "col")):
+        b, o = bounds[axis], bounds[other]
+        for i in range(1, len(b) - 1):
+            e = b[i]
+            window = min(GAIN_WINDOW, e - b[i - 1], b[i + 1] - e)
+            if window < GAIN_DEGREE + 2:
+                continue  # taps too narrow to tell a step from the light
+            w = step_kernel(window)
+            for band in range(len(o) - 1):
+                part = lm[o[band]:o[band + 1]] if axis == "col" else lm[:, o[band]:o[band + 1]].T
+                p = trimmed_line_means(part, 0)
+                row = np.zeros(tr * tc)
+                lo, hi = ((band * tc + i - 1, band * tc + i) if axis == "col" else ((i - 1) * tc + band, i * tc + band))
+                row[lo], row[hi] = -1.0, 1.0
+                eqs.append(row)
+                vals.append(float(p[e - window:e + window] @ w))
+                weights.append(1.0 / max(line_noise(p) * float(np.linalg.norm(w)), 1e-12) ** 2)
+    if not eqs:
+        return np.zeros((tr, tc)), np.full((tr, tc), np.inf)
+    a = np.asarray(eqs) * np.sqrt(np.asarray(weights))[:, None]
+    cov = np.linalg.pinv(a.T @ a)  # steps fix only differences: the least-norm solution is the one of mean 0
+    g = cov @ (a.T @ (np.asarray(vals) * np.sqrt(np.asarray(weights))))
+    return g.reshape(tr, tc), np.sqrt(np.maximum(np.diag(cov), 0.0)).reshape(tr, tc)
+
+
 LIGHT_STABILITY = 1e-3  # a flat's light is stable to about 0.1 %: smaller deviations of its mean are not resolved
 
 
@@ -1477,6 +1613,7 @@ STATISTICS: dict[str, Statistic] = {
         # shows only in the pairs of every level and ISO together
         Statistic("flat_gain_spread", flat_gain_spread, min_frames=2, kind="flat", floor=LIGHT_STABILITY, pooled=True),
         Statistic("grid_excess", grid_excess, kind="flat", view="raw"),  # phase-detection rows are not defects to repair
+        Statistic("gain_step_z", gain_step_z, kind="flat"),
     )
 }
 

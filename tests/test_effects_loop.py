@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.effects import (amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, row_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_telegraph, dark_offset, frame_gain, frame_noise, impulses, noisy_pixels, noisy_columns, diagonal_banding, crosstalk, read_map, row_channel, tap_black, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
+from rawaug.effects import (tap_gain, amp_glow, banding, black_clip, column_banding, column_gain, row_gain, column_noise, column_telegraph, row_telegraph, dark_columns, dark_rows, dark_hot_pixels, dark_telegraph, dark_offset, frame_gain, frame_noise, impulses, noisy_pixels, noisy_columns, diagonal_banding, crosstalk, read_map, row_channel, tap_black, row_pattern, shared_pixel, telegraph, dead_pixels, row_drift, dark_shading, defect_lines, frame_black_level,
                             gain_nonlinearity, hot_pixels, low_frequency, prnu)
 from rawaug.engine.layout import COLUMN_SET, ROW_SET, XTALK_LAGS
 from rawaug.statistics import (defect_lines as defect_line_fraction, repaired, sensor_col_means, sensor_row_means, stuck_fraction, stuck_pixels, tail_mass, temporal_mosaic,
@@ -962,6 +962,13 @@ def test_effects_replay_bit_exactly():
     ("TapBlack", {"col_edges": list(range(8, 72, 8)), "row_edges": [], "frame_h": 64, "frame_w": 64, "k": [1.0], "sigma_dn": [0.5]},
      "col_edges must be a list of at most 7 sensor lines"),
     ("TapBlack", {"col_edges": [64], "row_edges": [], "frame_h": 64, "frame_w": 64, "k": [1.0], "sigma_dn": [-0.5]}, "sigma_dn must be >= 0"),
+    ("TapGain", {"col_edges": [64], "row_edges": [], "gain": [[1.0, 1.01]]}, "needs frame_h and frame_w"),
+    ("TapGain", {"col_edges": [64], "row_edges": [], "frame_h": 64, "frame_w": 64, "gain": [[1.0, 1.01, 1.0]]},
+     r"gain must be 1 x 2 \(row taps x column taps\) finite gains > 0"),
+    ("TapGain", {"col_edges": [64], "row_edges": [], "frame_h": 64, "frame_w": 64, "gain": [[1.0, 0.0]]}, "finite gains > 0"),
+    ("TapGain", {"col_edges": [], "row_edges": [0], "frame_h": 64, "frame_w": 64, "gain": [[1.0], [1.0]]},
+     r"row_edges values must be whole sensor lines in \(0, 128\), got 0"),
+    ("TapGain", {"col_edges": [], "row_edges": [], "frame_h": 64, "frame_w": 64, "gain": [[1.0]], "sigma": 1}, "unknown keys"),
     ("DarkRTS", {"seed": 1, "density": 0.01, "high": 1.5, "median_e_per_s": 1.0, "log_std": 0.0}, r"high \(share of frames in the high state\) must be in \(0, 1\), got 1.5"),
     ("DarkRTS", {"seed": 1, "density": 0.01, "high": 0.5, "median_e_per_s": -2.0, "log_std": 0.0}, "median_e_per_s must be >= 0, got -2.0"),
     ("DarkCol", {"seed": 1, "density": 0.2, "median_e_per_s": 1.0, "log_std": 0.0}, r"density \(fraction of sensor columns\) must be in \[0, 0.1\], got 0.2"),
@@ -1362,3 +1369,94 @@ def test_readout_taps_are_found_and_estimated():
         tap_black.estimate(f, base, K, kind="flat")
     with pytest.raises(ValueError, match="bias or dark stacks of >= 3 frames"):
         tap_black.estimate(f[:2], base, K, kind="bias")
+
+
+GAINS = {"col_edges": [37], "row_edges": [40], "frame_h": 32, "frame_w": 32, "gain": [[0.97, 1.01], [1.02, 1.0]]}
+
+
+def test_readout_taps_gain_the_pixels_signal_and_noise():
+    # shot noise only (1e-3 DN of read noise): a tap's mean is its gain times the level, its variance the gain squared times K level
+    level = 2000.0
+    raw = _sensor(synth({"TapGain": GAINS}, batch=64, size=32, level_dn=level, model="P", sigma_g=1e-3))
+    quads = {(0, 0): raw[:, :40, :37], (0, 1): raw[:, :40, 37:], (1, 0): raw[:, 40:, :37], (1, 1): raw[:, 40:, 37:]}
+    for (i, j), q in quads.items():
+        g = GAINS["gain"][i][j]
+        n = q.size
+        var = g * g * K * level
+        assert abs(q.mean() - g * level) < 5 * math.sqrt(var / n), (i, j, q.mean())
+        assert abs(q.var() / var - 1.0) < 5 * math.sqrt(2 / n), (i, j, q.var() / var)
+    # ... and the read noise alike (the tap's chain amplifies the pixel's noise), but not the rows' offsets
+    dark = _sensor(synth({"TapGain": GAINS}, batch=64, size=32, model="G+R", sigma_g=2.0, sigma_r=1.5))
+    rows = dark.mean(axis=2, keepdims=True)  # each frame's sensor-row offsets (and the row's share of the read noise)
+    for (i, j), q in {(0, 0): (slice(0, 40), slice(0, 37)), (1, 1): (slice(40, 64), slice(37, 64))}.items():
+        g = GAINS["gain"][i][j]
+        r = (dark - rows)[:, q[0], q[1]]
+        n = r.size
+        assert abs(r.var() / (g * g * 4.0 * (1 - 1 / 64)) - 1.0) < 5 * math.sqrt(2 / n), (i, j, r.var())
+    # an input smaller than the frame is a window of it: its column edge where the window puts it (odd)
+    small = _sensor(synth({"TapGain": {**GAINS, "row_edges": [], "gain": [[0.5, 1.5]]}}, batch=32, size=16, level_dn=level,
+                          model="G", sigma_g=1e-3))
+    cols = {int(j) + 1 for r in small for j in np.flatnonzero(np.abs(np.diff(r[0])) > 0.5 * level)}
+    assert len(cols) > 3 and all(j % 2 == 1 for j in cols), cols
+
+
+def _light(size):
+    """(4, size, size) a vignetting light (30 % down in the far corner) at each channel's sensor positions, mean 1."""
+    light = np.empty((4, size, size))
+    for c in range(4):
+        y, x = np.meshgrid((2 * np.arange(size) + ROW_SET[c]) / (size - 0.5) - 1, (2 * np.arange(size) + COLUMN_SET[c]) / (size - 0.5) - 1,
+                           indexing="ij")
+        light[c] = 1.0 - 0.15 * ((x - 0.3) ** 2 + (y + 0.2) ** 2)
+    return light / light.mean()
+
+
+def _lit(effects, seed, level=3000.0, n=4, size=96):
+    """A flat stack under ``_light``: (N, 4, size, size) DN."""
+    prof = BASE
+    for token, params in effects.items():
+        prof = prof.with_effect(token, params)
+    light = _light(size)
+    aug = RawNoiseAugment(prof, model="G+P", ratio=1.0, fixed={"k": K, "sigma_g": 1.0, "sensor": 0},
+                          generator=torch.Generator().manual_seed(seed), rank_seeding=False)
+    clean = torch.from_numpy(np.broadcast_to(level * light / prof.span_dn, (n, 4, size, size)).copy())
+    return (aug(clean) * prof.span_dn).numpy()
+
+
+def test_readout_taps_gains_are_found_and_estimated():
+    from rawaug.loop.illumination import illumination_shape
+    from rawaug.statistics import gain_step_z
+
+    halves = {"col_edges": [97], "row_edges": [], "frame_h": 96, "frame_w": 96, "gain": [[0.99, 1.01]]}
+    base = [_lit({}, s) for s in range(1, 5)]
+    f = _lit({"TapGain": halves}, 9)
+    # the edge test's threshold (1e-3 over the 2 x 192 gaps of both axes): the lit ELD flats below it, the 2 % step far above
+    threshold = stats.norm.isf(1e-3 / (2 * 2 * 192))
+    assert max(gain_step_z(b) for b in base) < threshold < gain_step_z(f) / 5
+    est = tap_gain.estimate(f, base, K, kind="flat")
+    seen = est.pop("_seen")
+    assert est["col_edges"] == [97] and est["row_edges"] == [] and seen["edges"]["col"] == [97], est
+    # the step's noise: shot noise of 3000 e- over 192 rows and 4 frames per sensor column, 0.67 of it in a 32-line step
+    se = 0.67 * math.sqrt(1 / 3000 / (192 * 4))
+    ratio = est["gain"][0][1] / est["gain"][0][0]
+    assert abs(math.log(ratio) - math.log(1.01 / 0.99)) < 5 * se, ratio
+    # quadrants
+    quads = {**GAINS, "col_edges": [121], "row_edges": [80], "frame_h": 96, "frame_w": 96}
+    q = tap_gain.estimate(_lit({"TapGain": quads}, 10), base, K, kind="flat")
+    assert q["col_edges"] == [121] and q["row_edges"] == [80], q
+    truth = np.log(quads["gain"]) - np.log(quads["gain"]).mean()
+    assert np.all(np.abs(np.log(q["gain"]) - truth) < 5 * 2 * se), q["gain"]
+    # the light is fitted with the taps' steps divided out: as close to the true light as without taps
+    # (a smooth fit of the 2 % step would miss it by about 1 % rms)
+    light = _light(96)
+    light /= light.mean(axis=(1, 2), keepdims=True)
+    plain = max(float((illumination_shape(b.mean(axis=0)) / light - 1).std()) for b in base)
+    assert (illumination_shape(f.mean(axis=0)) / light - 1).std() < 1.5 * plain, plain
+    # over stacks: an edge one stack of three finds is not the sensor's
+    other = tap_gain.estimate(_lit({"TapGain": {**halves, "col_edges": [61]}}, 11), base, K, kind="flat")
+    both = tap_gain.combine([{**est, "_seen": seen}, tap_gain.estimate(_lit({"TapGain": halves}, 12), base, K, kind="flat"), other])
+    assert both["col_edges"] == [97], both
+    # ELD-model flats under the light: no edge in 20 seeds
+    white = [tap_gain.estimate(_lit({}, s), base, K, kind="flat") for s in range(20, 40)]
+    assert all(tap_gain.empty(w) for w in white), [w["col_edges"] + w["row_edges"] for w in white]
+    with pytest.raises(ValueError, match="measured on flat stacks"):
+        tap_gain.estimate(f, base, K, kind="bias")

@@ -37,6 +37,8 @@ LOOP_EFFECTS = {
     "ChargeShare": {"share_x": 0.04, "share_y": 0.02},  # neighbours' shot draws, through this pixel's gains
     "ColGain": {"seed": 67, "sigma": 0.01},
     "RowGain": {"seed": 71, "fixed": 0.01, "frame": 0.02},
+    "TapGain": {"col_edges": [33, 80], "row_edges": [17], "frame_h": 30, "frame_w": 48,
+                "gain": [[0.98, 1.01, 1.03], [0.99, 1.02, 0.97]]},  # an odd sensor column; a window per sample on smaller inputs
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2]},
     "Glow": {"k": [1.0, 3.0], "rate_e_per_s": [[[0.0, 1.0, 4.0, 9.0], [0.5, 2.0, 6.0, 20.0], [0.0, 0.0, 1.0, 3.0]],
                                                [[1.0, 1.0, 2.0, 5.0], [0.0, 2.0, 3.0, 10.0], [0.0, 1.0, 1.0, 2.0]]],

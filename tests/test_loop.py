@@ -333,12 +333,31 @@ def charge_sharing_named(seed):
     return abs(rec["share_x"] - 0.03) < 0.01 and abs(rec["share_y"] - 0.03) < 0.01
 
 
+SPLIT_GAIN = {"TapGain": {"col_edges": [121], "row_edges": [], "frame_h": 96, "frame_w": 96, "gain": [[0.993, 1.007]]}}
+
+
+def tap_gains_named(seed):
+    """A bias stack and flats at two levels of a camera read in two taps (an edge at an odd
+    sensor column) whose gains differ by 1.4 %: TapGain named (not ColGain, LowFreq or
+    GainGrid), nothing left, the edge exact and the log gain ratio within 0.0025 of the
+    truth (5 standard errors: shot noise of 4 flats of 3000 e- over 192 rows, 0.7 of it in a
+    32-line step)."""
+    bias = measured_stack({}, seed=seed, n=6, size=96, label="bias")
+    stacks = [bias] + [flat_stack(SPLIT_GAIN, level, seed + 1 + i, bias) for i, level in enumerate((800.0, 3000.0))]
+    result = run_frame_loop(stacks, BASE, n_synth=8, seed=1)
+    if result.added != ["TapGain"] or result.unexplained():
+        return False
+    rec = result.profile.effects["TapGain"]
+    ratio = rec["gain"][0][1] / rec["gain"][0][0]
+    return rec["col_edges"] == [121] and not rec["row_edges"] and abs(math.log(ratio) - math.log(1.007 / 0.993)) < 0.0025
+
+
 # each check: seed -> the effect named, nothing left and its estimate within bounds
 NAMED = {"DarkHot": dark_hot_named, "DarkCol": lambda seed: dark_only_named("DarkCol", seed),
          "DarkRow": lambda seed: dark_only_named("DarkRow", seed),
          "DarkOffset": lambda seed: dark_only_named("DarkOffset", seed), "Spikes": spikes_named, "ColRTS": telegraph_columns_named, "RowRTS": telegraph_rows_named,
          "Noisy": noisy_named, "DarkRTS": dark_telegraph_named, "NoisyCol": noisy_columns_named,
-         "TapBlack": readout_taps_named, "ChargeShare": charge_sharing_named}
+         "TapBlack": readout_taps_named, "ChargeShare": charge_sharing_named, "TapGain": tap_gains_named}
 
 
 # DarkRow is DarkCol's code along the other axis: in the default run its round trip is checked
@@ -391,6 +410,21 @@ def test_a_read_noise_refit_moves_the_dark_stack_to_the_refitted_bias_stack():
     (new_bias, new_dark), _ = apply_read_noise_factors([bias, dark], BASE, {"bias": 0.8})
     assert new_bias is not bias and new_dark.offsets_of is new_bias
     assert new_dark.offsets_of.base["sigma_g"] == new_bias.base["sigma_g"] != bias.base.get("sigma_g")
+
+
+def test_the_row_noise_refit_reads_the_rows_within_readout_taps():
+    """A black level per top and bottom half, new in every frame, is the taps' variance, not
+    row noise: within the taps the rows vary as a camera's without taps do (the re-fit that
+    follows TapBlack compares those), while over the whole frame the step dominates."""
+    from rawaug.loop.refit import _row_variance
+
+    taps = {"TapBlack": {"col_edges": [], "row_edges": [64], "frame_h": 64, "frame_w": 64, "k": [K], "sigma_dn": [3.0]}}
+    stepped = measured_stack(taps, seed=41, n=8, size=64).frames_dn
+    plain = measured_stack({}, seed=42, n=8, size=64).frames_dn
+    assert _row_variance(stepped) > 3 * _row_variance(plain)
+    # two independent variance estimates of 8 frames x 126 degrees of freedom: log ratio sd sqrt(2 / 1008 x 2)
+    ratio = _row_variance(stepped, [64]) / _row_variance(plain, [64])
+    assert abs(math.log(ratio)) < 5 * math.sqrt(4 / 1008), ratio
 
 
 def test_taking_an_effect_out_undoes_the_refit_it_was_judged_with():

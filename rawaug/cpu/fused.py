@@ -81,6 +81,8 @@ _RRTS_WHERE, _RRTS_SIZE, _RRTS_STATE = L.STREAM["rrts_where"], L.STREAM["rrts_si
 _TPS, _TPC0, _TPR0 = L.COLUMN["tap_sigma"], L.COLUMN["tap_c0"], L.COLUMN["tap_r0"]
 _TPOY, _TPOX, _TPH, _TPW, _TAP = L.COLUMN["tap_oy"], L.COLUMN["tap_ox"], L.COLUMN["tap_h"], L.COLUMN["tap_w"], L.STREAM["tap"]
 _TPE = L.TAP_EDGES
+_TGR, _TGC0, _TGR0 = L.COLUMN["tgain_record"], L.COLUMN["tgain_c0"], L.COLUMN["tgain_r0"]
+_TGOY, _TGOX, _TGH, _TGW = L.COLUMN["tgain_oy"], L.COLUMN["tgain_ox"], L.COLUMN["tgain_h"], L.COLUMN["tgain_w"]
 _TAPS = _TPE + 1
 _DOFF = L.COLUMN["dark_offset"]
 _DRIFT = L.COLUMN["black_drift"]
@@ -323,6 +325,15 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             for i in range(_TPE):
                 if sy >= v[_TPR0 + i] * tap_rows:
                     tap_row += 1
+        tg_rec, tg_row, tg_ox, tg_cols = 0, 0, 0, 2.0 * w
+        if stages & L.TAP_GAIN:  # readout taps' gains: this row's band of taps; the column's tap below
+            tg_rec, tg_ox = int(v[_TGR]), int(v[_TGOX])
+            tg_cols = 2.0 * (v[_TGW] if v[_TGW] > 0.0 else w)
+            sy = 2 * (y + int(v[_TGOY])) + row_set
+            tg_rows = 2.0 * (v[_TGH] if v[_TGH] > 0.0 else h)
+            for i in range(_TPE):
+                if sy >= v[_TGR0 + i] * tg_rows:
+                    tg_row += 1
         read_gain = v[_RG] if stages & L.FRAME_NOISE else 1.0  # this frame's factor on the base read noise
         row_gain = 1.0  # the sensor row's gain on the photo signal: its fixed part and this frame's
         if stages & L.ROW_GAIN:
@@ -471,6 +482,13 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += (unit(draw(keys[_QUANT], g)) - 0.5) * v[_Q]
             if stages & L.LOW_FREQ:
                 s += v[_LF] * lowfreq_at(normal, keys[_LOWFREQ], b, y, x, h, w, int(v[_LF_GH]), int(v[_LF_GW]))
+            if stages & L.TAP_GAIN:  # the readout tap's gain on the pixel's signal and noise (not the rows' and black levels' offsets)
+                sx = 2 * (x + tg_ox) + col_set
+                tap = 0
+                for i in range(_TPE):
+                    if sx >= v[_TGC0 + i] * tg_cols:
+                        tap += 1
+                s *= grids[tg_rec, tg_row, tap]
             s += line
             if stages & L.TAP_BLACK:  # this frame's offset of the pixel's tap
                 sx = 2 * (x + tap_ox) + col_set

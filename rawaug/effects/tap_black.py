@@ -38,6 +38,7 @@ from .base import OFFSET, NoiseEffect, register
 from .k_records import frame_size, validate_records, value_at_k, window_columns
 
 STATISTICS = ("tap_step_ratio", "frame_mean_std", "frame_mean_common_cov")
+SHARES_ROW_NOISE = True  # calibration's sigma_r holds the steps of taps along the rows: judged with the row noise re-fitted
 MAX_EDGES = L.TAP_EDGES  # edges per axis a profile may hold (up to 8 x 8 taps)
 
 

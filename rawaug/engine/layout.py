@@ -58,6 +58,7 @@ DARK_RTS = 1 << 47  # dark-current telegraph: sparse pixels whose dark-current r
 NOISY_COL = 1 << 48  # noisy columns: sparse sensor columns whose pixels read with extra Gaussian temporal noise, new at every pixel and frame
 ROW_RTS = 1 << 49  # row telegraph noise: sparse sensor rows with two offsets, a state per frame
 TAP_BLACK = 1 << 50  # readout taps: a grid of regions, each with a black-level offset of its own in every frame
+TAP_GAIN = 1 << 51  # readout taps: a grid of regions, each with a gain of its own on the photo signal
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
@@ -123,6 +124,9 @@ COLUMNS = (
     "tap_sigma",  # readout taps: offset std per frame and tap (DN)
     *(f"tap_c{i}" for i in range(TAP_EDGES)), *(f"tap_r{i}" for i in range(TAP_EDGES)),  # ... edges, fractions of the sensor lines (2: none)
     "tap_oy", "tap_ox", "tap_h", "tap_w",  # ... the input's window of the measured frame (packed pixels; 0: the input is the sensor)
+    "tgain_record",  # readout taps' gains: grids record (taps' rows x taps' columns)
+    *(f"tgain_c{i}" for i in range(TAP_EDGES)), *(f"tgain_r{i}" for i in range(TAP_EDGES)),  # ... edges, fractions of the sensor lines (2: none)
+    "tgain_oy", "tgain_ox", "tgain_h", "tgain_w",  # ... the input's window of the measured frame (packed pixels; 0: the input is the sensor)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

@@ -51,6 +51,8 @@ C_NCD, C_NCM, C_NCL = _column("ncol_density"), _column("ncol_median"), _column("
 C_RRD, C_RRM, C_RRL, C_RRH = _column("rrts_density"), _column("rrts_median"), _column("rrts_log_std"), _column("rrts_high")
 C_TPS, C_TPC0, C_TPR0 = _column("tap_sigma"), _column("tap_c0"), _column("tap_r0")
 C_TPOY, C_TPOX, C_TPH, C_TPW = _column("tap_oy"), _column("tap_ox"), _column("tap_h"), _column("tap_w")
+C_TGR, C_TGC0, C_TGR0 = _column("tgain_record"), _column("tgain_c0"), _column("tgain_r0")
+C_TGOY, C_TGOX, C_TGH, C_TGW = _column("tgain_oy"), _column("tgain_ox"), _column("tgain_h"), _column("tgain_w")
 TPE = tl.constexpr(L.TAP_EDGES)
 C_DOFF = _column("dark_offset")
 C_DRIFT = _column("black_drift")
@@ -484,6 +486,20 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         line += _col(v, C_DOFF)
     if FLAGS & 8796093022208:  # black level drifting over the frames of a sequence
         line += _col(v, C_DRIFT)
+    if FLAGS & 2251799813685248:  # readout taps' gains: the pixel's tap's gain on its signal and noise (not the rows' and black levels' offsets)
+        tgh = _col(v, C_TGH)
+        tgw = _col(v, C_TGW)
+        rows = 2.0 * tl.where(tgh > 0.0, tgh, H.to(tl.float64))
+        cols = 2.0 * tl.where(tgw > 0.0, tgw, W.to(tl.float64))
+        sy = (2 * (y + _col(v, C_TGOY).to(tl.int64)) + row_set).to(tl.float64)
+        sx = (2 * (x + _col(v, C_TGOX).to(tl.int64)) + col_set).to(tl.float64)
+        tr = tl.zeros_like(g).to(tl.int64)
+        tc = tl.zeros_like(g).to(tl.int64)
+        for i in tl.static_range(TPE):
+            tr += (sy >= tl.load(v + C_TGR0 + i) * rows).to(tl.int64)
+            tc += (sx >= tl.load(v + C_TGC0 + i) * cols).to(tl.int64)
+        tg = grids_ptr + _col(v, C_TGR).to(tl.int64) * GH.to(tl.int64) * GW.to(tl.int64)
+        s *= tl.load(tg + tr * GW.to(tl.int64) + tc, mask=live, other=1.0)
     s += line
     if FLAGS & 1125899906842624:  # readout taps: this frame's offset of the pixel's tap
         tph = _col(v, C_TPH)

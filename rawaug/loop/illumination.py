@@ -22,6 +22,8 @@ import functools
 import numpy as np
 from numpy.polynomial import legendre
 
+from ..effects.tap_gain import shown_gains
+
 DEGREE = 6  # total degree of the polynomial: a cos^4 vignetting and a light's falloff are smooth to this order
 TERMS = (DEGREE + 1) * (DEGREE + 2) // 2  # 28
 MIN_PIXELS = 10 * TERMS  # per channel: fewer cannot tell a shape from the noise
@@ -40,10 +42,13 @@ def _basis(h: int, w: int) -> np.ndarray:
 
 def illumination_shape(mean_dn) -> np.ndarray:
     """(4, h, w) relative shape of a flat's light (mean 1 per channel) from ``mean_dn`` (4, h, w):
-    the flat stack's mean frame above its black (DN). A channel without signal gets 1."""
+    the flat stack's mean frame above its black (DN). A channel without signal gets 1. The
+    steps of readout taps with gains of their own (``tap_gain.shown_gains``) are the
+    sensor's, not the light's: they are divided out before the fit."""
     mean_dn = np.asarray(mean_dn, dtype=np.float64)
     if mean_dn.ndim != 3 or mean_dn.shape[0] != 4:
         raise ValueError(f"mean_dn must be a packed mean frame (4, h, w), got shape {mean_dn.shape}")
+    mean_dn = mean_dn / shown_gains(mean_dn)
     _, h, w = mean_dn.shape
     out = np.ones_like(mean_dn)
     if h * w < MIN_PIXELS or min(h, w) <= DEGREE:

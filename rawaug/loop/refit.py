@@ -313,12 +313,26 @@ def apply_read_shapes(stacks, profile, lambdas: dict):
                                                        float(np.exp(np.log(ks).mean()))))
 
 
-def _row_variance(frames) -> float:
+def _row_variance(frames, row_edges=()) -> float:
     """Variance over sensor rows of the sensor-row means (each frame's channels centred),
-    mean over frames, DN^2: what calibration reads sigma_r from (plus read noise / row length)."""
+    mean over frames, DN^2: what calibration reads sigma_r from (plus read noise / row length).
+    Within the bands of readout taps cut by ``row_edges`` (sensor rows: ``TapBlack``'s), each
+    frame's band mean taken out: their per-frame steps are the taps' own, and a handful of
+    taps and frames would make the syntheses' spread too wide to see the row noise under them."""
     f = np.asarray(repaired(np.asarray(frames, dtype=np.float64)))
     m = sensor_row_means(f - f.mean(axis=(2, 3), keepdims=True))
-    return float(m.var(axis=1, ddof=1).mean())
+    band = np.searchsorted(np.asarray(row_edges, dtype=np.int64), np.arange(m.shape[1]), side="right")
+    bands = int(band.max()) + 1
+    if bands > 1:
+        sums = np.stack([m[:, band == t].mean(axis=1) for t in range(bands)], axis=1)  # (N, bands)
+        m = m - sums[:, band]
+    return float((m * m).sum(axis=1).mean() / max(m.shape[1] - bands, 1) if bands > 1 else m.var(axis=1, ddof=1).mean())
+
+
+def _tap_rows(profile) -> list:
+    """The row edges of the profile's readout taps (``TapBlack``), or none."""
+    taps = profile.effects.get("TapBlack")
+    return list(taps["row_edges"]) if isinstance(taps, dict) else []
 
 
 def row_noise_factors(stacks, diags, profile, z_min: float = 6.0) -> dict:
@@ -330,10 +344,11 @@ def row_noise_factors(stacks, diags, profile, z_min: float = 6.0) -> dict:
     for stack in stacks:
         if stack.kind != "bias":
             continue
-        synth = [_row_variance(s) for s in diags[stack.label][1]]
+        edges = _tap_rows(profile)
+        synth = [_row_variance(s, edges) for s in diags[stack.label][1]]
         if len(synth) < 2:
             continue
-        measured, model, spread = _row_variance(stack.frames_dn), float(np.mean(synth)), float(np.std(synth, ddof=1))
+        measured, model, spread = _row_variance(stack.frames_dn, edges), float(np.mean(synth)), float(np.std(synth, ddof=1))
         if model - measured <= z_min * spread:
             continue
         sigma_r = float(synthesis_fixed(profile, stack).get("sigma_r", 0.0))
@@ -357,11 +372,12 @@ def row_noise_restore(stacks, before: dict, after: dict, profile, z_min: float =
     for stack in stacks:
         if stack.kind != "bias" or stack.label not in before or stack.label not in after:
             continue
-        old = [_row_variance(s) for s in before[stack.label][1]]
-        new = [_row_variance(s) for s in after[stack.label][1]]
+        edges = _tap_rows(profile)
+        old = [_row_variance(s, edges) for s in before[stack.label][1]]
+        new = [_row_variance(s, edges) for s in after[stack.label][1]]
         if len(old) < 2 or len(new) < 2:
             continue
-        measured = _row_variance(stack.frames_dn)
+        measured = _row_variance(stack.frames_dn, edges)
         model, spread = float(np.mean(new)), float(np.std(new, ddof=1))
         if measured - model <= z_min * spread or measured - float(np.mean(old)) > z_min * float(np.std(old, ddof=1)):
             continue

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..statistics import (CURVE_LAGS, col_tone_spectrum, column_pixel_noise, diag_tone_spectrum, lag_covariances, read_noise_profile,
-                          row_tone_spectrum, sensor_col_means, sensor_row_means, statistic_view, tap_steps,
+from ..statistics import (CURVE_LAGS, col_tone_spectrum, column_pixel_noise, diag_tone_spectrum, flat_log_mosaic, gain_steps,
+                          lag_covariances, read_noise_profile,
+                          row_tone_spectrum, sensor_col_means, sensor_row_means, statistic_view, tap_steps, trimmed_line_means,
                           tile_pair_covariances)
 
 KIND = {
@@ -41,6 +42,7 @@ KIND = {
     "stuck_fraction": "temporal_histogram", "spike_fraction": "temporal_histogram", "frame_noise_spread": "temporal_histogram",
     "col_flicker_fraction": "col_tone_spectrum", "flat_gain_spread": "frame_means_relative",
     "noisy_col_fraction": "column_noise", "row_flicker_fraction": "row_tone_spectrum", "tap_step_ratio": "tap_steps",
+    "gain_step_z": "gain_steps",
 }  # every other statistic: the histogram of the pixel values
 LABEL = {
     "radial_spectrum": ("radial frequency (cycles/pixel)", "power (DN^2)", True),
@@ -59,6 +61,8 @@ LABEL = {
     "column_noise": ("sensor column (sorted)", "its pixels' median temporal variance, column means out (DN^2)", True),
     "tap_steps": ("gap between sensor columns, then between sensor rows (16 lines from the ends left out)",
                   "temporal variance of the step between the medians either side (DN^2)", True),
+    "gain_steps": ("gap between sensor columns, then between sensor rows (32 lines from the ends left out)",
+                   "step of the stack mean's log line profile over its noise (a cubic plus a step, 32 lines a side)", False),
     "row_tone_spectrum": ("frequency (cycles per sensor row)", "temporal sensor-row-mean power (DN^2)", True),
     "col_tone_spectrum": ("frequency (cycles per sensor column)", "temporal sensor-column-mean power (DN^2)", True),
     "diag_tone_bins": ("bin of the 2-D periodogram off both axes, largest first", "power over the ring of bins around it", True),
@@ -134,6 +138,11 @@ def curve(kind: str, frames, edges=None):
         return np.arange(1, v.size + 1, dtype=np.float64), v
     if kind == "tap_steps":  # a readout tap's edge stands out at its gap
         steps = np.concatenate([tap_steps(sensor_col_means(frames)), tap_steps(sensor_row_means(frames))])
+        steps = steps[np.isfinite(steps)]
+        return np.arange(1, steps.size + 1, dtype=np.float64), steps
+    if kind == "gain_steps":  # a readout tap's gain steps the flat at its edge
+        mosaic = flat_log_mosaic(frames)
+        steps = np.concatenate([gain_steps(trimmed_line_means(mosaic, 0)), gain_steps(trimmed_line_means(mosaic, 1))])
         steps = steps[np.isfinite(steps)]
         return np.arange(1, steps.size + 1, dtype=np.float64), steps
     if kind == "row_tone_spectrum":
