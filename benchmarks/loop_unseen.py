@@ -430,6 +430,27 @@ def clamp_ramp(dn, rng, **_):
     return dn + rng.normal(0.0, 0.8) * (np.arange(h) / max(h - 1, 1) - 0.5)[None, :, None]
 
 
+def channel_gain(dn, rng, **_):
+    """A colour channel of its own gain: the blue pixels converted with 6 % more gain than the others (a channel's own pre-gain), on the signal and the noise alike (black-subtracted)."""
+    return dn * np.array([1.0, 1.0, 1.06, 1.0])[:, None, None]
+
+
+def weak_columns(dn, rng, **_):
+    """Weak column amplifiers: 1 % of the sensor columns (fixed) convert with 8 % less gain, on the signal and the noise alike, so flats show a few dim columns in proportion to the signal and bias frames almost nothing."""
+    weak = np.random.default_rng(53).random(2 * dn.shape[2]) < 0.01
+    gain = 1.0 - 0.08 * weak
+    return dn * np.stack([gain[0::2], gain[1::2], gain[1::2], gain[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
+def warming_dark(dn, rng, kind="bias", exposure=0.0, k=1.0, **_):
+    """A sensor warming during a dark series: its dark current starts at 1 e-/s and grows by 20 % from each dark frame to the next (with its shot noise); bias frames untouched."""
+    if kind != "dark":
+        return dn
+    key = ("darks", id(rng), k)
+    _WALK[key] = _WALK.get(key, -1.0) + 1.0
+    return dn + k * rng.poisson(1.0 * 1.2 ** _WALK[key] * exposure, dn.shape)
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -439,7 +460,7 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  ramp_jitter, pixel_prnu, dark_current, dsnu, pixel_offsets, column_offsets, soft_knee,
                                  hot_pixels, black_clip, fixed_tone, locked_tone, noisy_pixels, thermal_gradient, leaky_rows,
                                  dark_telegraph, noisy_columns, adc_banks, row_telegraph, wide_codes, split_black,
-                                 split_gain, top_bottom_black, clamp_ramp)}
+                                 split_gain, top_bottom_black, clamp_ramp, channel_gain, weak_columns, warming_dark)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
