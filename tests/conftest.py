@@ -45,3 +45,21 @@ def samplers(request):
     previous = backend.set_backend(request.param)
     yield request.param
     backend.set_backend(previous)
+
+
+# Statistical checks whose Triton run is slow in the interpreter (15-30 s each on a CPU): on a
+# machine without a GPU their Triton run is marked slow. The Triton kernel stays checked in the
+# default run: ``test_numba_and_triton_draw_the_same_noise`` compares it with the numba kernel,
+# whose runs of these checks stay in it, stage for stage.
+INTERPRETED_SLOW = {"test_full_model_pixel_and_row_mean_variance_match_analytic", "test_colour_bias_is_added_on_request_not_by_default",
+                    "test_poisson_shot_noise_is_poisson_in_electrons", "test_defect_line_stage_draws_its_lines"}
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    if torch.cuda.is_available():
+        return
+    for item in items:
+        params = getattr(getattr(item, "callspec", None), "params", {})
+        if item.originalname in INTERPRETED_SLOW and "triton" in params.values():
+            item.add_marker(pytest.mark.slow)

@@ -1460,3 +1460,43 @@ def test_readout_taps_gains_are_found_and_estimated():
     assert all(tap_gain.empty(w) for w in white), [w["col_edges"] + w["row_edges"] for w in white]
     with pytest.raises(ValueError, match="measured on flat stacks"):
         tap_gain.estimate(f, base, K, kind="bias")
+
+
+WEAK = {"seed": 31, "row_density": 0.0, "col_density": 0.05, "median": 0.08, "log_std": 0.0, "negative": 1.0}
+
+
+def test_gain_defect_lines_dim_their_lines_in_proportion_to_the_signal():
+    # 16 sensors (a pattern each) of 256 sensor columns: the share of 8 % dimmer columns, binomial
+    level = 2000.0
+    prof = BASE.with_effect("LineGain", {**WEAK, "col_density": 0.1, "row_density": 0.02})
+    aug = RawNoiseAugment(prof, model="G", ratio=1.0, fixed={"k": K, "sigma_g": 1e-3}, generator=torch.Generator().manual_seed(3))
+    raw = _sensor((aug(torch.full((16, 4, 128, 128), level / prof.span_dn, dtype=torch.float64)) * prof.span_dn).numpy())
+    cols = np.median(raw, axis=1) / level  # (16, 256): a column's gain (rows' defects left out by the median)
+    rows = np.median(raw, axis=2) / level
+    assert np.all((np.abs(cols - 1.0) < 1e-3) | (np.abs(cols - 0.92) < 1e-3)), np.unique(cols.round(3))
+    assert np.all((np.abs(rows - 1.0) < 1e-3) | (np.abs(rows - 0.92) < 1e-3)), np.unique(rows.round(3))
+    for share, density in (((cols < 0.96).mean(), 0.1), ((rows < 0.96).mean(), 0.02)):
+        assert abs(share - density) < 5 * math.sqrt(density * (1 - density) / 4096), share
+    # a crossing pixel takes both gains; bias frames (no signal) see only the read noise scaled
+    y, x = np.nonzero((rows[0] < 0.96)[:, None] & (cols[0] < 0.96)[None, :])
+    assert y.size == 0 or np.allclose(raw[0, y, x] / level, 0.92 ** 2, atol=1e-3)
+
+
+def test_gain_defect_lines_are_found_and_estimated():
+    from rawaug.effects import line_gain
+
+    # uniform flats (``defect_lines`` reads a line against its running median of 5: under a light
+    # steeper than the line noise that median is the line itself, and a dim line of a few per cent
+    # goes unseen; see the README)
+    flats = lambda effects, seed: synth(effects, batch=4, size=96, level_dn=3000.0, model="G+P", seed=seed)  # noqa: E731
+    base = [flats({}, s) for s in range(1, 4)]
+    truth = _sensor(synth({"LineGain": WEAK}, batch=1, size=96, level_dn=3000.0, sigma_g=1e-3))[0].mean(axis=0) / 3000.0
+    weak = int((truth < 0.96).sum())  # the sensor's dim columns (its seeded pattern)
+    est = line_gain.estimate(flats({"LineGain": WEAK}, 7), base, K, kind="flat")
+    assert weak >= 5 and est["col_density"] == weak / 192, (weak, est)
+    assert est["row_density"] == 0.0 and est["negative"] == 1.0 and abs(est["median"] - 0.08) < 0.005, est
+    # ELD-model flats: nothing, 20 seeds
+    white = [line_gain.estimate(flats({}, s), base, K, kind="flat") for s in range(20, 40)]
+    assert all(line_gain.empty(w) for w in white), white
+    with pytest.raises(ValueError, match="measured on flat stacks"):
+        line_gain.estimate(base[0], base, K, kind="bias")

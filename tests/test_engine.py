@@ -37,6 +37,7 @@ LOOP_EFFECTS = {
     "ChargeShare": {"share_x": 0.04, "share_y": 0.02},  # neighbours' shot draws, through this pixel's gains
     "ColGain": {"seed": 67, "sigma": 0.01},
     "RowGain": {"seed": 71, "fixed": 0.01, "frame": 0.02},
+    "LineGain": {"seed": 37, "row_density": 0.08, "col_density": 0.1, "median": 0.2, "log_std": 0.5, "negative": 0.5},
     "TapGain": {"col_edges": [33, 80], "row_edges": [17], "frame_h": 30, "frame_w": 48,
                 "gain": [[0.98, 1.01, 1.03], [0.99, 1.02, 0.97]]},  # an odd sensor column; a window per sample on smaller inputs
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2]},
@@ -98,8 +99,13 @@ def both(aug, x):
     return a, b
 
 
-@pytest.mark.parametrize("model", ["G*+P*+R+U+C", "G+P+R+U", "G*+P*", "G"])
-@pytest.mark.parametrize("ratio", [1.0, 150.0])
+# the default run: every stage with the exact samplers at ratio 1 (every Poisson regime) and
+# with the Gaussian ones at ratio 150; the other six pairs (15 s each in the interpreter) are slow
+EQUIVALENCE_DEFAULT = {("G*+P*+R+U+C", 1.0), ("G+P+R+U", 150.0)}
+
+
+@pytest.mark.parametrize("model, ratio", [(m, r) if (m, r) in EQUIVALENCE_DEFAULT else pytest.param(m, r, marks=pytest.mark.slow)
+                                          for r in (1.0, 150.0) for m in ("G*+P*+R+U+C", "G+P+R+U", "G*+P*", "G")])
 def test_numba_and_triton_draw_the_same_noise(model, ratio):
     # signal from 0 to 1 (up to ~15000 DN: every Poisson regime, PTRS included at ratio 1)
     x = torch.rand(3, 4, 24, 40, generator=torch.Generator().manual_seed(0)) * torch.tensor([1e-4, 1e-2, 0.3, 1.0]).view(1, 4, 1, 1)
@@ -134,6 +140,7 @@ def test_poisson_counts_are_equal_on_both_backends():
     assert torch.allclose(ca, ca.round(), atol=1e-2)  # whole electrons
 
 
+@pytest.mark.slow  # 30 s in the interpreter; every stage's equivalence is in the default run above
 def test_fixed_patterns_before_shot_noise_give_the_same_counts_on_both_backends():
     # PRNU and DSNU change the Poisson mean of every pixel: a difference of 1e-7 there would
     # move a count now and then, so both backends draw these patterns from one table

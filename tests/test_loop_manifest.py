@@ -287,10 +287,11 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 
 # cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
 # they run with the slow rates below, to keep the default run short ("Col" is found on a
-# manifest by test_loop_diagnoses_the_central_view_of_large_frames)
+# manifest by test_loop_diagnoses_the_central_view_of_large_frames; "glow"'s estimator is checked
+# by its round trip in tests/test_effects_loop.py, on a manifest at two exposures by the slow tests below)
 SLOW_CASES = {"Col", "crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
               "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
-              "skewed dark current", "raised floor", "frame-locked tone"}
+              "skewed dark current", "raised floor", "frame-locked tone", "glow"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])
@@ -478,6 +479,7 @@ def check_glow_two_exposures(tmp_path, seed):
         assert not any(p["after"][2] for p in points), points
 
 
+@pytest.mark.slow  # 40 s: two loops over a whole manifest
 def test_a_component_that_spoils_the_battery_is_not_added(tmp_path, monkeypatch):
     # The two-exposure glow camera with Glow taken out of the candidates: LowFreq (a field new
     # in every frame) cuts the glow's psd2d_lowfreq error by 70 %, but nearly doubles the

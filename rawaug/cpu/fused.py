@@ -81,6 +81,8 @@ _RRTS_WHERE, _RRTS_SIZE, _RRTS_STATE = L.STREAM["rrts_where"], L.STREAM["rrts_si
 _TPS, _TPC0, _TPR0 = L.COLUMN["tap_sigma"], L.COLUMN["tap_c0"], L.COLUMN["tap_r0"]
 _TPOY, _TPOX, _TPH, _TPW, _TAP = L.COLUMN["tap_oy"], L.COLUMN["tap_ox"], L.COLUMN["tap_h"], L.COLUMN["tap_w"], L.STREAM["tap"]
 _TPE = L.TAP_EDGES
+_LGRD, _LGCD, _LGM, _LGLS, _LGNEG = (L.COLUMN[n] for n in ("lgain_row_density", "lgain_col_density", "lgain_median", "lgain_log_std", "lgain_negative"))
+_LGAIN_ROW, _LGAIN_COL = L.STREAM["lgain_row"], L.STREAM["lgain_col"]
 _TGR, _TGC0, _TGR0 = L.COLUMN["tgain_record"], L.COLUMN["tgain_c0"], L.COLUMN["tgain_r0"]
 _TGOY, _TGOX, _TGH, _TGW = L.COLUMN["tgain_oy"], L.COLUMN["tgain_ox"], L.COLUMN["tgain_h"], L.COLUMN["tgain_w"]
 _TAPS = _TPE + 1
@@ -334,6 +336,9 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             for i in range(_TPE):
                 if sy >= v[_TGR0 + i] * tg_rows:
                     tg_row += 1
+        lg_row = 1.0
+        if stages & L.LINE_GAIN:  # the sensor row's gain if it is a gain defect; the column's below
+            lg_row = max(1.0 + defect_line_at(normal, keys[_LGAIN_ROW], (sensor * 2 + row_set) * h + y, v[_LGRD], v[_LGM], v[_LGLS], v[_LGNEG]), 0.0)
         read_gain = v[_RG] if stages & L.FRAME_NOISE else 1.0  # this frame's factor on the base read noise
         row_gain = 1.0  # the sensor row's gain on the photo signal: its fixed part and this frame's
         if stages & L.ROW_GAIN:
@@ -482,6 +487,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s += (unit(draw(keys[_QUANT], g)) - 0.5) * v[_Q]
             if stages & L.LOW_FREQ:
                 s += v[_LF] * lowfreq_at(normal, keys[_LOWFREQ], b, y, x, h, w, int(v[_LF_GH]), int(v[_LF_GW]))
+            if stages & L.LINE_GAIN:  # a gain defect line's gain on the pixel's signal and noise, its row's and its column's
+                s *= lg_row * max(1.0 + defect_line_at(normal, keys[_LGAIN_COL], (sensor * 2 + col_set) * w + x, v[_LGCD], v[_LGM], v[_LGLS], v[_LGNEG]), 0.0)
             if stages & L.TAP_GAIN:  # the readout tap's gain on the pixel's signal and noise (not the rows' and black levels' offsets)
                 sx = 2 * (x + tg_ox) + col_set
                 tap = 0

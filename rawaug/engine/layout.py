@@ -59,6 +59,7 @@ NOISY_COL = 1 << 48  # noisy columns: sparse sensor columns whose pixels read wi
 ROW_RTS = 1 << 49  # row telegraph noise: sparse sensor rows with two offsets, a state per frame
 TAP_BLACK = 1 << 50  # readout taps: a grid of regions, each with a black-level offset of its own in every frame
 TAP_GAIN = 1 << 51  # readout taps: a grid of regions, each with a gain of its own on the photo signal
+LINE_GAIN = 1 << 52  # gain defect lines: sparse sensor rows and columns with a gain far off, on the pixel's signal and noise
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
@@ -127,6 +128,7 @@ COLUMNS = (
     "tgain_record",  # readout taps' gains: grids record (taps' rows x taps' columns)
     *(f"tgain_c{i}" for i in range(TAP_EDGES)), *(f"tgain_r{i}" for i in range(TAP_EDGES)),  # ... edges, fractions of the sensor lines (2: none)
     "tgain_oy", "tgain_ox", "tgain_h", "tgain_w",  # ... the input's window of the measured frame (packed pixels; 0: the input is the sensor)
+    "lgain_row_density", "lgain_col_density", "lgain_median", "lgain_log_std", "lgain_negative",  # gain defect lines: densities, median gain offset (fraction), spread, share dim
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -144,7 +146,7 @@ STREAMS = (
     "spike_where", "spike_size", "crts_where", "crts_size", "crts_state", "rowgain_pattern", "rowgain_frame",
     "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
-    "rrts_where", "rrts_size", "rrts_state", "tap",
+    "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -53,6 +53,8 @@ C_TPS, C_TPC0, C_TPR0 = _column("tap_sigma"), _column("tap_c0"), _column("tap_r0
 C_TPOY, C_TPOX, C_TPH, C_TPW = _column("tap_oy"), _column("tap_ox"), _column("tap_h"), _column("tap_w")
 C_TGR, C_TGC0, C_TGR0 = _column("tgain_record"), _column("tgain_c0"), _column("tgain_r0")
 C_TGOY, C_TGOX, C_TGH, C_TGW = _column("tgain_oy"), _column("tgain_ox"), _column("tgain_h"), _column("tgain_w")
+C_LGRD, C_LGCD, C_LGM, C_LGLS, C_LGNEG = (_column("lgain_row_density"), _column("lgain_col_density"), _column("lgain_median"),
+                                        _column("lgain_log_std"), _column("lgain_negative"))
 TPE = tl.constexpr(L.TAP_EDGES)
 C_DOFF = _column("dark_offset")
 C_DRIFT = _column("black_drift")
@@ -87,6 +89,7 @@ K_SHOT, K_SHOT_REST, K_SHOT_COARSE, K_READ = S["shot"], S["shot_rest"], S["shot_
 K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
 K_DSNU, K_LOWFREQ = S["dsnu_pattern"], S["lowfreq"]
 K_LINES_ROW, K_LINES_COL = S["lines_row"], S["lines_col"]
+K_LGAIN_ROW, K_LGAIN_COL = S["lgain_row"], S["lgain_col"]
 K_XTALK, K_BAND, K_ROW_PATTERN, K_ROW_CHANNEL = S["xtalk"], S["band"], S["row_pattern"], S["row_channel"]
 K_READ_MAP, K_SHARED = S["read_map"], S["shared"]
 K_RTS_WHERE, K_RTS_SIZE, K_RTS_STATE = S["rts_where"], S["rts_size"], S["rts_state"]
@@ -486,6 +489,12 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         line += _col(v, C_DOFF)
     if FLAGS & 8796093022208:  # black level drifting over the frames of a sequence
         line += _col(v, C_DRIFT)
+    if FLAGS & 4503599627370496:  # gain defect lines: the pixel's row's and column's gain if they are defects, on its signal and noise
+        grow = _defect_line(normal_ptr, _key(keys_ptr, K_LGAIN_ROW), ((sensor * 2 + row_set) * H + y).to(tl.uint64),
+                            _col(v, C_LGRD), _col(v, C_LGM), _col(v, C_LGLS), _col(v, C_LGNEG))
+        gcol = _defect_line(normal_ptr, _key(keys_ptr, K_LGAIN_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64),
+                            _col(v, C_LGCD), _col(v, C_LGM), _col(v, C_LGLS), _col(v, C_LGNEG))
+        s *= tl.maximum(1.0 + grow, 0.0) * tl.maximum(1.0 + gcol, 0.0)
     if FLAGS & 2251799813685248:  # readout taps' gains: the pixel's tap's gain on its signal and noise (not the rows' and black levels' offsets)
         tgh = _col(v, C_TGH)
         tgw = _col(v, C_TGW)
