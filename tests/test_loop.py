@@ -352,12 +352,35 @@ def tap_gains_named(seed):
     return rec["col_edges"] == [121] and not rec["row_edges"] and abs(math.log(ratio) - math.log(1.007 / 0.993)) < 0.0025
 
 
+WEAK_COLUMNS = {"LineGain": {"seed": 31, "row_density": 0.0, "col_density": 0.03, "median": 0.08, "log_std": 0.0, "negative": 1.0}}
+
+
+def gain_lines_named(seed):
+    """A bias stack and flats at two levels of a camera whose weak column amplifiers (3 % of the
+    sensor columns) convert with 8 % less gain: LineGain named (not Lines, ColGain or GainGrid),
+    nothing left, its column density that of the sensor's pattern (the dim columns of a
+    noiseless render of it, all resolved at 3000 e-) and its median within 0.005 of 0.08."""
+    bias = measured_stack({}, seed=seed, n=6, size=96, label="bias")
+    stacks = [bias] + [flat_stack(WEAK_COLUMNS, level, seed + 1 + i, bias) for i, level in enumerate((800.0, 3000.0))]
+    result = run_frame_loop(stacks, BASE, n_synth=8, seed=1)
+    if result.added != ["LineGain"] or result.unexplained():
+        return False
+    rec = result.profile.effects["LineGain"]
+    template = FrameStack(np.full((1, 4, 96, 96), 1000.5), K, kind="flat", level_dn=1000.0, offsets_dn=[0.5] * 4)
+    clean = BASE.with_effect("LineGain", WEAK_COLUMNS["LineGain"])
+    render = synthesize(clean, template, 1, seed, model="G", offsets=[0.0] * 4)[0][0]  # read noise only: 2 DN of 1000
+    cols = np.concatenate([render[c].mean(axis=0) for c in (0, 1)]) / 1000.0  # both column sets of the R/G1 rows
+    weak = int((cols < 0.96).sum())
+    return abs(rec["col_density"] - weak / 192) < 1e-9 and rec["row_density"] == 0.0 and abs(rec["median"] - 0.08) < 0.005
+
+
 # each check: seed -> the effect named, nothing left and its estimate within bounds
 NAMED = {"DarkHot": dark_hot_named, "DarkCol": lambda seed: dark_only_named("DarkCol", seed),
          "DarkRow": lambda seed: dark_only_named("DarkRow", seed),
          "DarkOffset": lambda seed: dark_only_named("DarkOffset", seed), "Spikes": spikes_named, "ColRTS": telegraph_columns_named, "RowRTS": telegraph_rows_named,
          "Noisy": noisy_named, "DarkRTS": dark_telegraph_named, "NoisyCol": noisy_columns_named,
-         "TapBlack": readout_taps_named, "ChargeShare": charge_sharing_named, "TapGain": tap_gains_named}
+         "TapBlack": readout_taps_named, "ChargeShare": charge_sharing_named, "TapGain": tap_gains_named,
+         "LineGain": gain_lines_named}
 
 
 # DarkRow is DarkCol's code along the other axis: in the default run its round trip is checked

@@ -232,6 +232,17 @@ def defect_line_at(normal, key, line, density, median, log_std, negative):
 
 
 @njit(inline="always")
+def tap_at(line, v, first, lines):
+    """Readout tap (0 .. TAP_EDGES) of sensor line ``line`` along one axis: the edges at or
+    below it, stored as fractions of ``lines`` in ``v[first:first + TAP_EDGES]`` (2: none)."""
+    tap = 0
+    for i in range(_TPE):
+        if line >= v[first + i] * lines:
+            tap += 1
+    return tap
+
+
+@njit(inline="always")
 def table_at(lut, row, z):
     """Row ``row`` of ``lut`` (values on a uniform grid of normal scores in [-Z_MAX, Z_MAX])
     at score ``z``, linear between grid points, the end values beyond."""
@@ -322,20 +333,12 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         if stages & L.TAP_BLACK:  # readout taps: this row's band of taps; the column's tap below
             tap_ox = int(v[_TPOX])
             tap_cols = 2.0 * (v[_TPW] if v[_TPW] > 0.0 else w)
-            sy = 2 * (y + int(v[_TPOY])) + row_set
-            tap_rows = 2.0 * (v[_TPH] if v[_TPH] > 0.0 else h)
-            for i in range(_TPE):
-                if sy >= v[_TPR0 + i] * tap_rows:
-                    tap_row += 1
+            tap_row = tap_at(2 * (y + int(v[_TPOY])) + row_set, v, _TPR0, 2.0 * (v[_TPH] if v[_TPH] > 0.0 else h))
         tg_rec, tg_row, tg_ox, tg_cols = 0, 0, 0, 2.0 * w
         if stages & L.TAP_GAIN:  # readout taps' gains: this row's band of taps; the column's tap below
             tg_rec, tg_ox = int(v[_TGR]), int(v[_TGOX])
             tg_cols = 2.0 * (v[_TGW] if v[_TGW] > 0.0 else w)
-            sy = 2 * (y + int(v[_TGOY])) + row_set
-            tg_rows = 2.0 * (v[_TGH] if v[_TGH] > 0.0 else h)
-            for i in range(_TPE):
-                if sy >= v[_TGR0 + i] * tg_rows:
-                    tg_row += 1
+            tg_row = tap_at(2 * (y + int(v[_TGOY])) + row_set, v, _TGR0, 2.0 * (v[_TGH] if v[_TGH] > 0.0 else h))
         lg_row = 1.0
         if stages & L.LINE_GAIN:  # the sensor row's gain if it is a gain defect; the column's below
             lg_row = max(1.0 + defect_line_at(normal, keys[_LGAIN_ROW], (sensor * 2 + row_set) * h + y, v[_LGRD], v[_LGM], v[_LGLS], v[_LGNEG]), 0.0)
@@ -490,19 +493,10 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.LINE_GAIN:  # a gain defect line's gain on the pixel's signal and noise, its row's and its column's
                 s *= lg_row * max(1.0 + defect_line_at(normal, keys[_LGAIN_COL], (sensor * 2 + col_set) * w + x, v[_LGCD], v[_LGM], v[_LGLS], v[_LGNEG]), 0.0)
             if stages & L.TAP_GAIN:  # the readout tap's gain on the pixel's signal and noise (not the rows' and black levels' offsets)
-                sx = 2 * (x + tg_ox) + col_set
-                tap = 0
-                for i in range(_TPE):
-                    if sx >= v[_TGC0 + i] * tg_cols:
-                        tap += 1
-                s *= grids[tg_rec, tg_row, tap]
+                s *= grids[tg_rec, tg_row, tap_at(2 * (x + tg_ox) + col_set, v, _TGC0, tg_cols)]
             s += line
             if stages & L.TAP_BLACK:  # this frame's offset of the pixel's tap
-                sx = 2 * (x + tap_ox) + col_set
-                tap = tap_row * _TAPS
-                for i in range(_TPE):
-                    if sx >= v[_TPC0 + i] * tap_cols:
-                        tap += 1
+                tap = tap_row * _TAPS + tap_at(2 * (x + tap_ox) + col_set, v, _TPC0, tap_cols)
                 s += v[_TPS] * symmetric(normal, draw(keys[_TAP], b * _TAPS * _TAPS + tap))
             if stages & L.CODE_MAP:
                 code = math.floor(s + 0.5)

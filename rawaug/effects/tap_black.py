@@ -65,18 +65,24 @@ class TapBlack(NoiseEffect):
     @classmethod
     def validate_params(cls, params):
         validate_records(cls.token, params, ("sigma_dn",), nonnegative=("sigma_dn",))
-        size = frame_size(cls.token, params)
-        if size is None:
-            raise ValueError("effect 'TapBlack' needs frame_h and frame_w (packed pixels of the frame its edges are on)")
-        for key, lines in (("col_edges", 2 * size[1]), ("row_edges", 2 * size[0])):
-            edges = params.get(key)
-            if not isinstance(edges, (list, tuple)) or len(edges) > MAX_EDGES:
-                raise ValueError(f"effect 'TapBlack': {key} must be a list of at most {MAX_EDGES} sensor lines, got {edges!r:.80}")
-            for e in edges:
-                if isinstance(e, bool) or not isinstance(e, int) or not 0 < e < lines:
-                    raise ValueError(f"effect 'TapBlack': {key} values must be whole sensor lines in (0, {lines}), got {e!r}")
-            if list(edges) != sorted(set(edges)):
-                raise ValueError(f"effect 'TapBlack': {key} must be strictly increasing, got {list(edges)}")
+        validate_edges(cls.token, params)
+
+
+def validate_edges(token: str, params: dict) -> None:
+    """A tap grid's ``frame_h``/``frame_w`` and its ``col_edges``/``row_edges``: at most
+    ``MAX_EDGES`` whole sensor lines each, strictly increasing, inside the frame."""
+    size = frame_size(token, params)
+    if size is None:
+        raise ValueError(f"effect {token!r} needs frame_h and frame_w (packed pixels of the frame its edges are on)")
+    for key, lines in (("col_edges", 2 * size[1]), ("row_edges", 2 * size[0])):
+        edges = params.get(key)
+        if not isinstance(edges, (list, tuple)) or len(edges) > MAX_EDGES:
+            raise ValueError(f"effect {token!r}: {key} must be a list of at most {MAX_EDGES} sensor lines, got {edges!r:.80}")
+        for e in edges:
+            if isinstance(e, bool) or not isinstance(e, int) or not 0 < e < lines:
+                raise ValueError(f"effect {token!r}: {key} values must be whole sensor lines in (0, {lines}), got {e!r}")
+        if list(edges) != sorted(set(edges)):
+            raise ValueError(f"effect {token!r}: {key} must be strictly increasing, got {list(edges)}")
 
 
 def _bands(edges, lines: int) -> np.ndarray:

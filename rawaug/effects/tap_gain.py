@@ -35,7 +35,7 @@ from ..engine import layout as L
 from ..statistics import GAIN_WINDOW, flat_gain_edges, flat_log_mosaic, gain_steps, tap_log_gains, trimmed_line_means
 from .base import READ, NoiseEffect, register
 from .k_records import frame_size, window_columns
-from .tap_black import _consensus
+from .tap_black import _consensus, validate_edges
 
 STATISTICS = ("gain_step_z",)
 MAX_EDGES = L.TAP_EDGES  # edges per axis a profile may hold (up to 8 x 8 taps)
@@ -74,18 +74,7 @@ class TapGain(NoiseEffect):
         unknown = sorted(set(params) - known)
         if unknown:
             raise ValueError(f"effect {cls.token!r}: unknown keys {unknown}; known: {sorted(known)}")
-        size = frame_size(cls.token, params)
-        if size is None:
-            raise ValueError(f"effect {cls.token!r} needs frame_h and frame_w (packed pixels of the frame its edges are on)")
-        for key, lines in (("col_edges", 2 * size[1]), ("row_edges", 2 * size[0])):
-            edges = params.get(key)
-            if not isinstance(edges, (list, tuple)) or len(edges) > MAX_EDGES:
-                raise ValueError(f"effect {cls.token!r}: {key} must be a list of at most {MAX_EDGES} sensor lines, got {edges!r:.80}")
-            for e in edges:
-                if isinstance(e, bool) or not isinstance(e, int) or not 0 < e < lines:
-                    raise ValueError(f"effect {cls.token!r}: {key} values must be whole sensor lines in (0, {lines}), got {e!r}")
-            if list(edges) != sorted(set(edges)):
-                raise ValueError(f"effect {cls.token!r}: {key} must be strictly increasing, got {list(edges)}")
+        validate_edges(cls.token, params)
         shape = (len(params["row_edges"]) + 1, len(params["col_edges"]) + 1)
         try:
             gain = np.asarray(params.get("gain"), dtype=np.float64)

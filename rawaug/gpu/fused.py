@@ -140,6 +140,16 @@ def _defect_line(normal_ptr, key, line, density, median, log_std, negative):
 
 
 @triton.jit
+def _tap(v, first: tl.constexpr, line, lines):
+    """As ``rawaug.cpu.fused.tap_at``: the readout tap of sensor lines ``line`` (float64) along
+    one axis, from the edges at ``v[first:first + TAP_EDGES]`` (fractions of ``lines``)."""
+    tap = tl.zeros_like(line).to(tl.int64)
+    for i in tl.static_range(TPE):
+        tap += (line >= tl.load(v + first + i) * lines).to(tl.int64)
+    return tap
+
+
+@triton.jit
 def _shading(grids_ptr, GH, GW, record, y, x, h, w, gh, gw, live):
     """Bilinear upsampling of the gh x gw grid ``record`` of a table of GH x GW (padded) records at (y, x)."""
     y0, x0, y1, x1, fy, fx = _bilinear(y, x, h, w, gh, gw)
@@ -500,13 +510,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         tgw = _col(v, C_TGW)
         rows = 2.0 * tl.where(tgh > 0.0, tgh, H.to(tl.float64))
         cols = 2.0 * tl.where(tgw > 0.0, tgw, W.to(tl.float64))
-        sy = (2 * (y + _col(v, C_TGOY).to(tl.int64)) + row_set).to(tl.float64)
-        sx = (2 * (x + _col(v, C_TGOX).to(tl.int64)) + col_set).to(tl.float64)
-        tr = tl.zeros_like(g).to(tl.int64)
-        tc = tl.zeros_like(g).to(tl.int64)
-        for i in tl.static_range(TPE):
-            tr += (sy >= tl.load(v + C_TGR0 + i) * rows).to(tl.int64)
-            tc += (sx >= tl.load(v + C_TGC0 + i) * cols).to(tl.int64)
+        tr = _tap(v, C_TGR0, (2 * (y + _col(v, C_TGOY).to(tl.int64)) + row_set).to(tl.float64), rows)
+        tc = _tap(v, C_TGC0, (2 * (x + _col(v, C_TGOX).to(tl.int64)) + col_set).to(tl.float64), cols)
         tg = grids_ptr + _col(v, C_TGR).to(tl.int64) * GH.to(tl.int64) * GW.to(tl.int64)
         s *= tl.load(tg + tr * GW.to(tl.int64) + tc, mask=live, other=1.0)
     s += line
@@ -515,13 +520,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         tpw = _col(v, C_TPW)
         rows = 2.0 * tl.where(tph > 0.0, tph, H.to(tl.float64))
         cols = 2.0 * tl.where(tpw > 0.0, tpw, W.to(tl.float64))
-        sy = (2 * (y + _col(v, C_TPOY).to(tl.int64)) + row_set).to(tl.float64)
-        sx = (2 * (x + _col(v, C_TPOX).to(tl.int64)) + col_set).to(tl.float64)
-        tr = tl.zeros_like(g).to(tl.int64)
-        tc = tl.zeros_like(g).to(tl.int64)
-        for i in tl.static_range(TPE):
-            tr += (sy >= tl.load(v + C_TPR0 + i) * rows).to(tl.int64)
-            tc += (sx >= tl.load(v + C_TPC0 + i) * cols).to(tl.int64)
+        tr = _tap(v, C_TPR0, (2 * (y + _col(v, C_TPOY).to(tl.int64)) + row_set).to(tl.float64), rows)
+        tc = _tap(v, C_TPC0, (2 * (x + _col(v, C_TPOX).to(tl.int64)) + col_set).to(tl.float64), cols)
         tap = (b.to(tl.int64) * (TPE + 1) + tr) * (TPE + 1) + tc
         s += _col(v, C_TPS) * _normal(draw(_key(keys_ptr, K_TAP), tap.to(tl.uint64)))
     if FLAGS & 65536:  # measured code map: nearest code the camera uses
