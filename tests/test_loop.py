@@ -341,7 +341,7 @@ def tap_gains_named(seed):
     sensor column) whose gains differ by 1.4 %: TapGain named (not ColGain, LowFreq or
     GainGrid), nothing left, the edge exact and the log gain ratio within 0.0025 of the
     truth (5 standard errors: shot noise of 4 flats of 3000 e- over 192 rows, 0.7 of it in a
-    32-line step)."""
+    32-line step). Over 20 seeds, 300-338 even: 20 named (2026-11-28)."""
     bias = measured_stack({}, seed=seed, n=6, size=96, label="bias")
     stacks = [bias] + [flat_stack(SPLIT_GAIN, level, seed + 1 + i, bias) for i, level in enumerate((800.0, 3000.0))]
     result = run_frame_loop(stacks, BASE, n_synth=8, seed=1)
@@ -359,7 +359,8 @@ def gain_lines_named(seed):
     """A bias stack and flats at two levels of a camera whose weak column amplifiers (3 % of the
     sensor columns) convert with 8 % less gain: LineGain named (not Lines, ColGain or GainGrid),
     nothing left, its column density that of the sensor's pattern (the dim columns of a
-    noiseless render of it, all resolved at 3000 e-) and its median within 0.005 of 0.08."""
+    noiseless render of it, all resolved at 3000 e-) and its median within 0.005 of 0.08.
+    Over 20 seeds, 300-338 even: 20 named (2026-11-28)."""
     bias = measured_stack({}, seed=seed, n=6, size=96, label="bias")
     stacks = [bias] + [flat_stack(WEAK_COLUMNS, level, seed + 1 + i, bias) for i, level in enumerate((800.0, 3000.0))]
     result = run_frame_loop(stacks, BASE, n_synth=8, seed=1)
