@@ -63,15 +63,21 @@ class DefectLines(NoiseEffect):
     def validate_params(cls, params):
         validate_records(cls.token, params, ("median_dn",), nonnegative=("median_dn",))
         check_seed(cls.token, params)
-        for key in ("row_density", "col_density"):
-            value = _number(params.get(key), f"Lines.{key}")
-            if not 0.0 <= value <= MAX_DENSITY:
-                raise ValueError(f"effect 'Lines': {key} (fraction of sensor lines) must be in [0, {MAX_DENSITY}], got {value}")
-        if _number(params.get("log_std"), "Lines.log_std") < 0:
-            raise ValueError(f"effect 'Lines': log_std must be >= 0, got {params.get('log_std')}")
-        negative = _number(params.get("negative"), "Lines.negative")
-        if not 0.0 <= negative <= 1.0:
-            raise ValueError(f"effect 'Lines': negative (fraction of dark lines) must be in [0, 1], got {negative}")
+        validate_line_pattern(cls.token, params)
+
+
+def validate_line_pattern(token: str, params: dict) -> None:
+    """A seeded line pattern's ``row_density`` and ``col_density`` (fractions of sensor lines,
+    up to ``MAX_DENSITY``), ``log_std`` (>= 0) and ``negative`` (the share of dark lines)."""
+    for key in ("row_density", "col_density"):
+        value = _number(params.get(key), f"{token}.{key}")
+        if not 0.0 <= value <= MAX_DENSITY:
+            raise ValueError(f"effect {token!r}: {key} (fraction of sensor lines) must be in [0, {MAX_DENSITY}], got {value}")
+    if _number(params.get("log_std"), f"{token}.log_std") < 0:
+        raise ValueError(f"effect {token!r}: log_std must be >= 0, got {params.get('log_std')}")
+    negative = _number(params.get("negative"), f"{token}.negative")
+    if not 0.0 <= negative <= 1.0:
+        raise ValueError(f"effect {token!r}: negative (fraction of dark lines) must be in [0, 1], got {negative}")
 
 
 # packed channels (R, G1, B, G2) on each sensor row set and column set

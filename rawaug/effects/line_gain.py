@@ -31,7 +31,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import defect_line_residuals, without_stuck
 from .base import READ, NoiseEffect, pattern_key, register
-from .defect_lines import MAX_DENSITY
+from .defect_lines import MAX_DENSITY, validate_line_pattern
 from .k_records import _number, check_seed
 
 STATISTICS = ("defect_lines",)
@@ -61,18 +61,10 @@ class LineGain(NoiseEffect):
         if not isinstance(params, dict):
             raise ValueError(f"effect {cls.token!r} parameters must be a mapping, got {params!r:.80}")
         check_seed(cls.token, params)
-        for key in ("row_density", "col_density"):
-            value = _number(params.get(key), f"LineGain.{key}")
-            if not 0.0 <= value <= MAX_DENSITY:
-                raise ValueError(f"effect 'LineGain': {key} (fraction of sensor lines) must be in [0, {MAX_DENSITY}], got {value}")
+        validate_line_pattern(cls.token, params)
         median = _number(params.get("median"), "LineGain.median")
         if not 0.0 <= median <= MAX_MEDIAN:
             raise ValueError(f"effect 'LineGain': median (fraction of the signal) must be in [0, {MAX_MEDIAN}], got {median}")
-        if _number(params.get("log_std"), "LineGain.log_std") < 0:
-            raise ValueError(f"effect 'LineGain': log_std must be >= 0, got {params.get('log_std')}")
-        negative = _number(params.get("negative"), "LineGain.negative")
-        if not 0.0 <= negative <= 1.0:
-            raise ValueError(f"effect 'LineGain': negative (fraction of dim lines) must be in [0, 1], got {negative}")
 
 
 UNIFORM = 0.5  # a gain line dims all its pixels alike: its median pixel's deviation at least half its mean's

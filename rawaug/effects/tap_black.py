@@ -52,20 +52,27 @@ class TapBlack(NoiseEffect):
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        n = ctx.k.shape[0]
-        h, w = frame_size(self.token, p)
-        out = {"tap_sigma": value_at_k(p, "sigma_dn", ctx.k)}
-        for axis, size in (("c", w), ("r", h)):
-            edges = p["col_edges" if axis == "c" else "row_edges"]
-            for i in range(MAX_EDGES):  # each edge as a fraction of the frame's sensor lines; 2: no edge
-                out[f"tap_{axis}{i}"] = ctx.k.new_full((n,), edges[i] / (2.0 * size) if i < len(edges) else 2.0)
-        out.update(window_columns(ctx, self.token, p, ("tap_oy", "tap_ox", "tap_h", "tap_w")))
-        return out
+        return {"tap_sigma": value_at_k(p, "sigma_dn", ctx.k), **tap_grid_columns(ctx, self.token, p, "tap")}
 
     @classmethod
     def validate_params(cls, params):
         validate_records(cls.token, params, ("sigma_dn",), nonnegative=("sigma_dn",))
         validate_edges(cls.token, params)
+
+
+def tap_grid_columns(ctx, token: str, params: dict, prefix: str) -> dict:
+    """Kernel columns of a tap grid: ``{prefix}_c0..``, ``{prefix}_r0..`` (each edge as a
+    fraction of the frame's sensor lines; 2: no edge) and the input's window of the measured
+    frame (``{prefix}_oy``, ``_ox``, ``_h``, ``_w``: ``window_columns``)."""
+    n = ctx.k.shape[0]
+    h, w = frame_size(token, params)
+    out = {}
+    for axis, size in (("c", w), ("r", h)):
+        edges = params["col_edges" if axis == "c" else "row_edges"]
+        for i in range(MAX_EDGES):
+            out[f"{prefix}_{axis}{i}"] = ctx.k.new_full((n,), edges[i] / (2.0 * size) if i < len(edges) else 2.0)
+    out.update(window_columns(ctx, token, params, tuple(f"{prefix}_{s}" for s in ("oy", "ox", "h", "w"))))
+    return out
 
 
 def validate_edges(token: str, params: dict) -> None:

@@ -34,8 +34,7 @@ import torch
 from ..engine import layout as L
 from ..statistics import GAIN_WINDOW, flat_gain_edges, flat_log_mosaic, gain_steps, tap_log_gains, trimmed_line_means
 from .base import READ, NoiseEffect, register
-from .k_records import frame_size, window_columns
-from .tap_black import _consensus, validate_edges
+from .tap_black import _consensus, tap_grid_columns, validate_edges
 
 STATISTICS = ("gain_step_z",)
 MAX_EDGES = L.TAP_EDGES  # edges per axis a profile may hold (up to 8 x 8 taps)
@@ -51,17 +50,9 @@ class TapGain(NoiseEffect):
                + tuple(f"tgain_r{i}" for i in range(MAX_EDGES)) + ("tgain_oy", "tgain_ox", "tgain_h", "tgain_w"))
 
     def draw(self, ctx):
-        p = self.profile.effects[self.token]
-        n = ctx.k.shape[0]
-        h, w = frame_size(self.token, p)
         first, _, _ = ctx.grid_slot(self.token)
-        out = {"tgain_record": ctx.k.new_full((n,), float(first))}
-        for axis, size in (("c", w), ("r", h)):
-            edges = p["col_edges" if axis == "c" else "row_edges"]
-            for i in range(MAX_EDGES):  # each edge as a fraction of the frame's sensor lines; 2: no edge
-                out[f"tgain_{axis}{i}"] = ctx.k.new_full((n,), edges[i] / (2.0 * size) if i < len(edges) else 2.0)
-        out.update(window_columns(ctx, self.token, p, ("tgain_oy", "tgain_ox", "tgain_h", "tgain_w")))
-        return out
+        p = self.profile.effects[self.token]
+        return {"tgain_record": ctx.k.new_full((ctx.k.shape[0],), float(first)), **tap_grid_columns(ctx, self.token, p, "tgain")}
 
     def tables(self):
         return {"grids": torch.tensor([self.profile.effects[self.token]["gain"]], dtype=torch.float64)}

@@ -140,16 +140,6 @@ def _defect_line(normal_ptr, key, line, density, median, log_std, negative):
 
 
 @triton.jit
-def _tap(v, first: tl.constexpr, line, lines):
-    """As ``rawaug.cpu.fused.tap_at``: the readout tap of sensor lines ``line`` (float64) along
-    one axis, from the edges at ``v[first:first + TAP_EDGES]`` (fractions of ``lines``)."""
-    tap = tl.zeros_like(line).to(tl.int64)
-    for i in tl.static_range(TPE):
-        tap += (line >= tl.load(v + first + i) * lines).to(tl.int64)
-    return tap
-
-
-@triton.jit
 def _shading(grids_ptr, GH, GW, record, y, x, h, w, gh, gw, live):
     """Bilinear upsampling of the gh x gw grid ``record`` of a table of GH x GW (padded) records at (y, x)."""
     y0, x0, y1, x1, fy, fx = _bilinear(y, x, h, w, gh, gw)
@@ -246,6 +236,21 @@ def _key(keys_ptr, slot: tl.constexpr):
 @triton.jit
 def _col(v_ptr, col: tl.constexpr):
     return tl.load(v_ptr + col)
+
+
+@triton.jit
+def _tap(v, first: tl.constexpr, offset: tl.constexpr, size: tl.constexpr, pos, line_set, full):
+    """As ``rawaug.cpu.fused.tap_at``: the readout tap along one axis of packed position ``pos``
+    (sensor line 2 (pos + the window's offset column) + ``line_set``), from the edges at
+    ``v[first:first + TAP_EDGES]`` (fractions of the frame's sensor lines: twice the window's
+    frame size column, or twice ``full`` where it is 0)."""
+    n = _col(v, size)
+    lines = 2.0 * tl.where(n > 0.0, n, full.to(tl.float64))
+    line = (2 * (pos + _col(v, offset).to(tl.int64)) + line_set).to(tl.float64)
+    tap = tl.zeros_like(line).to(tl.int64)
+    for i in tl.static_range(TPE):
+        tap += (line >= tl.load(v + first + i) * lines).to(tl.int64)
+    return tap
 
 
 @triton.jit
@@ -506,22 +511,14 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
                             _col(v, C_LGCD), _col(v, C_LGM), _col(v, C_LGLS), _col(v, C_LGNEG))
         s *= tl.maximum(1.0 + grow, 0.0) * tl.maximum(1.0 + gcol, 0.0)
     if FLAGS & 2251799813685248:  # readout taps' gains: the pixel's tap's gain on its signal and noise (not the rows' and black levels' offsets)
-        tgh = _col(v, C_TGH)
-        tgw = _col(v, C_TGW)
-        rows = 2.0 * tl.where(tgh > 0.0, tgh, H.to(tl.float64))
-        cols = 2.0 * tl.where(tgw > 0.0, tgw, W.to(tl.float64))
-        tr = _tap(v, C_TGR0, (2 * (y + _col(v, C_TGOY).to(tl.int64)) + row_set).to(tl.float64), rows)
-        tc = _tap(v, C_TGC0, (2 * (x + _col(v, C_TGOX).to(tl.int64)) + col_set).to(tl.float64), cols)
+        tr = _tap(v, C_TGR0, C_TGOY, C_TGH, y, row_set, H)
+        tc = _tap(v, C_TGC0, C_TGOX, C_TGW, x, col_set, W)
         tg = grids_ptr + _col(v, C_TGR).to(tl.int64) * GH.to(tl.int64) * GW.to(tl.int64)
         s *= tl.load(tg + tr * GW.to(tl.int64) + tc, mask=live, other=1.0)
     s += line
     if FLAGS & 1125899906842624:  # readout taps: this frame's offset of the pixel's tap
-        tph = _col(v, C_TPH)
-        tpw = _col(v, C_TPW)
-        rows = 2.0 * tl.where(tph > 0.0, tph, H.to(tl.float64))
-        cols = 2.0 * tl.where(tpw > 0.0, tpw, W.to(tl.float64))
-        tr = _tap(v, C_TPR0, (2 * (y + _col(v, C_TPOY).to(tl.int64)) + row_set).to(tl.float64), rows)
-        tc = _tap(v, C_TPC0, (2 * (x + _col(v, C_TPOX).to(tl.int64)) + col_set).to(tl.float64), cols)
+        tr = _tap(v, C_TPR0, C_TPOY, C_TPH, y, row_set, H)
+        tc = _tap(v, C_TPC0, C_TPOX, C_TPW, x, col_set, W)
         tap = (b.to(tl.int64) * (TPE + 1) + tr) * (TPE + 1) + tc
         s += _col(v, C_TPS) * _normal(draw(_key(keys_ptr, K_TAP), tap.to(tl.uint64)))
     if FLAGS & 65536:  # measured code map: nearest code the camera uses
