@@ -23,7 +23,7 @@ from scipy import fft as sp_fft  # pocketfft with SIMD: ~2x NumPy's on a stack's
 from scipy import ndimage
 from scipy import stats as sstats
 
-from .engine.layout import COLUMN_SET, READ_MAP_BLOCKS, ROW_SET, XTALK_LAGS
+from .engine.layout import COLUMN_SET, READ_MAP_BLOCKS, ROW_SET, TAP_EDGES, XTALK_LAGS
 
 MAD_TO_SIGMA = 1.482602218505602
 _LOW_BAND = 16  # low-frequency band: the lowest 1/16 of the frequencies
@@ -1453,7 +1453,8 @@ def trimmed_line_means(x, axis: int) -> np.ndarray:
 def gain_edges(p, window: int = GAIN_WINDOW, p_value: float = GAIN_P) -> list[int]:
     """Gain edges (gaps, ascending: the first line of each new tap) of a flat's log line
     profile ``p``: the gaps whose ``gain_steps`` stand out further than a normal does at one
-    of the gaps with probability ``p_value``, each the largest within ``window`` gaps."""
+    of the gaps with probability ``p_value``, each the largest within ``window`` gaps; of
+    more than ``TAP_EDGES``, the largest steps."""
     z = np.abs(gain_steps(p, window))
     ok = np.isfinite(z)
     if ok.sum() < 3:
@@ -1461,7 +1462,8 @@ def gain_edges(p, window: int = GAIN_WINDOW, p_value: float = GAIN_P) -> list[in
     v = np.where(ok, z, -np.inf)
     peak = ndimage.maximum_filter1d(v, 2 * window + 1, mode="constant", cval=-np.inf)
     high = v > sstats.norm.isf(p_value / (2 * ok.sum()))
-    return [int(g) for g in np.flatnonzero(high & (v >= peak))]
+    found = np.flatnonzero(high & (v >= peak))
+    return sorted(int(g) for g in found[np.argsort(-v[found], kind="stable")][:TAP_EDGES])
 
 
 def flat_gain_edges(log_mosaic) -> dict:

@@ -32,9 +32,9 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import GAIN_WINDOW, flat_gain_edges, flat_log_mosaic, gain_steps, tap_log_gains, trimmed_line_means
+from ..statistics import GAIN_WINDOW, flat_gain_edges, flat_log_mosaic, tap_log_gains
 from .base import READ, NoiseEffect, register
-from .tap_black import _consensus, tap_grid_columns, validate_edges
+from .tap_black import _bands, _consensus, tap_grid_columns, validate_edges
 
 STATISTICS = ("gain_step_z",)
 MAX_EDGES = L.TAP_EDGES  # edges per axis a profile may hold (up to 8 x 8 taps)
@@ -80,12 +80,8 @@ def gain_map(col_edges, row_edges, gain, h: int, w: int) -> np.ndarray:
     """(4, h, w) gain of each packed pixel of taps cut by ``col_edges`` and ``row_edges``
     (sensor lines) with gains ``gain`` (taps' rows x taps' columns)."""
     gain = np.asarray(gain, dtype=np.float64)
-    out = np.empty((4, h, w))
-    for ch in range(4):
-        ty = np.searchsorted(np.asarray(row_edges, dtype=np.int64), 2 * np.arange(h) + L.ROW_SET[ch], side="right")
-        tx = np.searchsorted(np.asarray(col_edges, dtype=np.int64), 2 * np.arange(w) + L.COLUMN_SET[ch], side="right")
-        out[ch] = gain[ty[:, None], tx[None, :]]
-    return out
+    ty, tx = _bands(row_edges, 2 * h), _bands(col_edges, 2 * w)  # the tap of each sensor row, column
+    return np.stack([gain[ty[L.ROW_SET[ch]::2][:, None], tx[L.COLUMN_SET[ch]::2][None, :]] for ch in range(4)])
 
 
 def shown_gains(mean_dn) -> np.ndarray:
@@ -100,7 +96,6 @@ def shown_gains(mean_dn) -> np.ndarray:
     edges = flat_gain_edges(mosaic)
     if not edges["col"] and not edges["row"]:
         return np.ones_like(mean_dn)
-    edges = {axis: e[:MAX_EDGES] for axis, e in edges.items()}
     log_gain, _ = tap_log_gains(mosaic, edges["col"], edges["row"])
     return gain_map(edges["col"], edges["row"], np.exp(log_gain), h, w)
 
@@ -116,10 +111,7 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
         raise ValueError(f"TapGain needs a flat stack (N, 4, h, w) at least {GAIN_WINDOW + 2} packed pixels a side, "
                          f"got {frames.shape}")
     mosaic = flat_log_mosaic(frames)
-    edges = {}
-    for axis, found in flat_gain_edges(mosaic).items():
-        z = np.abs(gain_steps(trimmed_line_means(mosaic, 0 if axis == "col" else 1)))
-        edges[axis] = sorted(sorted(found, key=lambda g: -z[g])[:MAX_EDGES])  # the largest steps
+    edges = flat_gain_edges(mosaic)
     model = np.mean([flat_log_mosaic(s) for s in synthesized], axis=0) if synthesized else np.zeros_like(mosaic)
     seen = {"frame": frames.shape[2:], "mosaic": mosaic.astype(np.float32), "model": model.astype(np.float32), "edges": edges}
     return {**combine([{"_seen": seen}]), "_seen": seen}

@@ -322,11 +322,10 @@ def _row_variance(frames, row_edges=()) -> float:
     f = np.asarray(repaired(np.asarray(frames, dtype=np.float64)))
     m = sensor_row_means(f - f.mean(axis=(2, 3), keepdims=True))
     band = np.searchsorted(np.asarray(row_edges, dtype=np.int64), np.arange(m.shape[1]), side="right")
-    bands = int(band.max()) + 1
-    if bands > 1:
-        sums = np.stack([m[:, band == t].mean(axis=1) for t in range(bands)], axis=1)  # (N, bands)
-        m = m - sums[:, band]
-    return float((m * m).sum(axis=1).mean() / max(m.shape[1] - bands, 1) if bands > 1 else m.var(axis=1, ddof=1).mean())
+    bands = int(band.max()) + 1  # one band without taps: the plain variance (ddof 1)
+    means = np.stack([m[:, band == t].mean(axis=1) for t in range(bands)], axis=1)  # (N, bands)
+    r = m - means[:, band]
+    return float((r * r).sum(axis=1).mean() / max(m.shape[1] - bands, 1))
 
 
 def _tap_rows(profile) -> list:
@@ -341,10 +340,10 @@ def row_noise_factors(stacks, diags, profile, z_min: float = 6.0) -> dict:
     an added effect (a banding tone) now explains row variance calibration gave sigma_r.
     sigma_r_new^2 = sigma_r^2 - (synthesized - measured variance); no cut below ROW_MIN_FACTOR."""
     factors = {}
+    edges = _tap_rows(profile)
     for stack in stacks:
         if stack.kind != "bias":
             continue
-        edges = _tap_rows(profile)
         synth = [_row_variance(s, edges) for s in diags[stack.label][1]]
         if len(synth) < 2:
             continue
@@ -369,10 +368,10 @@ def row_noise_restore(stacks, before: dict, after: dict, profile, z_min: float =
     rows of quantized frames, and re-quantized the row offsets shrink again (by g^2 = after
     over before in variance), so sigma_r^2 grows by (measured - after) / g^2."""
     factors = {}
+    edges = _tap_rows(profile)
     for stack in stacks:
         if stack.kind != "bias" or stack.label not in before or stack.label not in after:
             continue
-        edges = _tap_rows(profile)
         old = [_row_variance(s, edges) for s in before[stack.label][1]]
         new = [_row_variance(s, edges) for s in after[stack.label][1]]
         if len(old) < 2 or len(new) < 2:
