@@ -41,6 +41,7 @@ LOOP_EFFECTS = {
     "TapGain": {"col_edges": [33, 80], "row_edges": [17], "frame_h": 30, "frame_w": 48,
                 "gain": [[0.98, 1.01, 1.03], [0.99, 1.02, 0.97]]},  # an odd sensor column; a window per sample on smaller inputs
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2]},
+    "DarkDrift": {"sigma": 0.3, "rho": 0.0},  # a factor per sample on every dark signal above
     "Glow": {"k": [1.0, 3.0], "rate_e_per_s": [[[0.0, 1.0, 4.0, 9.0], [0.5, 2.0, 6.0, 20.0], [0.0, 0.0, 1.0, 3.0]],
                                                [[1.0, 1.0, 2.0, 5.0], [0.0, 2.0, 3.0, 10.0], [0.0, 1.0, 1.0, 2.0]]],
              "frame_h": 30, "frame_w": 50},  # a 3 x 4 grid beside FPN's 2 x 2 (a padded table), a window per sample
@@ -65,6 +66,7 @@ LOOP_EFFECTS = {
     "RTS": {"seed": 43, "density": 0.05, "high": 0.3, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [15.0, 30.0]},
     "Dead": {"seed": 47, "density": 0.02, "levels_dn": [-3.0, 0.0, 2.5, 40.0, 400.0]},
     "RowDrift": {"k": [1.0, 3.0], "octave_dn": [[0.0, 0.4, 0.0, 0.9, 1.3, 0.5, 0.2, 0.1], [0.2] * 8]},
+    "DNL": {"period": 5, "threshold_dn": [0.0, 0.3, -0.2, 0.25, -0.35]},  # codes 0.4 to 1.45 wide, then the code map
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]],
                 "split_dn": [[0.5, 0.1, 0.5, 0.5, -0.2, 0.5, 0.5, 0.1, 0.5, 0.5, -0.2]],
                 "period_dn": [3]},  # its shifts (0, -1, 0) go on beyond the map: every code of the input's range;

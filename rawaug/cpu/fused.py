@@ -83,6 +83,8 @@ _TPOY, _TPOX, _TPH, _TPW, _TAP = L.COLUMN["tap_oy"], L.COLUMN["tap_ox"], L.COLUM
 _TPE = L.TAP_EDGES
 _LGRD, _LGCD, _LGM, _LGLS, _LGNEG = (L.COLUMN[n] for n in ("lgain_row_density", "lgain_col_density", "lgain_median", "lgain_log_std", "lgain_negative"))
 _LGAIN_ROW, _LGAIN_COL = L.STREAM["lgain_row"], L.STREAM["lgain_col"]
+_DDF = L.COLUMN["dark_factor"]
+_DNL_P, _DNL_E0 = L.COLUMN["dnl_period"], L.COLUMN["dnl_e0"]
 _TGR, _TGC0, _TGR0 = L.COLUMN["tgain_record"], L.COLUMN["tgain_c0"], L.COLUMN["tgain_r0"]
 _TGOY, _TGOX, _TGH, _TGW = L.COLUMN["tgain_oy"], L.COLUMN["tgain_ox"], L.COLUMN["tgain_h"], L.COLUMN["tgain_w"]
 _TAPS = _TPE + 1
@@ -384,6 +386,8 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 q = (sensor * 2 + row_set) * h + y
                 if unit(draw(keys[_DROW_WHERE], q)) < v[_DRD]:
                     s += k * v[_DRE] * math.exp(v[_DRL] * symmetric(normal, draw(keys[_DROW_SIZE], q)))
+            if stages & L.DARK_DRIFT:  # this frame's factor on every dark signal above
+                s = s_pixel + v[_DDF] * (s - s_pixel)
             share = (stages & L.CHARGE_SHARE) != 0 and math.isfinite(s)  # shot deviations mixed with the raw neighbours'
             if share:
                 gain = s_pixel / s_photo if s_photo != 0.0 else 1.0
@@ -498,6 +502,15 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
             if stages & L.TAP_BLACK:  # this frame's offset of the pixel's tap
                 tap = tap_row * _TAPS + tap_at(2 * (x + tap_ox) + col_set, v, _TPC0, tap_cols)
                 s += v[_TPS] * symmetric(normal, draw(keys[_TAP], b * _TAPS * _TAPS + tap))
+            if stages & L.ADC_DNL and math.isfinite(s):  # the code whose decision levels hold s
+                code = float(math.floor(s + 0.5))
+                period = int(v[_DNL_P])
+                j = int(code) % period
+                if s < code - 0.5 + v[_DNL_E0 + j]:
+                    code -= 1.0
+                elif s >= code + 0.5 + v[_DNL_E0 + (j + 1) % period]:
+                    code += 1.0
+                s = code
             if stages & L.CODE_MAP:
                 code = math.floor(s + 0.5)
                 i = int(code - v[_CM_LO])

@@ -60,9 +60,12 @@ ROW_RTS = 1 << 49  # row telegraph noise: sparse sensor rows with two offsets, a
 TAP_BLACK = 1 << 50  # readout taps: a grid of regions, each with a black-level offset of its own in every frame
 TAP_GAIN = 1 << 51  # readout taps: a grid of regions, each with a gain of its own on the photo signal
 LINE_GAIN = 1 << 52  # gain defect lines: sparse sensor rows and columns with a gain far off, on the pixel's signal and noise
+ADC_DNL = 1 << 54  # ADC differential non-linearity: the codes' decision levels off their places, periodic in the code
+DARK_DRIFT = 1 << 53  # dark-signal drift: a factor per frame on every dark signal (the sensor's temperature), before shot noise
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
+DNL_PERIOD_MAX = 64  # ADC differential non-linearity: the longest period of its decision levels (codes)
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
 
 COLUMNS = (
@@ -129,6 +132,8 @@ COLUMNS = (
     *(f"tgain_c{i}" for i in range(TAP_EDGES)), *(f"tgain_r{i}" for i in range(TAP_EDGES)),  # ... edges, fractions of the sensor lines (2: none)
     "tgain_oy", "tgain_ox", "tgain_h", "tgain_w",  # ... the input's window of the measured frame (packed pixels; 0: the input is the sensor)
     "lgain_row_density", "lgain_col_density", "lgain_median", "lgain_log_std", "lgain_negative",  # gain defect lines: densities, median gain offset (fraction), spread, share dim
+    "dark_factor",  # dark-signal drift: this frame's factor on the dark signal
+    "dnl_period", *(f"dnl_e{i}" for i in range(DNL_PERIOD_MAX)),  # ADC non-linearity: period (codes), decision-level offsets (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

@@ -55,6 +55,8 @@ C_TGR, C_TGC0, C_TGR0 = _column("tgain_record"), _column("tgain_c0"), _column("t
 C_TGOY, C_TGOX, C_TGH, C_TGW = _column("tgain_oy"), _column("tgain_ox"), _column("tgain_h"), _column("tgain_w")
 C_LGRD, C_LGCD, C_LGM, C_LGLS, C_LGNEG = (_column("lgain_row_density"), _column("lgain_col_density"), _column("lgain_median"),
                                         _column("lgain_log_std"), _column("lgain_negative"))
+C_DDF = _column("dark_factor")
+C_DNL_P, C_DNL_E0 = _column("dnl_period"), _column("dnl_e0")
 TPE = tl.constexpr(L.TAP_EDGES)
 C_DOFF = _column("dark_offset")
 C_DRIFT = _column("black_drift")
@@ -315,6 +317,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         leaky = unit(draw(_key(keys_ptr, K_DROW_WHERE), q)) < _col(v, C_DRD)
         dark = k * _col(v, C_DRE) * tl.exp(_col(v, C_DRL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DROW_SIZE), q)))
         s += tl.where(leaky, dark, 0.0)
+    if FLAGS & 9007199254740992:  # dark-signal drift: this frame's factor on every dark signal above
+        s = s_pixel + _col(v, C_DDF) * (s - s_pixel)
     if FLAGS & 17592186044416:  # charge sharing: the shot deviations of this pixel and its raw neighbours, mixed
         if FLAGS & 6:
             finite = (s == s) & (tl.abs(s) < float("inf"))  # NaN/Inf pass through
@@ -521,6 +525,15 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         tc = _tap(v, C_TPC0, C_TPOX, C_TPW, x, col_set, W)
         tap = (b.to(tl.int64) * (TPE + 1) + tr) * (TPE + 1) + tc
         s += _col(v, C_TPS) * _normal(draw(_key(keys_ptr, K_TAP), tap.to(tl.uint64)))
+    if FLAGS & 18014398509481984:  # ADC non-linearity: the code whose decision levels hold s
+        code = tl.floor(s + 0.5)
+        finite = live & (s == s) & (tl.abs(s) < float("inf"))
+        period = _col(v, C_DNL_P).to(tl.int64)
+        j = ((tl.where(finite, code, 0.0).to(tl.int64) % period) + period) % period
+        lo = code - 0.5 + tl.load(v + C_DNL_E0 + j, mask=finite, other=0.0)
+        hi = code + 0.5 + tl.load(v + C_DNL_E0 + (j + 1) % period, mask=finite, other=0.0)
+        code = tl.where(s < lo, code - 1.0, tl.where(s >= hi, code + 1.0, code))
+        s = tl.where(finite, code, s)
     if FLAGS & 65536:  # measured code map: nearest code the camera uses
         code = tl.floor(s + 0.5)
         i = (code - _col(v, C_CM_LO)).to(tl.int64)

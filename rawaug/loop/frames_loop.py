@@ -251,6 +251,16 @@ def _measured(token) -> bool:
     return bool(getattr(CANDIDATES[token].module, "MEASURED", False))
 
 
+def black_level(stack) -> list | None:
+    """The channel black levels (DN) under a dark or flat stack: its given offsets, else the
+    channel means of its ISO's bias frames (defect lines repaired); None for a bias stack."""
+    if stack.offsets_dn is not None:
+        return [float(o) for o in stack.offsets_dn]
+    if stack.offsets_of is None:
+        return None
+    return [float(m) for m in repaired(stack.offsets_of.frames_dn).mean(axis=(0, 2, 3))]
+
+
 def _estimate(token, stacks, diags, seed):
     cand = CANDIDATES[token]
     records = []
@@ -260,7 +270,8 @@ def _estimate(token, stacks, diags, seed):
             # repaired, but for an effect that makes defect lines
             frames = stack.frames_dn if getattr(cand.module, "RAW_FRAMES", False) else repaired(stack.frames_dn)
             rec = cand.estimate(frames, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
-                                exposure_s=stack.exposure_s, seed=seed, series=stack.series, kind=stack.kind)
+                                exposure_s=stack.exposure_s, seed=seed, series=stack.series, kind=stack.kind,
+                                black_dn=black_level(stack) if cand.wants("black_dn") else None)
         except ValueError:
             continue  # this stack cannot show the effect (too few frames, not a flat)
         records.append(rec)

@@ -6,6 +6,7 @@ candidate. Adding an effect to the loop is writing that one module and registeri
 """
 from __future__ import annotations
 
+import inspect
 import sys
 from dataclasses import dataclass
 from types import ModuleType
@@ -25,6 +26,10 @@ class Candidate:
     @property
     def summary(self) -> str:
         return (self.module.__doc__ or self.token).strip().splitlines()[0]
+
+    def wants(self, argument: str) -> bool:
+        """True when the estimator takes ``argument`` by name (one that costs a pass over frames)."""
+        return argument in inspect.signature(self.module.estimate).parameters
 
     def estimate(self, frames, synthesized, k, **kw) -> dict:
         return self.module.estimate(frames, synthesized, k, **kw)

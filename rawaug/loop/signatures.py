@@ -35,7 +35,7 @@ KIND = {
     "flat_linearity": "mean_map_histogram",
     "temporal_std": "temporal_histogram",
     "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means", "frame_mean_lag1": "frame_sequence",
-    "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "defect_lines": "line_means",
+    "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "code_dnl": "code_histogram", "defect_lines": "line_means",
     "neighbour_corr": "lag_correlations", "row_tone": "row_tone_spectrum",
     "col_tone": "col_tone_spectrum", "diag_tone": "diag_tone_bins",
     "read_noise_spread": "read_noise_profile", "tile_corr": "tile_correlations", "flicker_fraction": "temporal_histogram", "noisy_fraction": "temporal_histogram",
