@@ -1476,43 +1476,16 @@ def line_noise(p) -> float:
 def gain_steps(p, window: int = GAIN_WINDOW):
     """(L + 1,) of a flat's log line profile ``p`` (L,): at each gap g (before line g), the
     step of a local fit of a cubic plus a step over the ``window`` lines either side
-    (``step_kernel``), over its noise: the white noise's (``line_noise``), or, where larger,
-    the steps' own robust spread over every gap (line noise that is not white, a 1/f row
-    noise in a flat of few frames, steps at every gap: white-noise z of 5 to 6 at no edge);
-    NaN within ``window`` lines of an end. A readout tap with a gain of its own steps at its
-    edges by the log of the gains' ratio; a light's smooth shape does not step. Profiles are
-    ``trimmed_line_means``."""
+    (``step_kernel``), over its noise (``line_noise``); NaN within ``window`` lines of an end.
+    A readout tap with a gain of its own steps at its edges by the log of the gains' ratio;
+    a light's smooth shape does not step. Profiles are ``trimmed_line_means``."""
     p = np.asarray(p, dtype=np.float64)
     out = np.full(p.shape[0] + 1, np.nan)
     if p.shape[0] < 2 * window + 5:
         return out
     w = step_kernel(window)
-    steps = np.correlate(p, w, "valid")
-    out[window:p.shape[0] - window + 1] = steps / max(line_noise(p) * float(np.linalg.norm(w)), step_spread(steps, window), 1e-30)
+    out[window:p.shape[0] - window + 1] = np.correlate(p, w, "valid") / max(line_noise(p) * float(np.linalg.norm(w)), 1e-30)
     return out
-
-
-STEP_SPREAD_Z = 4.0  # a step this far out of the others' spread is set aside (with its window) before their spread is taken
-
-
-def step_spread(steps, window: int) -> float:
-    """Robust spread (1.4826 MAD) of the steps at every gap, the largest set aside with the
-    ``window`` gaps either side (a tap's edge steps the fits around it too) while one stands
-    ``STEP_SPREAD_Z`` out, at most ``TAP_EDGES`` times; 0 when fewer than ``window`` gaps are
-    left."""
-    keep = np.ones(steps.size, dtype=bool)
-    for _ in range(TAP_EDGES + 1):
-        if keep.sum() < window:
-            return 0.0
-        rest = steps[keep]
-        centre = float(np.median(rest))
-        spread = MAD_TO_SIGMA * float(np.median(np.abs(rest - centre)))
-        dev = np.where(keep, np.abs(steps - centre), -np.inf)
-        g = int(np.argmax(dev))
-        if not dev[g] > STEP_SPREAD_Z * spread:
-            return spread
-        keep[max(g - window, 0):g + window + 1] = False
-    return spread
 
 
 def flat_log_mosaic(frames) -> np.ndarray:
