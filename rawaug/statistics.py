@@ -1473,19 +1473,95 @@ def line_noise(p) -> float:
     return MAD_TO_SIGMA * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(6.0)
 
 
-def gain_steps(p, window: int = GAIN_WINDOW):
+GAIN_TEMPORAL_P = 0.01  # chance that white temporal noise reads as coloured in a stack's steps
+WHITE_DOF = 0.19  # degrees of freedom per line of ``line_noise``'s variance: a MAD's 37 % efficiency over second differences correlated at lags 2 and 4 (1 + 2 (4/9 + 1/36))
+
+
+@functools.lru_cache(maxsize=256)
+def step_dof(window: int, gaps: int) -> float:
+    """Degrees of freedom of the mean square of the steps (``step_kernel``) at ``gaps``
+    consecutive gaps of one profile of white noise: the steps overlap, n^2 / sum of their
+    squared correlations over every pair."""
+    w = step_kernel(window)
+    a = np.correlate(w, w, "full")
+    lags = np.arange(-(w.size - 1), w.size)
+    return float(gaps**2 / np.sum(np.clip(gaps - np.abs(lags), 0, None) * (a / a[w.size - 1]) ** 2))
+
+
+def temporal_step_excess(profiles, window: int = GAIN_WINDOW) -> float:
+    """Variance of a stack mean's step (``step_kernel``) that the frames' temporal noise adds
+    beyond its white part, from the frames' log line profiles ``profiles`` (N >= 2, L): their
+    steps about the mean profile against the steps their white noise (``line_noise``) gives.
+    Row noise of a 1/f spectrum or a flickering light steps at every gap by more; 0 unless
+    the excess is significant (chi^2 of ``step_dof``, ``GAIN_TEMPORAL_P``)."""
+    p = np.asarray(profiles, dtype=np.float64)
+    n, length = p.shape
+    if n < 2 or length < 2 * window + 5:
+        return 0.0
+    d = p - p.mean(axis=0)
+    w = step_kernel(window)
+    steps = np.stack([np.correlate(x, w, "valid") for x in d])
+    step_var = float(np.sum(steps**2)) / ((n - 1) * steps.shape[1])  # one frame's
+    white_var = float(np.mean([line_noise(x) ** 2 for x in d])) * n / (n - 1) * float(w @ w)
+    dof = (n - 1) * step_dof(window, steps.shape[1])
+    white_dof = (n - 1) * WHITE_DOF * (length - 4)
+    if not step_var > white_var * sstats.f.isf(GAIN_TEMPORAL_P, dof, white_dof):
+        return 0.0
+    return (step_var - white_var) / n
+
+
+LINE_SPIKE_Z = 5.0  # a line this many noise sigmas off the median of its 5 lines is one line's own (a bright, dark or flickering column)
+
+
+def despiked(p) -> np.ndarray:
+    """A line profile ``p`` (L,) with each line further than ``LINE_SPIKE_Z`` white-noise sigmas
+    (``line_noise``) from the median of the 5 lines around it set to that median (a Hampel
+    filter): one line's offset is not a step, and a median of 5 keeps a step's edge."""
+    p = np.asarray(p, dtype=np.float64)
+    med = ndimage.median_filter(p, size=5, mode="nearest")
+    return np.where(np.abs(p - med) > LINE_SPIKE_Z * line_noise(p), med, p)
+
+
+def gain_steps(p, window: int = GAIN_WINDOW, excess: float = 0.0):
     """(L + 1,) of a flat's log line profile ``p`` (L,): at each gap g (before line g), the
     step of a local fit of a cubic plus a step over the ``window`` lines either side
-    (``step_kernel``), over its noise (``line_noise``); NaN within ``window`` lines of an end.
-    A readout tap with a gain of its own steps at its edges by the log of the gains' ratio;
-    a light's smooth shape does not step. Profiles are ``trimmed_line_means``."""
+    (``step_kernel``) of the profile ``despiked``, over its noise: the white noise's (``line_noise``) and ``excess``, the
+    step variance coloured temporal noise adds (``temporal_step_excess``); NaN within
+    ``window`` lines of an end. A readout tap with a gain of its own steps at its edges by the
+    log of the gains' ratio; a light's smooth shape does not step. Profiles are
+    ``trimmed_line_means``."""
     p = np.asarray(p, dtype=np.float64)
     out = np.full(p.shape[0] + 1, np.nan)
     if p.shape[0] < 2 * window + 5:
         return out
+    p = despiked(p)
     w = step_kernel(window)
-    out[window:p.shape[0] - window + 1] = np.correlate(p, w, "valid") / max(line_noise(p) * float(np.linalg.norm(w)), 1e-30)
+    noise = math.sqrt((line_noise(p) * float(np.linalg.norm(w))) ** 2 + max(float(excess), 0.0))
+    out[window:p.shape[0] - window + 1] = np.correlate(p, w, "valid") / max(noise, 1e-30)
     return out
+
+
+def frame_log_profiles(frames) -> dict:
+    """{"col": (N, 2w), "row": (N, 2h)}: each frame's log line profiles of a flat stack (N, 4,
+    h, w; DN), the mosaic's line means of the frame over its stack's channel levels (plain
+    means: a fixed outlier cancels about the stack's mean profile, the only use they have)."""
+    f = np.asarray(frames, dtype=np.float64)
+    level = f.mean(axis=(0, 2, 3))
+    rel = f / np.where(level > 0, level, 1.0)[None, :, None, None]
+    n, _, h, w = f.shape
+    rows, cols = np.zeros((n, 2 * h)), np.zeros((n, 2 * w))
+    by_row, by_col = rel.mean(axis=3), rel.mean(axis=2)  # (N, 4, h), (N, 4, w)
+    for ch in range(4):
+        rows[:, ROW_SET[ch]::2] += by_row[:, ch] / 2.0
+        cols[:, COLUMN_SET[ch]::2] += by_col[:, ch] / 2.0
+    return {"col": np.log(np.maximum(cols, 1e-6)), "row": np.log(np.maximum(rows, 1e-6))}
+
+
+def stack_step_excess(frames) -> dict:
+    """{"col": excess, "row": excess}: ``temporal_step_excess`` of a flat stack's frames (N, 4,
+    h, w; DN) along its sensor columns and rows (0 for a single frame)."""
+    profiles = frame_log_profiles(frames)
+    return {axis: temporal_step_excess(profiles[axis]) for axis in ("col", "row")}
 
 
 def flat_log_mosaic(frames) -> np.ndarray:
@@ -1512,12 +1588,12 @@ def trimmed_line_means(x, axis: int) -> np.ndarray:
     return np.take(x, np.arange(cut, n - cut), axis=axis).mean(axis=axis)
 
 
-def gain_edges(p, window: int = GAIN_WINDOW, p_value: float = GAIN_P) -> list[int]:
+def gain_edges(p, window: int = GAIN_WINDOW, p_value: float = GAIN_P, excess: float = 0.0) -> list[int]:
     """Gain edges (gaps, ascending: the first line of each new tap) of a flat's log line
     profile ``p``: the gaps whose ``gain_steps`` stand out further than a normal does at one
     of the gaps with probability ``p_value``, each the largest within ``window`` gaps; of
     more than ``TAP_EDGES``, the largest steps."""
-    z = np.abs(gain_steps(p, window))
+    z = np.abs(gain_steps(p, window, excess))
     ok = np.isfinite(z)
     if ok.sum() < 3:
         return []
@@ -1528,18 +1604,24 @@ def gain_edges(p, window: int = GAIN_WINDOW, p_value: float = GAIN_P) -> list[in
     return sorted(int(g) for g in found[np.argsort(-v[found], kind="stable")][:TAP_EDGES])
 
 
-def flat_gain_edges(log_mosaic) -> dict:
+def flat_gain_edges(log_mosaic, excess=None) -> dict:
     """{"col": gaps, "row": gaps}: the gain edges (``gain_edges``) of a flat's log mosaic
-    (``flat_log_mosaic``) along its sensor columns and along its sensor rows."""
-    return {"col": gain_edges(trimmed_line_means(log_mosaic, 0)), "row": gain_edges(trimmed_line_means(log_mosaic, 1))}
+    (``flat_log_mosaic``) along its sensor columns and along its sensor rows; ``excess``:
+    the stack's ``stack_step_excess`` (none: white temporal noise)."""
+    excess = excess or {}
+    return {"col": gain_edges(trimmed_line_means(log_mosaic, 0), excess=excess.get("col", 0.0)),
+            "row": gain_edges(trimmed_line_means(log_mosaic, 1), excess=excess.get("row", 0.0))}
 
 
 def gain_step_z(frames, level_dn=None):
     """Largest ``gain_steps`` (absolute) of a flat stack over its sensor columns and its sensor
     rows: about 3 for a sensor of one gain under a smooth light; at the edge of a readout tap
-    with a gain of its own, the step over its noise."""
+    with a gain of its own, the step over its noise (its frames' coloured temporal noise
+    included: ``stack_step_excess``)."""
     mosaic = flat_log_mosaic(frames)
-    z = np.concatenate([gain_steps(trimmed_line_means(mosaic, 0)), gain_steps(trimmed_line_means(mosaic, 1))])
+    excess = stack_step_excess(frames)
+    z = np.concatenate([gain_steps(trimmed_line_means(mosaic, 0), excess=excess["col"]),
+                        gain_steps(trimmed_line_means(mosaic, 1), excess=excess["row"])])
     z = np.abs(z[np.isfinite(z)])
     return float(z.max()) if z.size else 0.0
 

@@ -130,9 +130,10 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
     return {**combine([{"_seen": seen}]), "_seen": seen}
 
 
-def _consensus(found: list[list[int]]) -> list[int]:
+def _consensus(found: list[list[int]], at_least: int = 1) -> list[int]:
     """Edges found in at least half of ``found`` (lists of edges of the stacks that found
-    any): those within ``TAP_WINDOW`` lines of each other are one edge, at their median."""
+    any), and in ``at_least`` of them: those within ``TAP_WINDOW`` lines of each other are
+    one edge, at their median."""
     if not found:
         return []
     points = sorted(e for edges in found for e in edges)
@@ -142,7 +143,7 @@ def _consensus(found: list[list[int]]) -> list[int]:
             groups[-1].append(e)
         else:
             groups.append([e])
-    need = math.ceil(len(found) / 2)
+    need = max(math.ceil(len(found) / 2), at_least)
     return [int(np.median(g)) for g in groups if len(g) >= need][:MAX_EDGES]
 
 

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import GAIN_WINDOW, flat_gain_edges, flat_log_mosaic, tap_log_gains
+from ..statistics import GAIN_WINDOW, flat_gain_edges, flat_log_mosaic, stack_step_excess, tap_log_gains
 from .base import READ, NoiseEffect, register
 from .tap_black import _bands, _consensus, tap_grid_columns, validate_edges
 
@@ -84,20 +84,32 @@ def gain_map(col_edges, row_edges, gain, h: int, w: int) -> np.ndarray:
     return np.stack([gain[ty[L.ROW_SET[ch]::2][:, None], tx[L.COLUMN_SET[ch]::2][None, :]] for ch in range(4)])
 
 
-def shown_gains(mean_dn) -> np.ndarray:
-    """(4, h, w) gains of the readout taps a flat's mean frame (4, h, w; DN above black) shows:
-    its gain edges (``flat_gain_edges``) and the taps' gains at them (``tap_log_gains``); 1
-    where it shows none. What a light's smooth shape is fitted to once divided out."""
+def shown_gains(mean_dn, edges=None, excess=None) -> np.ndarray:
+    """(4, h, w) gains of the readout taps a flat's mean frame (4, h, w; DN above black) shows
+    at ``edges`` ({"col": gaps, "row": gaps}: the sensor's, ``consensus_edges``; None: its
+    own, ``flat_gain_edges`` with ``excess``, its stack's ``stack_step_excess``): the taps'
+    gains there (``tap_log_gains``); 1 where there is no edge. What a light's smooth shape is
+    fitted to once divided out."""
     mean_dn = np.asarray(mean_dn, dtype=np.float64)
     _, h, w = mean_dn.shape
     if min(h, w) < GAIN_WINDOW + 2:
         return np.ones_like(mean_dn)
     mosaic = flat_log_mosaic(mean_dn[None])
-    edges = flat_gain_edges(mosaic)
+    if edges is None:
+        edges = flat_gain_edges(mosaic, excess)
     if not edges["col"] and not edges["row"]:
         return np.ones_like(mean_dn)
     log_gain, _ = tap_log_gains(mosaic, edges["col"], edges["row"])
     return gain_map(edges["col"], edges["row"], np.exp(log_gain), h, w)
+
+
+def consensus_edges(found: list[dict]) -> dict:
+    """{"col": gaps, "row": gaps}: a sensor's readout-tap edges from the edges of its flats
+    (``flat_gain_edges`` of each, of one frame size): along each axis those found in at least
+    half of the flats that found any, and in two flats where there are two. A tap is the
+    sensor's, the same at every gain and level (a brighter flat shows it better); a flat's
+    noise steps at a gap of its own."""
+    return {axis: _consensus([f[axis] for f in found if f[axis]], at_least=min(2, len(found))) for axis in ("col", "row")}
 
 
 def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
@@ -111,7 +123,7 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
         raise ValueError(f"TapGain needs a flat stack (N, 4, h, w) at least {GAIN_WINDOW + 2} packed pixels a side, "
                          f"got {frames.shape}")
     mosaic = flat_log_mosaic(frames)
-    edges = flat_gain_edges(mosaic)
+    edges = flat_gain_edges(mosaic, stack_step_excess(frames))
     model = np.mean([flat_log_mosaic(s) for s in synthesized], axis=0) if synthesized else np.zeros_like(mosaic)
     seen = {"frame": frames.shape[2:], "mosaic": mosaic.astype(np.float32), "model": model.astype(np.float32), "edges": edges}
     return {**combine([{"_seen": seen}]), "_seen": seen}
@@ -125,7 +137,7 @@ def combine(records: list[dict]) -> dict:
     seen = [r["_seen"] for r in records]
     frame = max((tuple(s["frame"]) for s in seen), key=lambda f: sum(tuple(t["frame"]) == f for t in seen))
     same = [s for s in seen if tuple(s["frame"]) == frame]
-    edges = {axis: _consensus([s["edges"][axis] for s in same if s["edges"][axis]]) for axis in ("col", "row")}
+    edges = consensus_edges([s["edges"] for s in same])
     shape = (len(edges["row"]) + 1, len(edges["col"]) + 1)
     total, weight = np.zeros(shape), np.zeros(shape)
     for s in same:

@@ -240,6 +240,7 @@ def _run_manifest(args, path):
     from .diagnose import FrameStack, channel_offsets
     from ..calibration.command import calibrate, options_from, visit_frames
     from .frames_loop import run_frame_loop
+    from ..effects.tap_gain import consensus_edges
 
     frames = _Collected(args.loop_size)
     calibration = None
@@ -301,6 +302,10 @@ def _run_manifest(args, path):
             stacks.append(FrameStack(f.stack, f.k, kind="flat", level_dn=[float(v) for v in (series.nominal(f.dose) if series else f.level)],
                                      base=f.base, offsets_of=f.bias_stack, label=f.label, exposure_s=f.exposure if series else None,
                                      series=series, dose=f.dose if series else None))
+    sensor_taps = consensus_edges([s.gain_edges for s in stacks if s.kind == "flat"])  # the same at every ISO and level
+    for s in stacks:
+        if s.kind == "flat":
+            s.tap_edges = sensor_taps
     result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
     (h, w), (ch, cw) = shapes
     view = (f"The frame loop diagnosed the central {ch} x {cw} of each frame's packed channels ({h} x {w}; "

@@ -29,7 +29,7 @@ from ..effects.gain_nonlinearity import fit_rates, linear_rates
 from ..effects.k_records import value_at_k
 from ..profile import NoiseProfile
 from .registry import effects_for
-from ..statistics import STATISTICS, frame_statistics, repaired
+from ..statistics import STATISTICS, flat_gain_edges, flat_log_mosaic, frame_statistics, repaired, stack_step_excess
 from .illumination import illumination_shape
 
 
@@ -99,6 +99,7 @@ class FrameStack:
     offsets_of: "FrameStack | None" = None
     series: FlatSeries | None = None
     dose: float | None = None  # a series flat's exposure x relative light (default exposure_s)
+    tap_edges: dict | None = None  # a flat's sensor's readout-tap edges (tap_gain.consensus_edges); None: its own (gain_edges)
 
     def __post_init__(self):
         self.frames_dn = np.asarray(self.frames_dn, dtype=np.float64)
@@ -143,19 +144,34 @@ class FrameStack:
         return frame_statistics(frames, self.kind, self.statistics_level, self.statistic_names)
 
     @functools.cached_property
-    def illumination(self) -> np.ndarray | None:
-        """(4, h, w) relative shape of a flat's light (``illumination_shape``; mean 1 per
-        channel), of its mean frame less its bias stack's (or its offsets); None but for flats."""
+    def _above_black(self) -> tuple[np.ndarray, np.ndarray]:
+        """(repaired frames, black): a flat's frames and what its light is measured above (its
+        bias stack's mean, or its offsets)."""
+        frames = repaired(self.frames_dn)
+        if self.offsets_of is not None:
+            return frames, repaired(self.offsets_of.frames_dn).mean(axis=0)
+        offsets = (self.offsets_dn if self.offsets_dn is not None
+                   else self.series.offsets_dn if self.series is not None else np.zeros(4))
+        return frames, np.asarray(offsets, dtype=np.float64)[:, None, None]
+
+    @functools.cached_property
+    def gain_edges(self) -> dict | None:
+        """The readout-tap edges this flat shows on its own (``flat_gain_edges``, against its
+        frames' temporal noise); None but for flats."""
         if self.kind != "flat":
             return None
-        mean = repaired(self.frames_dn).mean(axis=0)
-        if self.offsets_of is not None:
-            black = repaired(self.offsets_of.frames_dn).mean(axis=0)
-        else:
-            offsets = (self.offsets_dn if self.offsets_dn is not None
-                       else self.series.offsets_dn if self.series is not None else np.zeros(4))
-            black = np.asarray(offsets, dtype=np.float64)[:, None, None]
-        return illumination_shape(mean - black)
+        frames, black = self._above_black
+        return flat_gain_edges(flat_log_mosaic(frames.mean(axis=0, keepdims=True) - black[None]), stack_step_excess(frames - black))
+
+    @functools.cached_property
+    def illumination(self) -> np.ndarray | None:
+        """(4, h, w) relative shape of a flat's light (``illumination_shape``; mean 1 per
+        channel), of its mean frame less its bias stack's (or its offsets), the taps' gains at
+        ``tap_edges`` (or its own ``gain_edges``) divided out; None but for flats."""
+        if self.kind != "flat":
+            return None
+        frames, black = self._above_black
+        return illumination_shape(frames.mean(axis=0) - black, self.tap_edges if self.tap_edges is not None else self.gain_edges)
 
     @functools.cached_property
     def integer(self) -> bool:

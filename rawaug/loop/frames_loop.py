@@ -17,12 +17,12 @@ the stacks that have it: screened and confirmed on all of them.
 
 Then backward elimination: an effect added early may be redundant once a later one explains
 its residual too (a row drift under a smooth per-frame field that a later ``LowFreq``
-reproduces in full). Each added effect that a later one shares a statistic with, or whose own
-statistic the final model overshoots (hot pixels added for the high first rows that a later
-``LineMap`` reproduces), is taken out in turn, with the base stage's re-fit it was judged with
-undone. One whose removal leaves no residual significant that is not significant with it is
-removed -- or, for one the model overshoots with, whose removal leaves the battery no worse --
-measured fallbacks before physical effects, and the effects added after it are estimated
+reproduces in full). Each added effect that a later one shares a statistic with, or every
+one while the final model overshoots any statistic (hot pixels added for the high first rows
+that a later ``LineMap`` reproduces raise the fixed pattern), is taken out in turn, with the
+base stage's re-fit it was judged with undone. One whose removal leaves no residual
+significant that is not significant with it is removed -- or, while the model overshoots,
+one whose removal leaves the battery no worse -- measured fallbacks before physical effects, and the effects added after it are estimated
 again, until every effect left is needed.
 
 After each added effect the base read noise is re-fitted where the model's bias frames now
@@ -598,13 +598,14 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         if len(kept) < 2:
             break
         # an effect can only have been made redundant by one added after it (the last one added
-        # was needed beside all the others): one that a statistic of its own also points to, or
-        # any whose own statistic the model now overshoots (a later effect explained its residual
-        # through a statistic the two do not share, and it adds on top)
+        # was needed beside all the others): one that a statistic of its own also points to, or,
+        # while the model overshoots any statistic, every one (a later effect explained its
+        # residual through a statistic the two do not share, and it adds on top: hot pixels
+        # added for high first rows that a later ``LineMap`` reproduces raise the fixed pattern)
         stats = lambda step: set(CANDIDATES[step.effect].statistics)  # noqa: E731
         overshot = {r.statistic for res, _ in diags.values() for r in res if r.significant and r.z < 0}
         candidates = [s for i, s in enumerate(kept[:-1])
-                      if stats(s) & overshot or any(stats(s) & stats(later) for later in kept[i + 1:])]
+                      if overshot or any(stats(s) & stats(later) for later in kept[i + 1:])]
         if not candidates:
             break
         full, full_b = _significant(diags), _battery(diags)
@@ -613,11 +614,11 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             reduced, reduced_stacks = _without(step, current, stacks, result.refits, model)
             reduced_diags = diagnose_all(reduced, diags_seed, reduced_stacks)  # the full model's syntheses' seeds
             reduced_b = _battery(reduced_diags)
-            # redundant: nothing becomes significant without it; or, for an effect the model
-            # overshoots with, a battery no worse without it (as many significant residuals at
-            # most, and a mean error no higher): the overshoot it ends is worth the residual it
-            # leaves at the threshold
-            no_worse = (stats(step) & overshot and reduced_b["n_significant"] <= full_b["n_significant"]
+            # redundant: nothing becomes significant without it; or, while the model overshoots,
+            # a battery no worse without it (as many significant residuals at most, and a mean
+            # error no higher): the overshoot it ends is worth the residual it leaves at the
+            # threshold
+            no_worse = (overshot and reduced_b["n_significant"] <= full_b["n_significant"]
                         and reduced_b["mean_rel_error"] <= full_b["mean_rel_error"])
             if _significant(reduced_diags) <= full or no_worse:
                 removable.append((step, reduced, reduced_diags, reduced_stacks,
@@ -636,7 +637,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         result.removed.append({"effect": step.effect, "round": step.round, "beside": others, "why": why,
                                "battery_before": before_b, "battery_after": after_b})
         say(f"end: {step.effect} removed: " + ("no residual is significant without it" if why == "redundant"
-                                               else "the model overshoots its statistic with it, and the battery is no worse without it")
+                                               else "the model overshoots with it, and the battery is no worse without it")
             + f" beside {', '.join(others)} (battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f})")
         current, diags, stacks = reduced, reduced_diags, reduced_stacks
         by_label = {st.label: st for st in stacks}

@@ -40,15 +40,17 @@ def _basis(h: int, w: int) -> np.ndarray:
     return q * np.sign(q[0, 0])  # the first column is the constant, of either sign: made positive
 
 
-def illumination_shape(mean_dn) -> np.ndarray:
+def illumination_shape(mean_dn, edges=None, excess=None) -> np.ndarray:
     """(4, h, w) relative shape of a flat's light (mean 1 per channel) from ``mean_dn`` (4, h, w):
     the flat stack's mean frame above its black (DN). A channel without signal gets 1. The
     steps of readout taps with gains of their own (``tap_gain.shown_gains``) are the
-    sensor's, not the light's: they are divided out before the fit."""
+    sensor's, not the light's: they are divided out before the fit, at ``edges`` (the
+    sensor's, over its flats) or, without, at those the flat shows (``excess``: its stack's
+    ``stack_step_excess``, the coloured temporal noise its steps are tested against)."""
     mean_dn = np.asarray(mean_dn, dtype=np.float64)
     if mean_dn.ndim != 3 or mean_dn.shape[0] != 4:
         raise ValueError(f"mean_dn must be a packed mean frame (4, h, w), got shape {mean_dn.shape}")
-    mean_dn = mean_dn / shown_gains(mean_dn)
+    mean_dn = mean_dn / shown_gains(mean_dn, edges, excess)
     _, h, w = mean_dn.shape
     out = np.ones_like(mean_dn)
     if h * w < MIN_PIXELS or min(h, w) <= DEGREE:

@@ -1,0 +1,82 @@
+"""A flat's gain steps against the noise its frames actually have: white, coloured over the
+lines (row noise of a 1/f spectrum, a flickering light), and one line's own offset."""
+import numpy as np
+import pytest
+from scipy import stats
+
+from rawaug.effects.tap_gain import consensus_edges
+from rawaug.statistics import GAIN_TEMPORAL_P, despiked, gain_edges, gain_steps, temporal_step_excess
+
+WHITE = 1e-3  # log units per line, of each frame's profile and of the fixed pattern
+
+
+def _ar1(rng, n, length, rho, sd):
+    """(n, length) AR(1) profiles of innovations ``sd``: temporal noise coloured over the lines."""
+    e = rng.normal(0.0, sd, (n, length))
+    x = np.empty_like(e)
+    x[:, 0] = e[:, 0] / np.sqrt(1.0 - rho**2)
+    for i in range(1, length):
+        x[:, i] = rho * x[:, i - 1] + e[:, i]
+    return x
+
+
+def _profiles(seed, n=2, length=384, coloured=0.0, step=0.0, at=200):
+    rng = np.random.default_rng(seed)
+    p = rng.normal(0.0, WHITE, length) + rng.normal(0.0, WHITE, (n, length))
+    if coloured:
+        p = p + _ar1(rng, n, length, 0.9, coloured)
+    p[:, at:] += step
+    return p
+
+
+@pytest.mark.parametrize("length, n", [(128, 2), (384, 2), (384, 4)])
+def test_white_temporal_noise_reads_as_coloured_at_its_nominal_rate(length, n):
+    # 300 stacks: rejections binomial(300, p <= GAIN_TEMPORAL_P); 12 or more has probability < 0.1 % at 1 %
+    # (measured: 2, 1 and 1 of 300)
+    hits = sum(temporal_step_excess(_profiles(s, n, length)) > 0 for s in range(300))
+    assert hits <= stats.binom.isf(1e-3, 300, GAIN_TEMPORAL_P), hits
+
+
+def test_coloured_temporal_noise_does_not_read_as_gain_edges():
+    # 100 flat pairs with AR(1) temporal noise (rho 0.9) beside the white: measured, the white-noise test
+    # found edges in 21 of them and the test with the frames' excess in none; the excess was significant in 98
+    found_white, found, detected = 0, 0, 0
+    for s in range(1000, 1100):
+        p = _profiles(s, coloured=0.6e-3)
+        excess = temporal_step_excess(p)
+        detected += excess > 0
+        found_white += bool(gain_edges(p.mean(axis=0)))
+        found += bool(gain_edges(p.mean(axis=0), excess=excess))
+    assert found_white >= 10 and found <= 2 and detected >= 90, (found_white, found, detected)
+
+
+def test_a_tap_step_is_still_found_under_coloured_noise():
+    # a 1 % gain step, the same in every frame (it never enters the frames' spread about their mean)
+    hits = [gain_edges(p.mean(axis=0), excess=temporal_step_excess(p))
+            for p in (_profiles(s, coloured=0.6e-3, step=0.01) for s in range(2000, 2020))]
+    assert sum(h == [200] for h in hits) >= 19, hits
+
+
+def test_one_lines_offset_is_not_a_step_and_a_step_keeps_its_edge():
+    rng = np.random.default_rng(5)
+    p = rng.normal(0.0, WHITE, 384)
+    spiked = p.copy()
+    spiked[201] += 30 * WHITE  # a bright column beside the gap at 200
+    assert np.abs(despiked(spiked) - p).max() < 6 * WHITE
+    assert gain_edges(spiked) == []
+    stepped = p.copy()
+    stepped[200:] += 10 * WHITE
+    assert np.array_equal(despiked(stepped)[195:206], stepped[195:206])
+    assert gain_edges(stepped) == [200]
+    assert np.nanargmax(np.abs(gain_steps(stepped))) == 200
+
+
+def test_the_sensors_edges_are_those_most_flats_show():
+    # 256: three flats of the three that found any; 90: one flat's own (noise steps at a gap of its own)
+    found = [{"col": [256], "row": []}, {"col": [256], "row": [90]}, {"col": [257], "row": []}, {"col": [], "row": []}]
+    assert consensus_edges(found) == {"col": [256], "row": []}
+    # an edge in two flats of five that found any is not the sensor's; in three it is
+    five = [{"col": [100], "row": []}] * 2 + [{"col": [300], "row": []}] * 3
+    assert consensus_edges(five) == {"col": [300], "row": []}
+    assert consensus_edges([{"col": [40], "row": []}]) == {"col": [40], "row": []}  # a single flat: its own
+    assert consensus_edges([]) == {"col": [], "row": []}
