@@ -18,6 +18,7 @@ CFA that neither the file nor the caller give are an error, never a guess.
 from __future__ import annotations
 
 import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -92,27 +93,35 @@ def _scalar(value):
     return value.item() if value.ndim == 0 else tuple(value.tolist())
 
 
+_NPY_HEADER = threading.Lock()  # np.load parses a header with ast.literal_eval, which CPython 3.11 can fail in threads (SystemError, cpython gh-106905)
+
+
 def _read_numpy(path: Path):
     where = str(path)
     try:
-        loaded = np.load(path, allow_pickle=False)
+        with _NPY_HEADER:  # the header only: a .npy's data is read after, from its memory map
+            loaded = np.load(path, mmap_mode="r", allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
         raise ValueError(f"{where}: cannot read as NumPy {path.suffix} file: {exc}") from None
-    meta = {}
     if isinstance(loaded, np.ndarray):
-        return loaded, meta
-    with loaded:
-        names = list(loaded.files)
-        key = next((k for k in ("mosaic", "raw") if k in names), None)
-        arrays = [k for k in names if k not in ("black_level", "white_level", "cfa", "iso", "exposure_s")]
-        if key is None:
-            if len(arrays) != 1:
-                raise ValueError(f"{where}: .npz must hold an array named 'mosaic' or 'raw' (or exactly one array), got {names}")
-            key = arrays[0]
-        data = loaded[key]
-        for name in ("black_level", "white_level", "cfa", "iso", "exposure_s"):
-            if name in names:
-                meta[name] = _scalar(loaded[name])
+        return np.array(loaded), {}
+    with _NPY_HEADER, loaded:  # every array of a .npz has a header of its own
+        return _npz_frame(loaded, where)
+
+
+def _npz_frame(loaded, where: str):
+    meta = {}
+    names = list(loaded.files)
+    key = next((k for k in ("mosaic", "raw") if k in names), None)
+    arrays = [k for k in names if k not in ("black_level", "white_level", "cfa", "iso", "exposure_s")]
+    if key is None:
+        if len(arrays) != 1:
+            raise ValueError(f"{where}: .npz must hold an array named 'mosaic' or 'raw' (or exactly one array), got {names}")
+        key = arrays[0]
+    data = loaded[key]
+    for name in ("black_level", "white_level", "cfa", "iso", "exposure_s"):
+        if name in names:
+            meta[name] = _scalar(loaded[name])
     return data, meta
 
 
