@@ -22,9 +22,10 @@ Profile entry (up to ``MAX_EDGES`` edges per axis; gains of geometric mean 1)::
 
 Detected on flat stacks by ``gain_step_z`` (the largest step of a local fit of a cubic
 plus a step to the log line profiles of the stack mean, over its noise). Estimated by
-``estimate``: the edges are the gaps ``gain_edges`` finds (over the stacks, those found in
-at least half of the stacks that found any); the gains are the steps at the edges in each
-band of taps (``tap_log_gains``), less the model's, averaged over the stacks by their noise.
+``estimate``: the edges are the gaps ``gain_edges`` finds, against the stack's white and
+coloured temporal noise (``stack_step_excess``), over the stacks ``consensus_edges``; the
+gains are the steps at the edges in each band of taps (``tap_log_gains``), less the
+model's, averaged over the stacks by their noise.
 """
 from __future__ import annotations
 
@@ -130,8 +131,8 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
 
 
 def combine(records: list[dict]) -> dict:
-    """One set of taps (the sensor's, the same at every gain and level): the edges found in at
-    least half of the stacks that found any, on the frame size most stacks have; the log gains
+    """One set of taps (the sensor's, the same at every gain and level): the edges of
+    ``consensus_edges`` over the stacks of the frame size most stacks have; the log gains
     of each stack at those edges less its model's (``tap_log_gains``), averaged per tap with
     weights 1 / standard error^2; geometric mean 1."""
     seen = [r["_seen"] for r in records]
