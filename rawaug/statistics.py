@@ -1548,13 +1548,7 @@ def frame_log_profiles(frames) -> dict:
     f = np.asarray(frames, dtype=np.float64)
     level = f.mean(axis=(0, 2, 3))
     rel = f / np.where(level > 0, level, 1.0)[None, :, None, None]
-    n, _, h, w = f.shape
-    rows, cols = np.zeros((n, 2 * h)), np.zeros((n, 2 * w))
-    by_row, by_col = rel.mean(axis=3), rel.mean(axis=2)  # (N, 4, h), (N, 4, w)
-    for ch in range(4):
-        rows[:, ROW_SET[ch]::2] += by_row[:, ch] / 2.0
-        cols[:, COLUMN_SET[ch]::2] += by_col[:, ch] / 2.0
-    return {"col": np.log(np.maximum(cols, 1e-6)), "row": np.log(np.maximum(rows, 1e-6))}
+    return {"col": np.log(np.maximum(sensor_col_means(rel), 1e-6)), "row": np.log(np.maximum(sensor_row_means(rel), 1e-6))}
 
 
 def stack_step_excess(frames) -> dict:
