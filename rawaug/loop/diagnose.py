@@ -16,12 +16,14 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
 from scipy.stats import f as f_dist
 from scipy.stats import norm
+from threadpoolctl import threadpool_limits
 
 from ..augment import RawNoiseAugment, parse_model
 from ..calibration.censored import black_floor, clipped_share
@@ -327,10 +329,18 @@ def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int
     return out
 
 
-def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float = 0.1) -> list[Residual]:
-    """Residuals of every applicable statistic, ranked by ``|z|`` (largest first)."""
+def compare(stack: FrameStack, synthesized, z_min: float = 6.0, rel_min: float = 0.1, workers: int = 1) -> list[Residual]:
+    """Residuals of every applicable statistic, ranked by ``|z|`` (largest first). ``workers``:
+    threads the syntheses' statistics are spread over (the same values: each is a pure
+    function of its synthesis, its caches per thread)."""
     measured = stack.measured
-    synth = [stack.statistics(s) for s in synthesized]
+    if workers > 1 and len(synthesized) > 1:
+        # one BLAS thread each: OpenBLAS's own threads on top slow the statistics' small products
+        with threadpool_limits(limits=1, user_api="blas"), \
+                ThreadPoolExecutor(max_workers=min(workers, len(synthesized)), thread_name_prefix="rawaug-stats") as pool:
+            synth = list(pool.map(stack.statistics, synthesized))
+    else:
+        synth = [stack.statistics(s) for s in synthesized]
     out = []
     for name, m in measured.items():
         values = np.array([s[name] for s in synth])
@@ -425,9 +435,10 @@ def pool_residuals(diags: dict, z_min: float = 6.0, rel_min: float = 0.1) -> dic
 
 
 def diagnose(stack: FrameStack, profile, *, model: str | None = None, n_synth: int = 12, seed: int = 0,
-             z_min: float = 6.0, rel_min: float = 0.1, offsets: list | None = None):
+             z_min: float = 6.0, rel_min: float = 0.1, offsets: list | None = None, workers: int = 1):
     """Synthesize ``n_synth`` stacks like ``stack`` and rank the residuals (``offsets``: the
-    colour bias, if already fitted; see ``synthesize``).
+    colour bias, if already fitted; see ``synthesize``; ``workers``: threads for the
+    syntheses' statistics, see ``compare``).
 
     Returns ``(residuals, synthesized)``; ``synthesized`` (n_synth, N, 4, h, w) DN is the
     baseline the estimators subtract."""
@@ -435,7 +446,7 @@ def diagnose(stack: FrameStack, profile, *, model: str | None = None, n_synth: i
         raise ValueError(f"n_synth must be >= 3 to estimate the spread of the syntheses, got {n_synth}")
     profile = NoiseProfile.load(profile)
     synthesized = synthesize(profile, stack, n_synth, seed, model, offsets)
-    return compare(stack, synthesized, z_min, rel_min), synthesized
+    return compare(stack, synthesized, z_min, rel_min, workers), synthesized
 
 
 def battery_error(residuals: list[Residual]) -> dict:

@@ -299,15 +299,16 @@ def diagnose_stacks(prof, labels: list, which: list, step_seed: int, *, model=No
     sources = list({id(s.offsets_of): s.offsets_of for s in which if s.offsets_of is not None}.values())
     pilot = lambda src: fitted_offsets(prof, src, step_seed + labels.index(src.label), model)  # noqa: E731
 
-    def job(stack):
+    def job(stack, workers=1):
         src = stack.offsets_of if stack.offsets_of is not None else stack
         return diagnose(stack, prof, model=model, n_synth=n_synth, seed=step_seed + labels.index(stack.label), z_min=z_min,
-                        rel_min=rel_min, offsets=offsets.get(id(src)))
+                        rel_min=rel_min, offsets=offsets.get(id(src)), workers=workers)
 
-    workers = min(len(which), torch.get_num_threads())
-    if workers < 2:
+    threads = torch.get_num_threads()
+    workers = min(len(which), threads)
+    if workers < 2:  # one stack: its syntheses' statistics on the threads instead
         offsets = {id(src): pilot(src) for src in sources}
-        results = [job(s) for s in which]
+        results = [job(s, threads) for s in which]
     else:
         # one BLAS thread per stack thread: OpenBLAS's own threads on top of the stacks' slowed
         # the small products of the statistics (period_excess) 10 to 40-fold
@@ -356,7 +357,8 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         key = (label, tuple(over))
         if key not in cache:
             again = {lb: diagnose(by_label[lb], current, model=model, n_synth=CONFIRM_FACTOR * n_synth,
-                                  seed=check_seed + (0 if lb == label else 1 + labels.index(lb)), z_min=z_min, rel_min=rel_min)
+                                  seed=check_seed + (0 if lb == label else 1 + labels.index(lb)), z_min=z_min, rel_min=rel_min,
+                                  workers=torch.get_num_threads())
                      for lb in over}
             cache[key] = pool_residuals(again, z_min, rel_min)[label][0]
         check = next(r for r in cache[key] if r.statistic == evidence.statistic)
