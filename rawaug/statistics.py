@@ -23,6 +23,7 @@ from scipy import fft as sp_fft  # pocketfft with SIMD: ~2x NumPy's on a stack's
 from scipy import ndimage
 from scipy import stats as sstats
 
+from .code_histogram import code_histogram
 from .engine.layout import COLUMN_SET, READ_MAP_BLOCKS, ROW_SET, TAP_EDGES, XTALK_LAGS
 from .selection import middle_pair
 
@@ -435,8 +436,7 @@ def missing_codes(frames, level_dn=None):
     """Histogram comb: fraction of integer codes between the 0.5 and 99.5 percentiles that
     are missing (values rounded to whole DN; ``written_codes``: an empty code in a gap
     between populated codes, not one in a sparse tail)."""
-    v = np.rint(frames).astype(np.int64).ravel()
-    counts = np.bincount(v - v.min())
+    counts = _codes(frames)[1]
     lo, hi = code_percentiles(counts, (0.5, 99.5))
     if hi - lo < 3:
         return 0.0
@@ -456,13 +456,18 @@ def code_counts(frames):
     """(codes, counts) of the whole-DN values of a stack (at most ``DNL_MAX_VALUES``, evenly
     strided), from its lowest code up; None when the values are not whole numbers (not a raw
     file's codes)."""
-    v = np.asarray(frames).ravel()
-    v = v[:: max(1, v.size // DNL_MAX_VALUES)]
-    if not np.all(v == np.rint(v)):
-        return None
-    v = v.astype(np.int64)
-    counts = np.bincount(v - v.min())
-    return v.min() + np.arange(counts.size), counts
+    v = np.asarray(frames)
+    stride = max(1, v.size // DNL_MAX_VALUES)
+    lowest, counts, whole = _codes(v) if stride == 1 else code_histogram(v.ravel()[::stride])
+    return (lowest + np.arange(counts.size), counts) if whole else None
+
+
+_last_codes = threading.local()  # the last read-only stack's code histogram on this thread
+
+
+def _codes(frames):
+    """``code_histogram`` of a stack, once for the same read-only array in a row."""
+    return _once(_last_codes, frames, lambda: code_histogram(frames))
 
 
 def well_filled(counts) -> slice | None:
@@ -509,8 +514,8 @@ def code_dnl(frames, level_dn=None):
 
 def clip_low(frames, level_dn=None):
     """Pile-up at the lowest code: fraction of pixels at the stack minimum (whole DN)."""
-    v = np.rint(frames)
-    return float((v <= v.min()).mean())
+    counts = _codes(frames)[1]
+    return float(counts[0] / counts.sum())
 
 
 def mean_dn(frames, level_dn=None):
