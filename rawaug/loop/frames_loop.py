@@ -263,18 +263,22 @@ def black_level(stack) -> list | None:
 
 def _estimate(token, stacks, diags, seed):
     cand = CANDIDATES[token]
-    records = []
-    for stack in stacks:
+
+    def one(stack):
         try:
             # estimated from what the statistics see: the frames with their defect lines
             # repaired, but for an effect that makes defect lines
             frames = stack.frames_dn if getattr(cand.module, "RAW_FRAMES", False) else repaired(stack.frames_dn)
-            rec = cand.estimate(frames, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
-                                exposure_s=stack.exposure_s, seed=seed, series=stack.series, kind=stack.kind,
-                                black_dn=black_level(stack) if cand.wants("black_dn") else None)
+            return cand.estimate(frames, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
+                                 exposure_s=stack.exposure_s, seed=seed, series=stack.series, kind=stack.kind,
+                                 black_dn=black_level(stack) if cand.wants("black_dn") else None)
         except ValueError:
-            continue  # this stack cannot show the effect (too few frames, not a flat)
-        records.append(rec)
+            return None  # this stack cannot show the effect (too few frames, not a flat)
+
+    # the stacks' estimates on the threads (each from its own stack and seed: the same records, in order)
+    with threadpool_limits(limits=1, user_api="blas"), \
+            ThreadPoolExecutor(max_workers=max(1, torch.get_num_threads()), thread_name_prefix="rawaug-estimate") as pool:
+        records = [rec for rec in pool.map(one, stacks) if rec is not None]
     if not records:
         return None
     if hasattr(cand.module, "combine"):
