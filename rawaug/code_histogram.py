@@ -25,9 +25,6 @@ def _histogram(v):
     return int(lo), counts, whole
 
 
-CODES_MAX = 1 << 26  # codes a histogram may span (a range beyond this: NumPy's bincount's memory, not ours)
-
-
 def code_histogram(values) -> tuple[int, np.ndarray, bool]:
     """(lowest code, counts of the codes from it up (int64), every value whole) of finite
     ``values`` rounded to whole DN, as ``np.bincount(np.rint(v) - min)`` counts them."""
@@ -36,7 +33,4 @@ def code_histogram(values) -> tuple[int, np.ndarray, bool]:
         raise ValueError(f"code_histogram needs finite values, got {v.size} values with non-finite ones or none")
     if v.dtype.kind != "f":
         v = v.astype(np.float64)
-    if float(v.max()) - float(v.min()) > CODES_MAX:
-        r = np.rint(v).astype(np.int64)
-        return int(r.min()), np.bincount(r - r.min()), bool(np.all(v == np.rint(v)))
     return _histogram(v)

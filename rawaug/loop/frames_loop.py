@@ -35,18 +35,17 @@ stage re-fitted already, or its added variance alone would get it rejected.
 from __future__ import annotations
 
 import dataclasses
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from threadpoolctl import threadpool_limits
 
 from ..effects.k_records import merge_records
 from ..profile import NoiseProfile
 from ..relations import KTable
 from ..statistics import repaired
-from .diagnose import FrameStack, Residual, battery_error, diagnose, fitted_offsets, pool_residuals, synthesis_fixed
+from .diagnose import (FrameStack, Residual, battery_error, diagnose, fitted_offsets, map_on_threads, pool_residuals,
+                       synthesis_fixed)
 from .refit import (apply_read_noise_factors, apply_read_shapes, apply_row_noise_factors, read_noise_factors,
                     read_shape_updates, row_noise_factors, row_noise_restore)
 from .registry import CANDIDATES
@@ -276,9 +275,7 @@ def _estimate(token, stacks, diags, seed):
             return None  # this stack cannot show the effect (too few frames, not a flat)
 
     # the stacks' estimates on the threads (each from its own stack and seed: the same records, in order)
-    with threadpool_limits(limits=1, user_api="blas"), \
-            ThreadPoolExecutor(max_workers=max(1, torch.get_num_threads()), thread_name_prefix="rawaug-estimate") as pool:
-        records = [rec for rec in pool.map(one, stacks) if rec is not None]
+    records = [rec for rec in map_on_threads(one, stacks, torch.get_num_threads()) if rec is not None]
     if not records:
         return None
     if hasattr(cand.module, "combine"):
@@ -309,17 +306,11 @@ def diagnose_stacks(prof, labels: list, which: list, step_seed: int, *, model=No
                         rel_min=rel_min, offsets=offsets.get(id(src)), workers=workers)
 
     threads = torch.get_num_threads()
-    workers = min(len(which), threads)
-    if workers < 2:  # one stack: its syntheses' statistics on the threads instead
-        offsets = {id(src): pilot(src) for src in sources}
+    offsets = dict(zip([id(src) for src in sources], map_on_threads(pilot, sources, threads)))
+    if len(which) < 2:  # one stack: its syntheses' statistics on the threads instead
         results = [job(s, threads) for s in which]
     else:
-        # one BLAS thread per stack thread: OpenBLAS's own threads on top of the stacks' slowed
-        # the small products of the statistics (period_excess) 10 to 40-fold
-        with threadpool_limits(limits=1, user_api="blas"), \
-                ThreadPoolExecutor(max_workers=workers, thread_name_prefix="rawaug-loop") as pool:
-            offsets = dict(zip([id(src) for src in sources], pool.map(pilot, sources)))
-            results = list(pool.map(job, which))
+        results = map_on_threads(job, which, threads)
     return pool_residuals({s.label: r for s, r in zip(which, results)}, z_min, rel_min)
 
 
