@@ -1,14 +1,15 @@
 """The loop on cameras with one effect made outside rawaug, each through `rawaug loop` end to end.
 
-Each camera is the SonyA7S2 ELD model at two ISOs (K 0.75 and 3.0 DN/e-), as a manifest of
+Each camera is the SonyA7S2 ELD model (another ELD camera with ``--base``; NikonD850's black level
+is 0, so its files clip the read noise at code 0) at two ISOs (K 0.75 and 3.0 DN/e-), as a manifest of
 6 bias frames, 4 dark frames of 4 s and flat pairs at 2 % and 10 % of white (64 x 64 packed
-per channel, 16-bit, black 512; ``rawaug.calibration.synthetic.write_manifest_camera``), plus
+per channel, 16-bit, the base camera's black and white levels; ``rawaug.calibration.synthetic.write_manifest_camera``), plus
 one effect written here in NumPy, not by a rawaug stage. Printed per camera: what the loop added, each added step's evidence error before ->
 after, and what stayed significant. A camera counts as fixed when the loop added something
 whose evidence error fell to half or less and nothing significant was left; a camera whose
 right answer is to add nothing (``NOTHING_TO_ADD``) when nothing was added and nothing left.
 
-    python benchmarks/loop_unseen.py [CASE ...] [--seed S] [--sessions N] [--geometry small|issue] [--keep DIR]
+    python benchmarks/loop_unseen.py [CASE ...] [--seed S] [--sessions N] [--geometry small|issue] [--base CAMERA] [--keep DIR]
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ from rawaug import NoiseProfile
 from rawaug.calibration.synthetic import write_manifest_camera
 from rawaug.cli import main as cli
 
-BASE = NoiseProfile.load("SonyA7S2")
+BASE = "SonyA7S2"  # the ELD camera each test camera starts from (--base)
 
 
 def _raw_to_packed(raw):
@@ -475,12 +476,12 @@ GEOMETRIES = {
 }
 
 
-def run_case(name: str, seed: int, geometry: str = "small", keep: Path | None = None) -> dict:
+def run_case(name: str, seed: int, geometry: str = "small", keep: Path | None = None, base: str = BASE) -> dict:
     _WALK.clear()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) if keep is None else keep / name
         folder.mkdir(parents=True, exist_ok=True)
-        manifest = write_manifest_camera(folder, BASE, post=CASES[name], seed=seed, **GEOMETRIES[geometry])
+        manifest = write_manifest_camera(folder, NoiseProfile.load(base), post=CASES[name], seed=seed, **GEOMETRIES[geometry])
         with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             warnings.simplefilter("ignore")
             if cli(["loop", str(manifest), "--out", str(folder / "loop.yaml"), "--report", str(folder / "report"), "--n-synth", "8"]):
@@ -507,6 +508,7 @@ def main(argv=None) -> int:
                              "8 bias, 5 flat levels")
     parser.add_argument("--sessions", type=int, default=1,
                         help="run each camera in sessions SEED .. SEED + N - 1 and count how often it is fixed")
+    parser.add_argument("--base", default=BASE, help=f"the ELD camera the test cameras start from (default {BASE})")
     parser.add_argument("--keep", type=Path, default=None,
                         help="keep each camera's frames, profile and loop report in KEEP/CASE (default: a temporary folder)")
     args = parser.parse_args(argv)
@@ -516,11 +518,11 @@ def main(argv=None) -> int:
     if args.sessions < 1:
         parser.error(f"--sessions must be >= 1, got {args.sessions}")
     if args.sessions > 1:
-        return count_sessions(args.cases or list(CASES), args.seed, args.sessions, args.geometry)
+        return count_sessions(args.cases or list(CASES), args.seed, args.sessions, args.geometry, args.base)
     print("| camera (effect made outside rawaug) | added | evidence error | still significant | fixed |\n|---|---|---|---|---|")
     results = []
     for name in args.cases or CASES:
-        r = run_case(name, args.seed, args.geometry, args.keep)
+        r = run_case(name, args.seed, args.geometry, args.keep, args.base)
         results.append(r)
         print(f"| {name}: {(CASES[name].__doc__ or 'ELD model only').strip()} | {', '.join(r['added']) or '-'} | "
               f"{'; '.join(r['errors']) or '-'} | {', '.join(r['left']) or '-'} | {'yes' if r['fixed'] else 'no'} |", flush=True)
@@ -528,11 +530,11 @@ def main(argv=None) -> int:
     return 0
 
 
-def count_sessions(cases, first: int, n: int, geometry: str) -> int:
+def count_sessions(cases, first: int, n: int, geometry: str, base: str = BASE) -> int:
     """Each case in sessions first .. first + n - 1: how often it was fixed, and what was added where not."""
     print("| camera | sessions | fixed | where not: session (added; still significant) |\n|---|---|---|---|")
     for name in cases:
-        runs = [(seed, run_case(name, seed, geometry)) for seed in range(first, first + n)]
+        runs = [(seed, run_case(name, seed, geometry, base=base)) for seed in range(first, first + n)]
         misses = "; ".join(f"{seed} ({', '.join(r['added']) or '-'}; {', '.join(r['left']) or '-'})" for seed, r in runs if not r["fixed"])
         print(f"| {name} | {first}-{first + n - 1} | {sum(r['fixed'] for _, r in runs)} of {n} | {misses or '-'} |", flush=True)
     return 0

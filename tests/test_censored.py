@@ -94,3 +94,68 @@ def test_calibrate_iso_on_clipped_bias_frames_matches_the_unclipped_fit():
     assert p0.extra["black_floor"] is None and p.extra["black_floor"]["floor_dn"] == 0.0
     assert abs(p.sigma_tl / p0.sigma_tl - 1) < 0.05 and abs(p.lam - p0.lam) < 0.05 and abs(p.sigma_r / p0.sigma_r - 1) < 0.15
     assert np.all(np.abs(np.array(p.color_bias_dn) - np.array(p0.color_bias_dn)) < 0.08), (p.color_bias_dn, p0.color_bias_dn)
+
+
+def test_code_floor_is_a_clip_at_code_zero_only():
+    from rawaug.calibration.censored import code_floor
+
+    assert code_floor([None, -512.0, None], [512.0] * 4) == -512.0  # one ISO clipped at code 0
+    assert code_floor([-511.6], [512.0, 512.0, 512.0, 512.0]) == -511.6  # within half a code
+    assert code_floor([0.0, 0.0], [512.0] * 4) is None  # clipped at the black level: the loop's `Clip`
+    assert code_floor([None, None], [0.0] * 4) is None  # no clip
+    assert code_floor([-60.0], [60.0, 64.0, 64.0, 60.0]) == -60.0  # per-channel black levels
+
+
+def test_calibration_puts_a_clip_at_code_zero_in_the_profile(tmp_path):
+    # a black level of 0 (NikonD850's): code 0 cuts the read noise; the recording format's floor
+    # is part of the calibrated profile, as the white level is. A clip at a black level of 512 is
+    # not (firmware: the loop's to find), and unclipped frames give none.
+    from rawaug.calibration.command import calibrate
+    from rawaug.calibration.synthetic import write_manifest_camera
+
+    nikon = NoiseProfile.load("NikonD850")
+    sony = NoiseProfile.load("SonyA7S2")
+    assert nikon.black_level == 0 and sony.black_level == 512
+    for name in ("zero", "black", "none"):
+        (tmp_path / name).mkdir()
+    at_zero = calibrate(write_manifest_camera(tmp_path / "zero", nikon, size=48)).profile
+    at_black = calibrate(write_manifest_camera(tmp_path / "black", sony, size=48,
+                                               post=lambda dn, rng, **_: np.maximum(dn, 0.0))).profile
+    unclipped = calibrate(write_manifest_camera(tmp_path / "none", sony, size=48)).profile
+    assert at_zero.effects.get("Clip") == {"floor_dn": 0.0}
+    assert "Clip" not in at_black.effects and "Clip" not in unclipped.effects
+
+
+def test_dead_pixels_stay_out_of_the_censored_fit():
+    # 0.2 % of the pixels stuck at +300 DN in every frame are no read noise: the censored fit
+    # leaves them out as the unclipped one does (stuck_outliers); before, they set lambda to -0.5
+    profile = NoiseProfile.load("SonyA7S2")
+    codes, flat_codes = synthesize_iso_set(profile, k=1.0, sigma_tl=2.0, lam=0.14, sigma_r=0.5, n_bias=3, shape=(256, 256), seed=3)
+    flats = [(a - profile.black_level, b - profile.black_level) for a, b in flat_codes]
+    dead = np.random.default_rng(8).random(codes[0].shape) < 0.002
+    clipped = [np.maximum(c - profile.black_level, 0.0) for c in codes]
+    with_dead = [np.where(dead, 300.0, b) for b in clipped]
+    p0 = calibrate_iso(clipped, flats, 800)
+    p = calibrate_iso(with_dead, flats, 800)
+    assert p.extra["black_floor"]["floor_dn"] == 0.0
+    assert abs(p.lam - p0.lam) < 0.02 and abs(p.sigma_tl / p0.sigma_tl - 1) < 0.03, (p.lam, p0.lam, p.sigma_tl, p0.sigma_tl)
+
+
+def test_hot_pixels_stay_out_of_the_censored_fit():
+    # 0.1 % of the pixels 20-100 DN high in every frame (with their read noise) sit in the upper
+    # half the censored fit reads: left out (``hot_under_clip``), the fit is the clean one's
+    profile = NoiseProfile.load("SonyA7S2")
+    codes, flat_codes = synthesize_iso_set(profile, k=1.0, sigma_tl=2.0, lam=0.14, sigma_r=0.5, n_bias=3, shape=(256, 256), seed=4)
+    flats = [(a - profile.black_level, b - profile.black_level) for a, b in flat_codes]
+    rng = np.random.default_rng(9)
+    hot = (rng.random(codes[0].shape) < 0.001) * rng.uniform(20.0, 100.0, codes[0].shape)
+    clipped = [np.maximum(c - profile.black_level, 0.0) for c in codes]
+    with_hot = [np.maximum(c - profile.black_level + np.rint(hot), 0.0) for c in codes]
+    p0 = calibrate_iso(clipped, flats, 800)
+    p = calibrate_iso(with_hot, flats, 800)
+    assert abs(p.lam - p0.lam) < 0.02 and abs(p.sigma_tl / p0.sigma_tl - 1) < 0.03, (p.lam, p0.lam, p.sigma_tl, p0.sigma_tl)
+    from rawaug.calibration.censored import hot_under_clip
+
+    lowest = np.minimum.reduce(with_hot)
+    found = hot_under_clip(lowest, with_hot[0])
+    assert found[hot > 0].mean() > 0.9 and found[hot == 0].mean() < 1e-5  # the planted ones, and next to no others

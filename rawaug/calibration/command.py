@@ -26,6 +26,7 @@ from ..io import find_flat_pairs, group_by_iso, read_frame, read_manifest
 from ..io.manifest import ManifestEntry
 from ..io.readers import RAWPY_EXTENSIONS
 from ..outputs import check_outputs, write_set
+from .censored import code_floor
 from .diagnostics import CalibrationWarning, frame_anomalies
 from .joint import fit_joint, pick_camera, read_parameter_tables
 from .stage1 import calibrate_iso, centered_spectrum, estimate_quantization_step
@@ -272,7 +273,8 @@ def run(args) -> int:
     result = calibrate(source, options_from(args))
     write_set(result.profile, out, args.report, result.write_report)
     p = result.profile
-    print(f"wrote {out} ({len(result.params)} ISOs, K {p.k_min:.4g}..{p.k_max:.4g} DN/e-) in {result.elapsed_s:.1f} s")
+    floor = f"; frames clipped at code 0: Clip at {p.effects['Clip']['floor_dn']:g} DN" if "Clip" in p.effects else ""
+    print(f"wrote {out} ({len(result.params)} ISOs, K {p.k_min:.4g}..{p.k_max:.4g} DN/e-{floor}) in {result.elapsed_s:.1f} s")
     if args.report:
         print(f"wrote report {Path(args.report) / 'report.md'}")
     return 0
@@ -345,6 +347,9 @@ def _calibrate_frames(source: Path, args: CalibrationOptions, on_frame=None) -> 
                             bit_depth=_bit_depth(ref.white_level, args.bit_depth), cfa=ref.cfa,
                             quantization_step_dn=step, source=f"rawaug calibrate of {where}")
     notes += [str(w.message) for w in caught]
+    floor = code_floor([(p.extra.get("black_floor") or {}).get("floor_dn") for p in params], ref.black_packed())
+    if floor is not None:  # the frames hold no code under 0: the format's floor, like the white level
+        profile = profile.with_effect("Clip", {"floor_dn": floor})
     return Calibration(profile, params, where, notes, frames.spectrum, time.perf_counter() - start)
 
 

@@ -213,7 +213,9 @@ def _markdown(profile, params, figures, warnings_list):
     if clipped:
         lines += ["", "Bias frames clipped from below (no value under a floor): the read noise and the colour bias "
                   "were fitted to the values above the clip (censored probability plot), the row noise scaled up by "
-                  "the share of the noise the clip hides; the clip itself is the loop's `Clip`.", ""]
+                  "the share of the noise the clip hides. A clip at the file's lowest code (code 0) is in the profile "
+                  "as `Clip` (the recording format's floor, like the white level); a clip above it is the loop's to "
+                  "find (`Clip`).", ""]
         lines += [f"- ISO {iso:g}: floor {c['floor_dn']:g} DN, {100 * c['fraction']:.1f} % of the noise below it" for iso, c in clipped]
     lines += ["", "## Joint model: log(sigma) = slope log(K) + intercept + N(0, resid^2)", "",
               "| relation | slope | intercept | residual sigma |", "|---|---|---|---|"]

@@ -19,7 +19,7 @@ import numpy as np
 from scipy import stats
 
 from ..statistics import SPIKE_Z, beyond_dark, significant_spikes, stuck_outliers, written_codes
-from .censored import black_floor, censored_read_noise, clipped_share
+from .censored import black_floor, censored_read_noise, clipped_share, hot_under_clip
 from .joint import IsoParameters
 from .kernels import pair_tile_stats, pixel_extremes
 from .read_noise import (LAMBDA_GRID, ReadNoiseEstimate, estimate_read_noise, sample_indices,  # noqa: F401 (re-exported)
@@ -493,9 +493,11 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         if floor is not None:  # each channel's values as they are: the censored fit's
             clipped.append(clipped_share(without[np.isfinite(without)], floor))
             for c in range(4):
-                v = without[c][np.isfinite(without[c])]
-                idx = sample_indices(v.size, per_frame and max(1, per_frame // 4), seed + 10 * i + c)
-                channel_values[c].append(v if idx is None else v[idx])
+                flat = without[c].ravel()
+                at = np.flatnonzero(np.isfinite(flat))
+                idx = sample_indices(at.size, per_frame and max(1, per_frame // 4), seed + 10 * i + c)
+                at = at if idx is None else at[idx]
+                channel_values[c].append((at, flat[at]))
         color = _mean(without, (1, 2), keepdims=True)  # estimate_color_bias
         centered = without - color
         row = _row_noise(centered)  # estimate_row_noise
@@ -515,6 +517,12 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
             np.maximum(hi, bias, out=hi, casting="unsafe")
         tell(f"ISO {iso:g}: bias frame {i + 1}/{len(bias_frames)}")
     dead = stuck_outliers(lo, hi, first_bias).ravel() if len(bias_frames) >= 3 else None
+    if floor is not None:  # the censored fit's values without the stuck and the hot pixels (no read noise)
+        out = dead if dead is not None else None
+        if len(bias_frames) >= 3:
+            out = out | hot_under_clip(lo, first_bias).ravel()
+        per_channel = out.reshape(4, -1) if out is not None else [None] * 4
+        channel_values = [[v if d is None else v[~d[at]] for at, v in values] for values, d in zip(channel_values, per_channel)]
     residual = np.concatenate([v if dead is None else v[~dead[w]] for w, v in samples])
     n_spikes = None
     if extremes:  # single-frame events (cosmic rays, charge bursts) are not read noise

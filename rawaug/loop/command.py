@@ -306,12 +306,15 @@ def _run_manifest(args, path):
     for s in stacks:
         if s.kind == "flat":
             s.tap_edges = sensor_taps
-    result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print)
+    given = tuple(t for t in ("Clip",) if calibration is not None and t in profile.effects)  # the code floor calibration found
+    result = run_frame_loop(stacks, profile, n_synth=args.n_synth, seed=args.seed, log=print, given=given)
     (h, w), (ch, cw) = shapes
     view = (f"The frame loop diagnosed the central {ch} x {cw} of each frame's packed channels ({h} x {w}; "
             "`--loop-size`); calibration used whole frames." if (ch, cw) != (h, w) else
             f"The frame loop diagnosed whole frames ({h} x {w} per packed channel).")
-    md = [f"# rawaug loop: {path.name}", "", outcome_summary(result), "", view, "",
+    floor = [f"`Clip` came with the calibration: the frames hold no code under 0 ({profile.effects['Clip']['floor_dn']:g} DN, "
+             "the file's lowest code), as they hold none over white; the profile clips there.", ""] if given else []
+    md = [f"# rawaug loop: {path.name}", "", *floor, outcome_summary(result), "", view, "",
           steps_table([s.to_dict() for s in result.steps])]
     for label in result.initial:
         md += [residual_table([r.to_dict() for r in result.initial[label]], f"{label}: before"),

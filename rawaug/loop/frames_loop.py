@@ -315,7 +315,7 @@ def diagnose_stacks(prof, labels: list, which: list, step_seed: int, *, model=No
 
 
 def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = None, n_synth: int = 12, seed: int = 0,
-                   z_min: float = 6.0, rel_min: float = 0.1, max_steps: int = 8, log=None) -> LoopResult:
+                   z_min: float = 6.0, rel_min: float = 0.1, max_steps: int = 8, log=None, given=()) -> LoopResult:
     """Fit the missing effects of ``profile`` to measured ``stacks``.
 
     Parameters
@@ -326,6 +326,8 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
     n_synth : syntheses per diagnosis (the spread behind every ``z``).
     z_min, rel_min : a residual is significant when ``|z| > z_min`` and its relative error
         exceeds ``rel_min`` (statistically and practically significant).
+    given : effects of ``profile`` that calibration put there (the frames' code floor,
+        ``Clip``): the base read noise is re-fitted with them first, as after an added effect.
     """
     if not stacks:
         raise ValueError("run_frame_loop needs at least one FrameStack")
@@ -427,8 +429,72 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         labels_in = {st.label for st in which}
         return run(refitted, [st for st in refit_stacks if st.label in labels_in], key, bound), refit_stacks, refitted, factors
 
+    def refit_base(after, step_no, diags_without, given=False):
+        # the base read noise re-fitted after the effect ``after`` joined the model (``given``: it came
+        # with the calibrated profile); ``diags_without``: the diagnoses before it (None: no row restore)
+        nonlocal current, diags, stacks, diags_seed, by_label
+        # the base read noise re-fitted: its variance where the model's bias frames came out noisier
+        # (the added effect shares their temporal noise), then its shape where the model's tails
+        # are the heavier; the two are kept or dropped together, as one re-fit of the read noise
+        step_seed = seed + 1000 * step_no + 500
+        factors = read_noise_factors(stacks, diags, current, model, z_min=z_min)
+        new_stacks, refitted, new_diags = stacks, current, diags
+        if factors:
+            new_stacks, refitted = apply_read_noise_factors(stacks, current, factors, model)
+            new_diags = diagnose_all(refitted, step_seed, new_stacks)
+        # the shape's search reads the bias stacks (where tail_mass is read); the state it keeps
+        # gets the rest of the battery, with the seeds the whole battery would give it
+        bias_of = lambda part: [st for st in part if st.kind == "bias"]  # noqa: E731
+        shape_stacks, shape_prof, shape_diags, shape_step, shaped = _shape_search(
+            new_stacks, refitted, {st.label: new_diags[st.label] for st in bias_of(new_stacks)},
+            lambda p, part, i: diagnose_all(p, step_seed + 100 + i, bias_of(part)), model, z_min)
+        if shape_step is not None:
+            step_seed += 100 + shape_step
+            new_stacks, refitted = shape_stacks, shape_prof
+            rest = [st for st in new_stacks if st.kind != "bias"]
+            merged = {**shape_diags, **(diagnose_all(refitted, step_seed, rest) if rest else {})}
+            new_diags = pool_residuals({st.label: merged[st.label] for st in new_stacks}, z_min, rel_min)  # in the stacks' order, as a whole battery
+        if factors or shaped:
+            before_b, after_b = _battery(diags), _battery(new_diags)
+            kept = (after_b["mean_rel_error"] <= before_b["mean_rel_error"]
+                    and after_b["n_significant"] <= before_b["n_significant"])
+            result.refits.append({"after": after, "round": step_no, "factors": factors, "lambdas": shaped, "given": given,
+                                  "kept": kept, "battery_before": before_b, "battery_after": after_b})
+            say(f"step {step_no}: read noise re-fitted after {after} ("
+                + ", ".join([f"{label} x{f:.3f}" for label, f in factors.items()]
+                            + [f"{label} lambda {lam:.3f}" for lambdas in shaped for label, lam in lambdas.items()])
+                + f"): battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f}: "
+                + ("kept" if kept else "dropped"))
+            if kept:
+                current, diags, stacks, diags_seed = refitted, new_diags, new_stacks, step_seed
+                by_label = {st.label: st for st in stacks}
+        # the row noise given back where the added effect took the rows' variance away (a code
+        # map re-quantizes the row offsets calibration measured on quantized frames); kept if it
+        # helps, and undone with the effect
+        restore = row_noise_restore(stacks, diags_without, diags, current, z_min=z_min) if diags_without is not None else None
+        if restore:
+            new_stacks, refitted = apply_row_noise_factors(stacks, current, restore)
+            new_diags = diagnose_all(refitted, step_seed + 50, new_stacks)
+            before_b, after_b = _battery(diags), _battery(new_diags)
+            # no worse, or fewer significant residuals at a battery within its seed-to-seed noise
+            kept = ((after_b["mean_rel_error"] <= before_b["mean_rel_error"]
+                     and after_b["n_significant"] <= before_b["n_significant"])
+                    or (after_b["n_significant"] < before_b["n_significant"]
+                        and after_b["mean_rel_error"] <= RESTORE_TOLERANCE * before_b["mean_rel_error"]))
+            result.refits.append({"after": after, "round": step_no, "factors": restore, "kept": kept,
+                                  "what": "row noise", "battery_before": before_b, "battery_after": after_b})
+            say(f"step {step_no}: row noise given back after {after} ("
+                + ", ".join(f"{label} x{f:.3f}" for label, f in restore.items())
+                + f"): battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f}: "
+                + ("kept" if kept else "dropped"))
+            if kept:
+                current, diags, stacks, diags_seed = refitted, new_diags, new_stacks, step_seed + 50
+                by_label = {st.label: st for st in stacks}
+
     diags, diags_seed = diagnose_all(current, seed), seed
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
+    for token in given:  # effects the calibrated profile brought (the frames' code floor): the base re-fitted with them
+        refit_base(token, 0, None, given=True)
     tried: set[str] = set()
     for step_no in range(1, max_steps + 1):
         options = confirmed_options(step_no)
@@ -533,63 +599,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         tried = {t for t in tried if t in current.effects}  # estimates depend on the model: retry the rejected
         checks.clear()
         result.unconfirmed.clear()  # confirmations belong to a model
-        # the base read noise re-fitted: its variance where the model's bias frames came out noisier
-        # (the added effect shares their temporal noise), then its shape where the model's tails
-        # are the heavier; the two are kept or dropped together, as one re-fit of the read noise
-        step_seed = seed + 1000 * step_no + 500
-        factors = read_noise_factors(stacks, diags, current, model, z_min=z_min)
-        new_stacks, refitted, new_diags = stacks, current, diags
-        if factors:
-            new_stacks, refitted = apply_read_noise_factors(stacks, current, factors, model)
-            new_diags = diagnose_all(refitted, step_seed, new_stacks)
-        # the shape's search reads the bias stacks (where tail_mass is read); the state it keeps
-        # gets the rest of the battery, with the seeds the whole battery would give it
-        bias_of = lambda part: [st for st in part if st.kind == "bias"]  # noqa: E731
-        shape_stacks, shape_prof, shape_diags, shape_step, shaped = _shape_search(
-            new_stacks, refitted, {st.label: new_diags[st.label] for st in bias_of(new_stacks)},
-            lambda p, part, i: diagnose_all(p, step_seed + 100 + i, bias_of(part)), model, z_min)
-        if shape_step is not None:
-            step_seed += 100 + shape_step
-            new_stacks, refitted = shape_stacks, shape_prof
-            rest = [st for st in new_stacks if st.kind != "bias"]
-            merged = {**shape_diags, **(diagnose_all(refitted, step_seed, rest) if rest else {})}
-            new_diags = pool_residuals({st.label: merged[st.label] for st in new_stacks}, z_min, rel_min)  # in the stacks' order, as a whole battery
-        if factors or shaped:
-            before_b, after_b = _battery(diags), _battery(new_diags)
-            kept = (after_b["mean_rel_error"] <= before_b["mean_rel_error"]
-                    and after_b["n_significant"] <= before_b["n_significant"])
-            result.refits.append({"after": chosen[0].effect, "round": step_no, "factors": factors, "lambdas": shaped,
-                                  "kept": kept, "battery_before": before_b, "battery_after": after_b})
-            say(f"step {step_no}: read noise re-fitted after {chosen[0].effect} ("
-                + ", ".join([f"{label} x{f:.3f}" for label, f in factors.items()]
-                            + [f"{label} lambda {lam:.3f}" for lambdas in shaped for label, lam in lambdas.items()])
-                + f"): battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f}: "
-                + ("kept" if kept else "dropped"))
-            if kept:
-                current, diags, stacks, diags_seed = refitted, new_diags, new_stacks, step_seed
-                by_label = {st.label: st for st in stacks}
-        # the row noise given back where the added effect took the rows' variance away (a code
-        # map re-quantizes the row offsets calibration measured on quantized frames); kept if it
-        # helps, and undone with the effect
-        restore = row_noise_restore(stacks, diags_without, diags, current, z_min=z_min)
-        if restore:
-            new_stacks, refitted = apply_row_noise_factors(stacks, current, restore)
-            new_diags = diagnose_all(refitted, step_seed + 50, new_stacks)
-            before_b, after_b = _battery(diags), _battery(new_diags)
-            # no worse, or fewer significant residuals at a battery within its seed-to-seed noise
-            kept = ((after_b["mean_rel_error"] <= before_b["mean_rel_error"]
-                     and after_b["n_significant"] <= before_b["n_significant"])
-                    or (after_b["n_significant"] < before_b["n_significant"]
-                        and after_b["mean_rel_error"] <= RESTORE_TOLERANCE * before_b["mean_rel_error"]))
-            result.refits.append({"after": chosen[0].effect, "round": step_no, "factors": restore, "kept": kept,
-                                  "what": "row noise", "battery_before": before_b, "battery_after": after_b})
-            say(f"step {step_no}: row noise given back after {chosen[0].effect} ("
-                + ", ".join(f"{label} x{f:.3f}" for label, f in restore.items())
-                + f"): battery {before_b['mean_rel_error']:.3f} -> {after_b['mean_rel_error']:.3f}: "
-                + ("kept" if kept else "dropped"))
-            if kept:
-                current, diags, stacks, diags_seed = refitted, new_diags, new_stacks, step_seed + 50
-                by_label = {st.label: st for st in stacks}
+        refit_base(chosen[0].effect, step_no, diags_without)
     while True:  # backward elimination
         kept = [s for s in result.steps if s.accepted]
         if len(kept) < 2:

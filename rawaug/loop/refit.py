@@ -239,6 +239,8 @@ def read_shape_updates(stacks, diags, profile, model=None, z_min: float = 6.0, h
             continue
         fixed = synthesis_fixed(profile, stack)
         lam = float(fixed["lambda"])
+        if not math.isfinite(tukey_lambda_variance(lam)):
+            continue  # lambda <= -1/2: no variance to keep
         tried = history.setdefault(stack.label, {"heavy": None, "light": None})
         if tail.z < -z_min:  # too heavy here
             previous, tried["heavy"] = tried["heavy"], (lam, float(tail.synth_mean))

@@ -84,6 +84,13 @@ def outcome_summary(result) -> str:
         if not refit["kept"]:
             continue
         what = refit.get("what") or "read noise"
+        if refit.get("given"):  # an effect the calibrated profile brought
+            lines.append(f"With `{refit['after']}` from calibration (the frames' lowest code), the base read noise was "
+                         "re-fitted on the syntheses: "
+                         + ", ".join([f"sigma x {f:.3f} ({label})" for label, f in (refit.get("factors") or {}).items()]
+                                     + [f"lambda {lam:.3f} ({label})" for lambdas in refit.get("lambdas", [])
+                                        for label, lam in lambdas.items()]) + ".")
+            continue
         if refit.get("factors") and min(refit["factors"].values()) > 1.0:
             lines.append(f"After `{refit['after']}` was added, the base {what} was given back (`{refit['after']}` had "
                          f"taken the variance of the rows away): sigma x "
