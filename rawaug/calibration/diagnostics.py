@@ -26,7 +26,8 @@ def frame_anomalies(frame: Frame) -> list[str]:
     at_low = float(np.mean(codes == low))
     if at_low > 1e-3 and low <= float(black.min()):
         notes.append(f"{where}: {100 * at_low:.1f}% of pixels sit at code {low:g} (<= black {float(black.min()):g}): "
-                     "the frame is black-clipped, the negative half of the read noise is lost and sigma/lambda are biased")
+                     "the frame is black-clipped: the negative half of the read noise is lost (a clip found in the bias "
+                     "frames is fitted around: censored read-noise fit, report section on clipped bias frames)")
     at_white = float(np.mean(codes >= frame.white_level))
     if at_white > 0:
         notes.append(f"{where}: {100 * at_white:.3f}% of pixels at or above white {frame.white_level:g}")
