@@ -151,14 +151,15 @@ def read_residual(bias_dn: np.ndarray, row_means: np.ndarray | None = None, excl
     return r[keep]
 
 
-def bias_frame_noise(bias_dn, exclude=None, *, max_samples: int | None = 200_000,
+def bias_frame_noise(bias_dn, exclude=None, *, lowest=None, max_samples: int | None = 200_000,
                      seed: int = 0) -> tuple[ReadNoiseEstimate, float, tuple | None]:
     """(read noise, row noise sigma_r in DN, channel locations in DN or None) of one packed
     bias frame, ``exclude`` (a (4, h, w) mask: dead pixels, impulses) left out: the
     row-corrected residual's PPCC fit (``estimate_read_noise``); or, for a frame clipped from
     below (``censored.black_floor``), the censored fit of each channel (``_censored_channels``),
     the row noise scaled up by the share the clip hides (``censored.clipped_share``), and the
-    channel locations the clip moves the means away from."""
+    channel locations the clip moves the means away from; with ``lowest`` (each pixel's lowest
+    value over its stack) the hot pixels are left out of that fit (``censored.hot_under_clip``)."""
     bias = _packed(bias_dn, "bias_dn")
     row = estimate_row_noise(bias)
     floor = black_floor(bias)
@@ -168,6 +169,8 @@ def bias_frame_noise(bias_dn, exclude=None, *, max_samples: int | None = 200_000
     keep = ~defect_mask(bias)
     if exclude is not None:
         keep &= ~np.asarray(exclude, dtype=bool)
+    if lowest is not None:
+        keep &= ~hot_under_clip(lowest, bias)
     sigma_r = row.sigma_r / max(1.0 - clipped_share(bias[keep], floor), 0.05)
     read, location = _censored_channels([[bias[c][keep[c]]] for c in range(4)], floor, sigma_r, max_samples, seed)
     return read, sigma_r, location
@@ -517,12 +520,9 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
             np.maximum(hi, bias, out=hi, casting="unsafe")
         tell(f"ISO {iso:g}: bias frame {i + 1}/{len(bias_frames)}")
     dead = stuck_outliers(lo, hi, first_bias).ravel() if len(bias_frames) >= 3 else None
-    if floor is not None:  # the censored fit's values without the stuck and the hot pixels (no read noise)
-        out = dead if dead is not None else None
-        if len(bias_frames) >= 3:
-            out = out | hot_under_clip(lo, first_bias).ravel()
-        per_channel = out.reshape(4, -1) if out is not None else [None] * 4
-        channel_values = [[v if d is None else v[~d[at]] for at, v in values] for values, d in zip(channel_values, per_channel)]
+    if floor is not None and dead is not None:  # the censored fit without the stuck and the hot pixels (no read noise)
+        out = (dead | hot_under_clip(lo, first_bias).ravel()).reshape(4, -1)
+        channel_values = [[v[~d[at]] for at, v in values] for values, d in zip(channel_values, out)]
     residual = np.concatenate([v if dead is None else v[~dead[w]] for w, v in samples])
     n_spikes = None
     if extremes:  # single-frame events (cosmic rays, charge bursts) are not read noise

@@ -239,7 +239,6 @@ def _run_manifest(args, path):
     from ..statistics import spike_outliers, stuck_outliers
     from .diagnose import FrameStack, channel_offsets
     from ..calibration.command import calibrate, options_from, visit_frames
-    from ..calibration.censored import black_floor, hot_under_clip
     from .frames_loop import run_frame_loop
     from ..effects.tap_gain import consensus_edges
 
@@ -257,12 +256,12 @@ def _run_manifest(args, path):
     stacks, measured, settings = [], {}, {}  # settings: label -> what the report's curves need
     for iso, frames in sorted(bias.items()):
         frames = np.stack(frames).astype(np.float64)
-        dead = stuck_outliers(frames.min(axis=0), frames.max(axis=0), frames[0]) if len(frames) >= 3 else None
+        lowest = frames.min(axis=0) if len(frames) >= 3 else None
+        dead = stuck_outliers(lowest, frames.max(axis=0), frames[0]) if lowest is not None else None
         if dead is not None:  # impulses: bright single-frame events beyond the dark ones (``spike_outliers``)
             dead = dead | spike_outliers(frames)[0]
-            if black_floor(frames[0]) is not None:  # clipped: the censored fit reads the upper half, where hot pixels sit
-                dead = dead | hot_under_clip(frames.min(axis=0), frames[0])
-        read, sigma_r, _ = bias_frame_noise(frames[0], exclude=dead)  # dead pixels and spikes left out; a clip's censoring too
+        # dead pixels and spikes left out; a clip's censoring too, and then its hot pixels
+        read, sigma_r, _ = bias_frame_noise(frames[0], exclude=dead, lowest=lowest)
         k = profile.k_at_iso(iso) if iso else 1.0
         settings[f"ISO {iso:g}"] = {"kind": "bias", "iso": iso, "k": k, "exposure_s": bias_exposure[iso], "level_dn": None}
         stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}", base={"sigma_tl": read.sigma_tl, "lambda": read.lam,

@@ -431,11 +431,11 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
 
     def refit_base(after, step_no, diags_without, given=False):
         # the base read noise re-fitted after the effect ``after`` joined the model (``given``: it came
-        # with the calibrated profile); ``diags_without``: the diagnoses before it (None: no row restore)
+        # with the calibrated profile; ``diags_without``: the diagnoses before it, None: no row restore):
+        # its variance where the model's bias frames came out noisier (the effect shares their temporal
+        # noise), then its shape where the model's tails are the heavier; the two are kept or dropped
+        # together, as one re-fit of the read noise
         nonlocal current, diags, stacks, diags_seed, by_label
-        # the base read noise re-fitted: its variance where the model's bias frames came out noisier
-        # (the added effect shares their temporal noise), then its shape where the model's tails
-        # are the heavier; the two are kept or dropped together, as one re-fit of the read noise
         step_seed = seed + 1000 * step_no + 500
         factors = read_noise_factors(stacks, diags, current, model, z_min=z_min)
         new_stacks, refitted, new_diags = stacks, current, diags
