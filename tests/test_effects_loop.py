@@ -1218,6 +1218,31 @@ def test_noisy_pixels_are_fixed_gaussian_and_estimated():
         noisy_pixels.estimate(f, base, K, kind="dark")
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_telegraph_steps_hidden_in_noise_take_the_population_of_the_clearest_stack(seed):
+    """One telegraph population (1 % of the pixels, 20 DN steps of log spread 0.3) under read
+    noise of 2, 4.6 and 9 DN (three ISOs). At 9 DN a stack sees ~1/10 of it, the steps the
+    noise made larger: alone it estimates ~0.1 % of pixels with ~35 DN steps. Combined, the
+    density comes from the 2 DN stack and each stack's step matches its detected fraction."""
+    rng = np.random.default_rng(500 + seed)
+    shape = (4, 96, 128)
+    where = rng.random(shape) < 0.01
+    size = 20.0 * np.exp(0.3 * rng.standard_normal(shape))
+    records = []
+    for j, sigma in enumerate((2.0, 4.6, 9.0)):
+        frames = sigma * rng.standard_normal((8,) + shape) + where * size * (rng.random((8,) + shape) < 0.5)
+        base = [sigma * rng.standard_normal(frames.shape) for _ in range(4)]
+        records.append(telegraph.estimate(frames, base, 0.5 * 2**j, seed=40 + seed))
+    assert records[2]["density"] < 0.004 and records[2]["median_dn"][0] > 28.0, records[2]  # alone: few and large
+    got = telegraph.combine(records)
+    n = where.size
+    assert abs(got["density"] - 0.01) < 4 * math.sqrt(0.01 / n), got
+    # the medians of ~500 steps (log sd 0.3 / sqrt(500) ~ 1.3 %), at 9 DN through a detection
+    # fraction of ~1/10 (its binomial error ~ 1/sqrt(50) in the fraction, ~ 8 % in the step)
+    assert np.all(np.abs(np.array(got["median_dn"]) / 20.0 - 1.0) < [0.05, 0.08, 0.2]), got
+    assert "_detection" not in got and got["k"] == [0.5, 1.0, 2.0]
+
+
 def test_noisy_fraction_tells_noisy_pixels_from_telegraph_pixels():
     """Of the pixels of high temporal variance in 8 frames, about half of the noisy ones show no
     two states and stay high without their most extreme value (``noisy_fraction``); telegraph

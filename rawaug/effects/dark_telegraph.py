@@ -78,7 +78,7 @@ def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, seed: in
     found = population(frames, synthesized, seed, shot_k=float(k))
     if found is None:
         return {"seed": int(seed), "density": 0.0, "high": 0.5, "median_e_per_s": 0.0, "log_std": 0.0}
-    density, high, mu, sd = found
+    density, high, mu, sd, _ = found
     return {"seed": int(seed), "density": density, "high": high,
             "median_e_per_s": float(math.exp(mu) / (float(k) * float(exposure_s))), "log_std": sd}
 

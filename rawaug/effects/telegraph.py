@@ -22,19 +22,24 @@ read noise is not a state) and ``hot_fraction`` (in the stack mean they sit high
 Estimated by ``estimate``: the flickering pixels of a bias stack over the model's; each one's step is the gap
 between the means of its frames above and below, its share of high frames the count above;
 the population is the one whose simulated detected part matches those (steps near the read
-noise, and pixels high or low in all but one frame, are seen less often).
+noise, and pixels high or low in all but one frame, are seen less often). Over several ISOs
+(``combine``) the pixels are one population: its density, share and spread come from the
+stack that saw most of it, and a stack whose own steps contradict that density (its noise
+hid most of them, and the few it saw were those the noise made larger) gets the step that
+makes the population's detected fraction its own.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
 from ..engine import layout as L
 from ..statistics import flicker_threshold, two_state, two_state_pixels
 from .base import DARK, NoiseEffect, pattern_key, register
-from .k_records import _number, check_density, check_seed, validate_records, value_at_k
+from .k_records import _number, check_density, check_seed, merge_records, validate_records, value_at_k
 
 STATISTICS = ("flicker_fraction", "hot_fraction")  # a pixel high in some frames is also high in the stack mean
 SIMULATED = 20_000  # telegraph pixels simulated per round of the estimate
@@ -89,10 +94,48 @@ def _robust(x):
     return float(q2), float((q3 - q1) / 1.349)
 
 
+@dataclass(frozen=True)
+class Detection:
+    """What one stack showed of a telegraph population: the detected fraction of its pixels
+    beyond the model's (``found``), all it detected (``seen``) of ``pixels``, and its detection
+    (``n`` frames, white noise ``sigma`` DN, variance ``threshold`` DN^2, dark shot noise
+    ``shot_k``)."""
+
+    found: float
+    seen: float
+    pixels: int
+    n: int
+    sigma: float
+    threshold: float
+    shot_k: float = 0.0
+
+    def fraction(self, high: float, mu: float, sd: float, seed: int) -> float:
+        """Detected fraction of a population of log median step ``mu`` (DN) and log spread ``sd``
+        in the high state with probability ``high`` (common random numbers for ``seed``)."""
+        z = np.random.default_rng(seed).standard_normal(SIMULATED)
+        return _detected(np.exp(mu + sd * z), high, self.n, self.sigma, self.threshold,
+                         np.random.default_rng(seed + 1), self.shot_k)[0]
+
+    def agrees(self, density: float, high: float, mu: float, sd: float, seed: int) -> bool:
+        """Whether the population would be detected here in the fraction found, within 3
+        binomial sd of the count."""
+        se = math.sqrt(max(self.seen * (1.0 - self.seen), 1.0 / self.pixels) / self.pixels)
+        return abs(density * self.fraction(high, mu, sd, seed) - self.found) <= 3.0 * se
+
+    def step_for(self, density: float, high: float, sd: float, seed: int) -> float | None:
+        """The log median step (DN) at which a population of ``density`` is detected in the
+        fraction found here; None where no step gives it."""
+        lo, hi = math.log(0.1 * self.sigma), math.log(100.0 * self.sigma)
+        gap = lambda mu: density * self.fraction(high, mu, sd, seed) - self.found  # noqa: E731
+        if gap(lo) > 0.0 or gap(hi) < 0.0:
+            return None
+        return float(optimize.brentq(gap, lo, hi, xtol=1e-3))
+
+
 def population(frames, synthesized, seed: int, shot_k: float = 0.0):
-    """(density, share of high frames, log median step (DN), log spread) of the telegraph
-    pixels of a stack (N >= 3, 4, h, w; DN) beyond the model's (its ``synthesized`` stacks),
-    or None when it shows none.
+    """(density, share of high frames, log median step (DN), log spread, ``Detection``) of the
+    telegraph pixels of a stack (N >= 3, 4, h, w; DN) beyond the model's (its ``synthesized``
+    stacks), or None when it shows none.
 
     The flickering pixels are those whose step stands out of the noise: the detected steps
     are the larger ones. The population is the one whose detected part, simulated over the
@@ -137,20 +180,44 @@ def population(frames, synthesized, seed: int, shot_k: float = 0.0):
         # the detected are nearer half and half
         got_share = (1.0 - w) * float(sim_share.mean()) + (w * float(model_share.mean()) if w else 0.0)
         high = float(np.clip(high + target_share - got_share, 0.05, 0.95))
-    return min(found / max(fraction, 0.05), 0.1), high, mu, sd
+    detection = Detection(found, float(seen.mean()), int(seen.size), n, float(sigma), float(threshold), shot_k)
+    return min(found / max(fraction, 0.05), 0.1), high, mu, sd, detection
 
 
 def estimate(frames, synthesized, k: float, seed: int = 41, kind: str = "bias", **_) -> dict:
     """RTS parameters at gain ``k`` from a bias stack (N >= 3, 4, h, w) in DN: the telegraph
-    pixels' ``population`` beyond the model's."""
+    pixels' ``population`` beyond the model's; ``_detection`` (what the stack showed) is for
+    ``combine``, which leaves it out."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind != "bias" or frames.shape[0] < 3:
         raise ValueError("RTS is measured on bias stacks of >= 3 frames")
     found = population(frames, synthesized, seed)
     if found is None:
         return {"seed": int(seed), "density": 0.0, "high": 0.5, "log_std": 0.0, "k": [float(k)], "median_dn": [0.0]}
-    density, high, mu, sd = found
-    return {"seed": int(seed), "density": density, "high": high, "log_std": sd, "k": [float(k)], "median_dn": [float(math.exp(mu))]}
+    density, high, mu, sd, detection = found
+    return {"seed": int(seed), "density": density, "high": high, "log_std": sd, "k": [float(k)],
+            "median_dn": [float(math.exp(mu))], "_detection": detection}
+
+
+def combine(records: list[dict]) -> dict:
+    """One population over the stacks' records (one per bias stack): density, share and
+    spread from the stack that found the largest fraction; a stack whose detected fraction
+    contradicts them gets the step that gives it (``Detection.step_for``), the others keep
+    their own."""
+    clean = [{key: v for key, v in r.items() if key != "_detection"} for r in records]
+    found = [i for i, r in enumerate(records) if r["density"] > 0 and r.get("_detection") is not None]
+    if len(found) < 2:
+        return merge_records(clean)
+    ref = clean[max(found, key=lambda i: records[i]["_detection"].found)]
+    density, high, sd, seed = ref["density"], ref["high"], ref["log_std"], ref["seed"]
+    for i in found:
+        det, mu = records[i]["_detection"], math.log(clean[i]["median_dn"][0])
+        if clean[i] is not ref and not det.agrees(density, high, mu, sd, seed):
+            solved = det.step_for(density, high, sd, seed)
+            if solved is not None:
+                clean[i]["median_dn"] = [float(math.exp(solved))]
+    merged = merge_records(clean)
+    return {**merged, "seed": seed, "density": density, "high": high, "log_std": sd}
 
 
 def empty(params) -> bool:
