@@ -33,6 +33,7 @@ from .base import BANDING, NoiseEffect, register
 from .k_records import _number, record_index, validate_records
 
 STATISTICS = ("row_tone",)
+AMPLITUDES = ("amplitude_dn",)  # corrected by simulation under a clip (rawaug.loop.clip_correction)
 SHARES_ROW_NOISE = True  # the tone's power is row noise calibration counted as white
 FAMILY_P = 1e-3  # a bin counts as a tone when its power above the model's has this chance over all bins
 SMOOTH = 9  # bins of the model's spectrum in its running median
@@ -178,6 +179,22 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
 
 def combine(records: list[dict]) -> dict:
     return combine_tones(records, "freq_per_row")
+
+
+def aligned(simulated: dict, params: dict) -> dict:
+    """``simulated`` (an estimate from syntheses) with its amplitudes arranged as the tones of
+    ``params`` (``rawaug.loop.clip_correction``): per K, each tone's amplitude where a tone
+    within 1/200 cycle was found, else None."""
+    return align_tones(simulated, params, "freq_per_row")
+
+
+def align_tones(simulated: dict, params: dict, freq_key: str) -> dict:
+    found = {float(k): (f, a) for k, f, a in zip(simulated["k"], simulated[freq_key], simulated["amplitude_dn"])}
+    amps = []
+    for k, freqs in zip(params["k"], params[freq_key]):
+        f_sim, a_sim = found.get(float(k), ((), ()))
+        amps.append([next((a for g, a in zip(f_sim, a_sim) if abs(g - f) < 0.005), None) for f in freqs])
+    return {**simulated, "k": list(params["k"]), freq_key: params[freq_key], "amplitude_dn": amps}
 
 
 def empty(params) -> bool:

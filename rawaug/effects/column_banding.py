@@ -27,10 +27,11 @@ import numpy as np
 
 from ..engine import layout as L
 from ..statistics import frame_col_means
-from .banding import combine_tones, draw_tones, empty, line_tones, validate_tones  # noqa: F401 (empty: the loop's)
+from .banding import align_tones, combine_tones, draw_tones, empty, line_tones, validate_tones  # noqa: F401 (empty: the loop's)
 from .base import BANDING, NoiseEffect, register
 
 STATISTICS = ("col_tone",)
+AMPLITUDES = ("amplitude_dn",)  # corrected by simulation under a clip (rawaug.loop.clip_correction)
 SHARES_READ_NOISE = True  # calibration counted the tone's power as white read noise
 
 
@@ -61,3 +62,8 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
 
 def combine(records: list[dict]) -> dict:
     return combine_tones(records, "freq_per_col")
+
+
+def aligned(simulated: dict, params: dict) -> dict:
+    """``simulated`` arranged as the tones of ``params`` (``banding.align_tones``)."""
+    return align_tones(simulated, params, "freq_per_col")

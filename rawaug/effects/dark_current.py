@@ -40,6 +40,7 @@ from .base import PHOTON, NoiseEffect, pattern_key, register
 from .k_records import check_seed, validate_records, value_at_k
 
 STATISTICS = ("mean_dn", "temporal_std", "fixed_std", "fixed_pixel_var")
+AMPLITUDES = ("rate_e_per_s", "dsnu")  # corrected by simulation under a clip (rawaug.loop.clip_correction)
 
 
 @register

@@ -44,6 +44,7 @@ from ..effects.k_records import merge_records
 from ..profile import NoiseProfile
 from ..relations import KTable
 from ..statistics import repaired
+from .clip_correction import clip_corrected
 from .diagnose import (FrameStack, Residual, battery_error, diagnose, fitted_offsets, map_on_threads, pool_residuals,
                        synthesis_fixed)
 from .refit import (apply_read_noise_factors, apply_read_shapes, apply_row_noise_factors, read_noise_factors,
@@ -506,7 +507,11 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         # measured fallbacks only once no physical effect explains the residuals left
         for batch in (physical, [o for o in options if _measured(o[0])]):
             for token, label, evidence in batch:
-                params = _estimate(token, stacks, diags, seed=int(np.random.default_rng(seed + step_no).integers(1, 2**31)))
+                est_seed = int(np.random.default_rng(seed + step_no).integers(1, 2**31))
+                params = _estimate(token, stacks, diags, seed=est_seed)
+                if params is not None and not _adds_nothing(token, params):  # its size through the clip
+                    params = clip_corrected(token, params, current, stacks,
+                                            lambda part: _estimate(token, part, diags, seed=est_seed), model, est_seed)
                 if params is None:
                     tried.add(token)
                     say(f"step {step_no}: {token} suggested by {evidence.statistic} but no stack can estimate it")
@@ -655,9 +660,12 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         for later in [s for s in result.steps if s.accepted and s.round > step.round and not _shares_noise(s.effect)]:
             without = current.without_effect(later.effect)
             without_diags = diagnose_all(without, diags_seed, stacks)
-            params = _estimate(later.effect, stacks, without_diags, seed=int(np.random.default_rng(seed + 90_000 + later.round).integers(1, 2**31)))
+            est_seed = int(np.random.default_rng(seed + 90_000 + later.round).integers(1, 2**31))
+            params = _estimate(later.effect, stacks, without_diags, seed=est_seed)
             if params is None or _adds_nothing(later.effect, params):
                 continue
+            params = clip_corrected(later.effect, params, without, stacks,
+                                    lambda part: _estimate(later.effect, part, without_diags, seed=est_seed), model, est_seed)
             trial = without.with_effect(later.effect, params)
             trial_diags = diagnose_all(trial, diags_seed, stacks)
             old_b, new_b = _battery(diags), _battery(trial_diags)
