@@ -264,6 +264,7 @@ def test_cuda_equals_cpu_no_sync_few_launches_graph_capture():
     torch.testing.assert_close(static, aug(xc, params=params))
 
 
+@pytest.mark.slow  # 20 s in the interpreter; the kernel at its default block is checked against numba above
 def test_the_triton_block_size_does_not_change_the_noise():
     from rawaug.gpu import fused
 
