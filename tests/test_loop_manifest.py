@@ -285,11 +285,11 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
                                  flat_levels=flat_levels, lights=lights, n_flat=n_flat)
 
 
-# cases whose effect the default run checks on bias stacks (tests/test_loop.py; "interference"
-# is its "banding"); on a manifest they run with the slow rates below, to keep the default run short ("Col" is found on a
+# cases whose effect the default run checks on bias stacks (tests/test_loop.py); on a manifest
+# they run with the slow rates below, to keep the default run short ("Col" is found on a
 # manifest by test_loop_diagnoses_the_central_view_of_large_frames; "glow"'s estimator is checked
 # by its round trip in tests/test_effects_loop.py, on a manifest at two exposures by the slow tests below)
-SLOW_CASES = {"Col", "interference", "crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
+SLOW_CASES = {"Col", "crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
               "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
               "skewed dark current", "raised floor", "frame-locked tone", "glow"}
 
