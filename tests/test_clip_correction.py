@@ -4,7 +4,9 @@ half of the values come out near their size, not near half of it."""
 import numpy as np
 import pytest
 
-from rawaug.effects import banding, column_banding, dark_current
+from rawaug import NoiseProfile
+
+from rawaug.effects import banding, column_banding, column_noise, dark_current, row_pattern
 from rawaug.loop import FrameStack, synthesize
 from rawaug.loop.clip_correction import clip_corrected, clipped_share
 
@@ -63,3 +65,29 @@ def test_dark_current_under_a_clip_at_black_is_estimated_at_its_rate(seed):
     # own error is the simulation's; the uncorrected rate is short by the clipped mean's loss
     assert est["rate_e_per_s"][0] < 1.4, est
     assert abs(got["rate_e_per_s"][0] / 1.5 - 1.0) < 0.02, got
+
+
+LINES = {"Col": (column_noise, {"seed": 5, "k": [0.75], "sigma_dn": [0.3], "fixed_dn": [0.5]}),
+         "RowFix": (row_pattern, {"seed": 37, "k": [0.75], "fixed_dn": [1.2]})}
+
+
+@pytest.mark.parametrize("token", list(LINES))
+@pytest.mark.parametrize("seed", [0, 1])
+def test_line_offsets_under_a_clip_at_black_are_estimated_at_their_size(seed, token):
+    """Column offsets (a new and a fixed part) and fixed row offsets on NikonD850 at ISO 800
+    (black level 0: 60 % of the values at the floor) read about half their size; corrected,
+    within 10 % (the spread of ~200 lines' offsets: ~5 % each, measured and simulated)."""
+    module, params = LINES[token]
+    model = NoiseProfile.load("NikonD850").with_effect("Clip", {"floor_dn": 0.0})
+    k = params["k"][0]
+    template = FrameStack(np.full((8, 4, 192, 256), 0.5), k, offsets_dn=[0.0] * 4)
+    stack = FrameStack(synthesize(model.with_effect(token, params), template, 1, 100 + seed)[0].astype(np.float64), k,
+                       offsets_dn=[0.0] * 4, label="bias")
+    assert clipped_share(stack, 0.0) > 0.5
+    base = list(synthesize(model, stack, 6, 7 + seed))
+    estimate = lambda part: module.estimate(part[0].frames_dn, base, k, seed=params["seed"])  # noqa: E731
+    est = estimate([stack])
+    got = clip_corrected(token, est, model, [stack], estimate, seed=11 + seed)
+    for key in module.AMPLITUDES:
+        assert est[key][0] < 0.6 * params[key][0], est
+        assert abs(got[key][0] / params[key][0] - 1.0) < 0.1, got

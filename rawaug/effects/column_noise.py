@@ -27,6 +27,7 @@ from .base import BANDING, NoiseEffect, pattern_key, register
 from .k_records import check_seed, validate_records, value_at_k
 
 STATISTICS = ("col_excess", "fixed_col_excess")
+AMPLITUDES = ("sigma_dn", "fixed_dn")  # corrected by simulation under a clip (rawaug.loop.clip_correction)
 
 
 @register

@@ -25,6 +25,7 @@ from .base import BANDING, NoiseEffect, pattern_key, register
 from .k_records import all_zero, check_seed, combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("fixed_row_excess", "row_tone")
+AMPLITUDES = ("fixed_dn",)  # corrected by simulation under a clip (rawaug.loop.clip_correction)
 SHARES_ROW_NOISE = True  # calibration gave the fixed rows' variance to sigma_r
 
 
