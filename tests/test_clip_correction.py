@@ -8,7 +8,7 @@ from rawaug import NoiseProfile
 
 from rawaug.effects import banding, column_banding, column_noise, dark_current, row_pattern
 from rawaug.loop import FrameStack, synthesize
-from rawaug.loop.clip_correction import clip_corrected, clipped_share
+from rawaug.loop.clip_correction import clip_corrected, share_at_floor
 
 from test_loop import BASE, K
 
@@ -30,7 +30,7 @@ def _measured(profile, seed, exposure_s=None):
 def test_a_tone_under_a_clip_at_black_is_estimated_at_its_size(seed, token):
     module, tone = TONES[token]
     stack = _measured(CLIPPED.with_effect(token, tone), 100 + seed)
-    assert clipped_share(stack, 0.0) > 0.4
+    assert share_at_floor(stack, 0.0) > 0.4
     base = list(synthesize(CLIPPED, stack, 6, 7 + seed))
     est = module.estimate(stack.frames_dn, base, K)
     # the line means move by the share of values above the floor (~0.45): the tone is halved;
@@ -56,7 +56,7 @@ def test_a_tone_the_simulation_does_not_find_keeps_its_amplitude():
 def test_dark_current_under_a_clip_at_black_is_estimated_at_its_rate(seed):
     """4 s at 1.5 e-/s: 6 DN over read noise of ~2.6 DN, a tenth of the values at the floor."""
     stack = _measured(CLIPPED.with_effect("Dark", DARK), 200 + seed, exposure_s=4.0)
-    assert clipped_share(stack, 0.0) > 0.05
+    assert share_at_floor(stack, 0.0) > 0.05
     base = list(synthesize(CLIPPED, stack, 6, 9 + seed))
     estimate = lambda part: dark_current.estimate(part[0].frames_dn, base, K, exposure_s=4.0, seed=21)  # noqa: E731
     est = estimate([stack])
@@ -83,7 +83,7 @@ def test_line_offsets_under_a_clip_at_black_are_estimated_at_their_size(seed, to
     template = FrameStack(np.full((8, 4, 192, 256), 0.5), k, offsets_dn=[0.0] * 4)
     stack = FrameStack(synthesize(model.with_effect(token, params), template, 1, 100 + seed)[0].astype(np.float64), k,
                        offsets_dn=[0.0] * 4, label="bias")
-    assert clipped_share(stack, 0.0) > 0.5
+    assert share_at_floor(stack, 0.0) > 0.5
     base = list(synthesize(model, stack, 6, 7 + seed))
     estimate = lambda part: module.estimate(part[0].frames_dn, base, k, seed=params["seed"])  # noqa: E731
     est = estimate([stack])

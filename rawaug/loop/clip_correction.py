@@ -25,7 +25,7 @@ CLIPPED_SHARE = 0.01  # a stack is clipped when this share of its values sits at
 MAX_RATIO = 4.0  # the most a correction scales an amplitude, up or down
 
 
-def clipped_share(stack, floor_dn: float) -> float:
+def share_at_floor(stack, floor_dn: float) -> float:
     """Share of a stack's values (DN) at or under the clip floor (within half a code)."""
     return float(np.mean(stack.frames_dn <= float(floor_dn) + 0.5))
 
@@ -67,7 +67,7 @@ def clip_corrected(token: str, params: dict, profile, stacks, estimate, model=No
     clip = profile.effects.get("Clip")
     if not keys or clip is None:
         return params
-    clipped_k = {st.k for st in stacks if clipped_share(st, clip["floor_dn"]) >= CLIPPED_SHARE}
+    clipped_k = {st.k for st in stacks if share_at_floor(st, clip["floor_dn"]) >= CLIPPED_SHARE}
     if not clipped_k:
         return params
 

@@ -261,7 +261,10 @@ def black_level(stack) -> list | None:
     return [float(m) for m in repaired(stack.offsets_of.frames_dn).mean(axis=(0, 2, 3))]
 
 
-def _estimate(token, stacks, diags, seed):
+def _estimate(token, stacks, diags, seed, profile=None, model=None):
+    """The candidate's parameters from the stacks (one record per gain), None where no stack
+    can show it; with the ``profile`` it joins, its size corrected through the profile's clip
+    (``clip_corrected``)."""
     cand = CANDIDATES[token]
 
     def one(stack):
@@ -280,10 +283,14 @@ def _estimate(token, stacks, diags, seed):
     if not records:
         return None
     if hasattr(cand.module, "combine"):
-        return cand.module.combine(records)
-    if all("k" in r for r in records):
-        return merge_records(records)
-    return records[0]
+        params = cand.module.combine(records)
+    elif all("k" in r for r in records):
+        params = merge_records(records)
+    else:
+        params = records[0]
+    if profile is None or _adds_nothing(token, params):
+        return params
+    return clip_corrected(token, params, profile, stacks, lambda part: _estimate(token, part, diags, seed), model, seed)
 
 
 def diagnose_stacks(prof, labels: list, which: list, step_seed: int, *, model=None, n_synth: int = 12,
@@ -507,11 +514,8 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         # measured fallbacks only once no physical effect explains the residuals left
         for batch in (physical, [o for o in options if _measured(o[0])]):
             for token, label, evidence in batch:
-                est_seed = int(np.random.default_rng(seed + step_no).integers(1, 2**31))
-                params = _estimate(token, stacks, diags, seed=est_seed)
-                if params is not None and not _adds_nothing(token, params):  # its size through the clip
-                    params = clip_corrected(token, params, current, stacks,
-                                            lambda part: _estimate(token, part, diags, seed=est_seed), model, est_seed)
+                params = _estimate(token, stacks, diags, int(np.random.default_rng(seed + step_no).integers(1, 2**31)),
+                                   current, model)
                 if params is None:
                     tried.add(token)
                     say(f"step {step_no}: {token} suggested by {evidence.statistic} but no stack can estimate it")
@@ -660,12 +664,10 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         for later in [s for s in result.steps if s.accepted and s.round > step.round and not _shares_noise(s.effect)]:
             without = current.without_effect(later.effect)
             without_diags = diagnose_all(without, diags_seed, stacks)
-            est_seed = int(np.random.default_rng(seed + 90_000 + later.round).integers(1, 2**31))
-            params = _estimate(later.effect, stacks, without_diags, seed=est_seed)
+            params = _estimate(later.effect, stacks, without_diags,
+                               int(np.random.default_rng(seed + 90_000 + later.round).integers(1, 2**31)), without, model)
             if params is None or _adds_nothing(later.effect, params):
                 continue
-            params = clip_corrected(later.effect, params, without, stacks,
-                                    lambda part: _estimate(later.effect, part, without_diags, seed=est_seed), model, est_seed)
             trial = without.with_effect(later.effect, params)
             trial_diags = diagnose_all(trial, diags_seed, stacks)
             old_b, new_b = _battery(diags), _battery(trial_diags)
