@@ -260,7 +260,14 @@ def table_at(lut, row, z):
 
 
 @njit(inline="always")
-def neighbour_at(clean, n, b, ry, rx, h, w, scale_in, gain, dark, wx, wy):
+def clean_at(c32, c64, g):
+    """Clean value ``g`` of the batch, float64: from ``c64`` when it holds the batch (a float64
+    input), else from ``c32`` (one compiled kernel for both input dtypes)."""
+    return c64[g] if c64.size else np.float64(c32[g])
+
+
+@njit(inline="always")
+def neighbour_at(c32, c64, n, b, ry, rx, h, w, scale_in, gain, dark, wx, wy):
     """(index, signal in DN, weight) of raw neighbour ``n`` (of ``NEIGHBOURS``) of raw pixel
     (ry, rx) of sample b: its clean value through this pixel's ``gain`` and ``dark`` signal;
     weight 0 outside the frame."""
@@ -268,14 +275,15 @@ def neighbour_at(clean, n, b, ry, rx, h, w, scale_in, gain, dark, wx, wy):
     if not (0 <= ny < 2 * h and 0 <= nx < 2 * w):
         return 0, 0.0, 0.0
     gn = ((b * 4 + _CHANNEL_AT[ny & 1, nx & 1]) * h + (ny >> 1)) * w + (nx >> 1)
-    return gn, clean[gn] * scale_in * gain + dark, wx if _NB_DY[n] == 0 else wy
+    return gn, clean_at(c32, c64, gn) * scale_in * gain + dark, wx if _NB_DY[n] == 0 else wy
 
 
 @njit(nogil=True, cache=True)
-def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read_index, normal, fine, coarse, grids,
-          code_lut, read_lut):
-    """Rows ``r0 .. r1`` of the (B * 4 * H) rows of a (B, 4, H, W) batch, flattened; returns
-    the count of non-finite clean values met (their outputs are NaN)."""
+def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tables, read_index, normal, fine, coarse,
+          grids, code_lut, read_lut):
+    """Rows ``r0 .. r1`` of the (B * 4 * H) rows of a (B, 4, H, W) batch, flattened, from
+    ``c64`` (float64) or, when that is empty, ``c32`` (float32) into ``o64`` or ``o32`` alike;
+    returns the count of non-finite clean values met (their outputs are NaN)."""
     bad = 0
     stages = flags
     sig = np.empty(w)  # the row's signal, DN, through the stages
@@ -367,7 +375,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
         # element goes through the same operations in the same order as in one pass over it
         for x in range(w):
             g = g0 + x
-            s = clean[g] * scale_in
+            s = clean_at(c32, c64, g) * scale_in
             if not math.isfinite(s):
                 bad += 1
             sig[x] = s
@@ -452,7 +460,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                     for n in range(5 if share else 1):  # this pixel, then (charge sharing) its four raw neighbours
                         gn, sn, wn = g, s_own, v[_SHC]
                         if n > 0:
-                            gn, sn, wn = neighbour_at(clean, n - 1, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY])
+                            gn, sn, wn = neighbour_at(c32, c64, n - 1, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY])
                         lam = sn / k
                         if not math.isfinite(lam) or (share and wn == 0.0):
                             continue  # NaN/Inf pass through (counted above); a neighbour off the frame adds nothing
@@ -479,7 +487,7 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                     if share:
                         shared = v[_SHC] * math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
                         for n in range(4):
-                            gn, sn, wn = neighbour_at(clean, n, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY])
+                            gn, sn, wn = neighbour_at(c32, c64, n, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY])
                             if wn != 0.0 and math.isfinite(sn):
                                 shared += wn * math.sqrt(k * max(sn, 0.0)) * symmetric(normal, draw(keys[_SHOT], gn))
                         s = mean + shared
@@ -700,19 +708,38 @@ def _rows(clean, out, values, flags, keys, span, h, w, r0, r1, read_tables, read
                 s = sig[x]
                 s = min(s, span)
                 sig[x] = s
-        for x in range(w):
-            out[g0 + x] = sig[x] * scale_out
+        if o64.size:
+            for x in range(w):
+                o64[g0 + x] = sig[x] * scale_out
+        else:
+            for x in range(w):
+                o32[g0 + x] = sig[x] * scale_out
     return bad
 
 
 def synthesize(clean, out, values, flags, keys, span, read_tables, read_index, normal, fine, coarse, grids, code_lut,
                read_lut, threads=1):
     """Run the fused chain over a (B, 4, H, W) NumPy batch into ``out`` (may be ``clean``);
-    returns the count of non-finite clean values."""
+    returns the count of non-finite clean values. ``clean`` and ``out`` are float32 or float64
+    (computed in float64 either way; one compiled kernel takes both: 20 s a compile)."""
     from .parallel import run_ranges
 
     b, _, h, w = clean.shape
-    x, o = clean.reshape(-1), out.reshape(-1)
+    c32, c64 = _as_float32_or_64(clean.reshape(-1), "clean")
+    o32, o64 = _as_float32_or_64(out.reshape(-1), "out")
     keys = np.asarray(keys, dtype=np.uint64)
-    return run_ranges(lambda r0, r1: _rows(x, o, values, np.int64(flags), keys, float(span), h, w, r0, r1, read_tables,
-                                    read_index, normal, fine, coarse, grids, code_lut, read_lut), b * 4 * h, w, threads)
+    return run_ranges(lambda r0, r1: _rows(c32, c64, o32, o64, values, np.int64(flags), keys, float(span), h, w, r0, r1,
+                                           read_tables, read_index, normal, fine, coarse, grids, code_lut, read_lut),
+                      b * 4 * h, w, threads)
+
+
+_EMPTY32, _EMPTY64 = np.empty(0, np.float32), np.empty(0, np.float64)
+
+
+def _as_float32_or_64(flat, name):
+    """(float32 view, float64 view) of a flat array, the other one empty."""
+    if flat.dtype == np.float64:
+        return _EMPTY32, flat
+    if flat.dtype == np.float32:
+        return flat, _EMPTY64
+    raise TypeError(f"{name} is {flat.dtype}; expected float32 or float64")
