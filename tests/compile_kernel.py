@@ -22,6 +22,10 @@ from rawaug.effects import EFFECTS  # noqa: E402
 ALL = (max(cls.flag for cls in EFFECTS.values()) << 1) - 1  # every stage flag up to the highest registered
 # every stage; then the switches' other branches: P (not P*), G* and G (not the measured read table)
 BRANCHES = {"all": ALL, "P,G*": ALL & ~(L.SHOT_POISSON | L.READ_TABLE), "G": ALL & ~(L.SHOT_POISSON | L.READ_TABLE | L.READ_TUKEY)}
+# every stage in one of two kernels: alternate flags (Triton's coalescing pass grows faster than the kernel:
+# every stage at once takes ~50 s to compile, the two halves ~12 s together)
+_BITS = [1 << i for i in range(ALL.bit_length()) if ALL >> i & 1]
+BRANCHES.update({"even": sum(_BITS[0::2]), "odd": sum(_BITS[1::2])})
 TYPES = {torch.float32: "fp32", torch.float64: "fp64", torch.int64: "i64", torch.int32: "i32"}
 
 

@@ -2,9 +2,10 @@
 
 ``TRITON_INTERPRET=1`` (how the kernel runs in CI) executes it as Python and accepts code
 that the compiler rejects, e.g. a module global that is not constexpr. This compiles the
-kernel to cubins with Triton's own ptxas: the kernel with every stage for Hopper (sm_90) in
-the default run; every branch of its stage switches for Hopper and the kernel with every
-stage for Ampere (sm_80) with ``-m slow``."""
+kernel to cubins with Triton's own ptxas. The default run compiles every stage for Hopper
+(sm_90) in two kernels of alternate stages (12 s; one kernel with all of them takes ~55 s:
+Triton's coalescing pass grows faster than the kernel); ``-m slow`` compiles the kernel with
+every stage for Hopper and for Ampere (sm_80), and every branch of its stage switches."""
 import json
 import os
 import subprocess
@@ -31,10 +32,10 @@ def compile_targets(targets):
         assert isinstance(outcome, int) and outcome > 1000, f"{target}: {outcome}"
 
 
-def test_the_kernel_compiles_for_the_gpu():
-    compile_targets([["all@90"]])  # every stage, for Hopper (the default run: one compile)
+def test_every_stage_compiles_for_the_gpu():
+    compile_targets([["even@90", "odd@90"]])  # every stage, for Hopper, in two kernels (one process)
 
 
 @pytest.mark.slow
 def test_every_branch_compiles_for_hopper_and_ampere():
-    compile_targets([["G@90", "P,G*@90"], ["all@80"]])  # the switches' other branches; Ampere
+    compile_targets([["all@90", "G@90"], ["P,G*@90", "all@80"]])  # all stages at once; the switches' other branches; Ampere
