@@ -61,6 +61,9 @@ def broken(edit):
         (lambda d: d["color_bias"]["dn"].__setitem__(0, [1, 2, 3]), "must hold 4 values"),
         (lambda d: d.update(version=9), "'version' must be 1, got 9"),
         (lambda d: d["effects"].update(Bogus={}), "'Bogus' is not a registered effect"),
+        (lambda d: d["effects"].update(RTS={"seed": 1, "density": 0.01, "high": 0.5, "log_std": 0.1, "k": [1.0],
+                                            "median_dn": [20.0], "_detection": object()}),
+         "effect 'RTS' parameters hold ['_detection']"),
         (lambda d: d["read_noise"]["tukey_scale"].update(slope="abc"), "tukey_scale.slope must be a number, got 'abc'"),
     ],
 )

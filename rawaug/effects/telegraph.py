@@ -187,7 +187,7 @@ def population(frames, synthesized, seed: int, shot_k: float = 0.0):
 def estimate(frames, synthesized, k: float, seed: int = 41, kind: str = "bias", **_) -> dict:
     """RTS parameters at gain ``k`` from a bias stack (N >= 3, 4, h, w) in DN: the telegraph
     pixels' ``population`` beyond the model's; ``_detection`` (what the stack showed) is for
-    ``combine``, which leaves it out."""
+    ``combine``, which leaves it out (a profile refuses it)."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind != "bias" or frames.shape[0] < 3:
         raise ValueError("RTS is measured on bias stacks of >= 3 frames")
