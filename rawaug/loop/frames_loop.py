@@ -418,7 +418,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             return run(trial, which, "model", bound), stacks, trial, {}
         # the re-fit reads the bias stacks only: the others are diagnosed once, with it or without
         got = run(trial, [st for st in stacks if st.kind == "bias"], "model")
-        factors = (read_noise_factors(stacks, got, trial, model, z_min=z_min) if shared == "read noise"
+        factors = (read_noise_factors(stacks, got, trial, model, z_min=z_min, seed=step_seed) if shared == "read noise"
                    else row_noise_factors(stacks, got, trial, z_min=refit_z or z_min))
         if not factors:
             return run(trial, which, "model", bound), stacks, trial, factors
@@ -445,7 +445,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         # together, as one re-fit of the read noise
         nonlocal current, diags, stacks, diags_seed, by_label
         step_seed = seed + 1000 * step_no + 500
-        factors = read_noise_factors(stacks, diags, current, model, z_min=z_min)
+        factors = read_noise_factors(stacks, diags, current, model, z_min=z_min, seed=step_seed)
         new_stacks, refitted, new_diags = stacks, current, diags
         if factors:
             new_stacks, refitted = apply_read_noise_factors(stacks, current, factors, model)

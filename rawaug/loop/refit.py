@@ -34,7 +34,9 @@ from ..augment import parse_model
 from ..distributions import tukey_lambda_survival, tukey_lambda_variance
 from ..relations import LogLinear
 from ..statistics import MAD_TO_SIGMA, center_scale, grid_step, repaired, sensor_row_means
-from .diagnose import synthesis_fixed
+from ..statistics import frame_statistics
+from .clip_correction import CLIPPED_SHARE, share_at_floor
+from .diagnose import fitted_offsets, synthesis_fixed, synthesize
 
 MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated value
 ROW_MIN_FACTOR = 0.1  # sigma_r may fall further: a strong tone can hold most of a sensor's row variance
@@ -114,18 +116,25 @@ def _read_variance(fixed: dict, tokens) -> float:
     return float(fixed["sigma_g"]) ** 2
 
 
-def read_noise_factors(stacks, diags, profile, model=None, z_min: float = 6.0) -> dict:
+def read_noise_factors(stacks, diags, profile, model=None, z_min: float = 6.0, seed: int = 0) -> dict:
     """{bias stack label: factor on the read-noise sigma} where the model's temporal noise
     exceeds the measured one by more than ``z_min`` spreads (statistically significant; a
-    small relative error is corrected too, since the correction is exact).
+    small relative error is corrected too, since the correction is exact). A stack clipped
+    by the model's ``Clip`` gets the factor by simulation (``_factor_through_clip``).
     ``diags``: label -> (residuals, syntheses)."""
     tokens = parse_model(model or profile.richest_model)
+    clip = profile.effects.get("Clip")
     factors = {}
-    for stack in stacks:
+    for i, stack in enumerate(stacks):
         if stack.kind != "bias":
             continue
         r = next((r for r in diags[stack.label][0] if r.statistic == "temporal_std"), None)
         if r is None or r.z >= -z_min:
+            continue
+        if clip is not None and share_at_floor(stack, clip["floor_dn"]) >= CLIPPED_SHARE:
+            f = _factor_through_clip(stack, profile, model, float(r.measured), seed + 7 * i)
+            if f is not None:
+                factors[stack.label] = f
             continue
         var = _read_variance(synthesis_fixed(profile, stack), tokens)
         if var <= 0:
@@ -135,6 +144,32 @@ def read_noise_factors(stacks, diags, profile, model=None, z_min: float = 6.0) -
             continue  # more than double counting: the added effect's estimate is off, not the read noise
         factors[stack.label] = float(math.sqrt(f2))
     return factors
+
+
+def _temporal_std_at(stack, profile, factor: float, model, seed: int) -> float:
+    """The model's ``temporal_std`` (DN) of bias stack ``stack`` with its read noise times
+    ``factor``: two syntheses, the colour bias fitted again (a clip moves the mean with the noise)."""
+    [scaled], prof = apply_read_noise_factors([stack], profile, {stack.label: factor}, model) if factor != 1.0 \
+        else ([stack], profile)
+    offsets = fitted_offsets(prof, scaled, seed, model)
+    synth = synthesize(prof, scaled, 2, seed, model, offsets=offsets)
+    return float(np.mean([frame_statistics(f, "bias", names=["temporal_std"])["temporal_std"] for f in synth]))
+
+
+def _factor_through_clip(stack, profile, model, measured: float, seed: int) -> float | None:
+    """The read-noise factor that gives a clipped bias stack's synthesis the measured
+    ``temporal_std`` (DN). A clip keeps only part of a pixel's temporal variance, a part
+    that depends on the noise itself (half the values at a black level at code 0 keep about
+    a third of it), so the variance difference of the unclipped case cuts too little; the
+    factor is found by simulation instead: the ratio step from the model as it is, then the
+    secant through the two syntheses. None where it would cut below ``MIN_FACTOR``."""
+    s0 = _temporal_std_at(stack, profile, 1.0, model, seed)
+    if not s0 > measured:
+        return None
+    f1 = max(measured / s0, MIN_FACTOR)
+    s1 = _temporal_std_at(stack, profile, f1, model, seed)
+    f = f1 if abs(s1 - s0) <= 1e-9 * s0 else f1 + (measured - s1) * (f1 - 1.0) / (s1 - s0)
+    return float(f) if MIN_FACTOR <= f < 1.0 else None
 
 
 def _shift(rel: LogLinear | None, slope: float, intercept: float, k_ref: float) -> LogLinear | None:
