@@ -499,6 +499,31 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 current, diags, stacks, diags_seed = refitted, new_diags, new_stacks, step_seed + 50
                 by_label = {st.label: st for st in stacks}
 
+    def resize_through_clip(step, step_no, diags_without):
+        # an effect sized through the clip (``clip_corrected``) by simulation in the base as it
+        # was before the re-fit it was judged with: sized again in the re-fitted base (what the
+        # clip hides of it depends on the noise around it), kept if the battery is no worse
+        nonlocal current, diags
+        module = CANDIDATES[step.effect].module
+        refitted = any(r.get("after") == step.effect and r.get("round") == step_no and r.get("kept") and r.get("factors")
+                       for r in result.refits)
+        if "Clip" not in current.effects or not getattr(module, "AMPLITUDES", ()) or not refitted:
+            return
+        base = current.without_effect(step.effect)
+        params = _estimate(step.effect, stacks, diags_without, int(np.random.default_rng(seed + step_no).integers(1, 2**31)),
+                           base, model)
+        if params is None or _adds_nothing(step.effect, params):
+            return
+        trial = base.with_effect(step.effect, params)
+        trial_diags = diagnose_all(trial, diags_seed, stacks)
+        old_b, new_b = _battery(diags), _battery(trial_diags)
+        fits = new_b["n_significant"] <= old_b["n_significant"] and new_b["mean_rel_error"] <= old_b["mean_rel_error"]
+        say(f"step {step_no}: {step.effect} sized again through the clip in the re-fitted base: battery "
+            f"{old_b['mean_rel_error']:.3f} -> {new_b['mean_rel_error']:.3f}: " + ("kept" if fits else "dropped"))
+        if fits:
+            step.params, current, diags = params, trial, trial_diags
+            step.battery_after = new_b
+
     diags, diags_seed = diagnose_all(current, seed), seed
     result = LoopResult(current, initial={k: v[0] for k, v in diags.items()})
     for token in given:  # effects the calibrated profile brought (the frames' code floor): the base re-fitted with them
@@ -609,6 +634,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         checks.clear()
         result.unconfirmed.clear()  # confirmations belong to a model
         refit_base(chosen[0].effect, step_no, diags_without)
+        resize_through_clip(chosen[0], step_no, diags_without)
     while True:  # backward elimination
         kept = [s for s in result.steps if s.accepted]
         if len(kept) < 2:
