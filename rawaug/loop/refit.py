@@ -33,8 +33,7 @@ from scipy import optimize
 from ..augment import parse_model
 from ..distributions import tukey_lambda_survival, tukey_lambda_variance
 from ..relations import LogLinear
-from ..statistics import MAD_TO_SIGMA, center_scale, grid_step, repaired, sensor_row_means
-from ..statistics import frame_statistics
+from ..statistics import MAD_TO_SIGMA, center_scale, frame_statistics, grid_step, repaired, sensor_row_means
 from .clip_correction import CLIPPED_SHARE, share_at_floor
 from .diagnose import fitted_offsets, synthesis_fixed, synthesize
 
@@ -149,8 +148,9 @@ def read_noise_factors(stacks, diags, profile, model=None, z_min: float = 6.0, s
 def _temporal_std_at(stack, profile, factor: float, model, seed: int) -> float:
     """The model's ``temporal_std`` (DN) of bias stack ``stack`` with its read noise times
     ``factor``: two syntheses, the colour bias fitted again (a clip moves the mean with the noise)."""
-    [scaled], prof = apply_read_noise_factors([stack], profile, {stack.label: factor}, model) if factor != 1.0 \
-        else ([stack], profile)
+    scaled, prof = stack, profile
+    if factor != 1.0:
+        [scaled], prof = apply_read_noise_factors([stack], profile, {stack.label: factor}, model)
     offsets = fitted_offsets(prof, scaled, seed, model)
     synth = synthesize(prof, scaled, 2, seed, model, offsets=offsets)
     return float(np.mean([frame_statistics(f, "bias", names=["temporal_std"])["temporal_std"] for f in synth]))
