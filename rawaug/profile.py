@@ -190,7 +190,8 @@ class NoiseProfile:
         for name in effects:
             if name not in EFFECTS:
                 raise ValueError(f"profile effect {name!r} is not a registered effect; known: {sorted(EFFECTS)}")
-            private = sorted(k for k in (effects[name] or {}) if isinstance(k, str) and k.startswith("_"))
+            params = effects[name] if isinstance(effects[name], dict) else {}  # a non-mapping: validate_params says so
+            private = sorted(k for k in params if isinstance(k, str) and k.startswith("_"))
             if private:
                 raise ValueError(f"effect {name!r} parameters hold {private}: an estimator's note for its module's "
                                  f"combine(), not a parameter; pass the per-stack estimates through combine()")

@@ -499,6 +499,9 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                 current, diags, stacks, diags_seed = refitted, new_diags, new_stacks, step_seed + 50
                 by_label = {st.label: st for st in stacks}
 
+    def estimate_seed(step_no):  # the seed of a step's estimates (the forward trials' and their second sizing)
+        return int(np.random.default_rng(seed + step_no).integers(1, 2**31))
+
     def resize_through_clip(step, step_no, diags_without):
         # an effect sized through the clip (``clip_corrected``) by simulation in the base as it
         # was before the re-fit it was judged with: sized again in the re-fitted base (what the
@@ -510,8 +513,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         if "Clip" not in current.effects or not getattr(module, "AMPLITUDES", ()) or not refitted:
             return
         base = current.without_effect(step.effect)
-        params = _estimate(step.effect, stacks, diags_without, int(np.random.default_rng(seed + step_no).integers(1, 2**31)),
-                           base, model)
+        params = _estimate(step.effect, stacks, diags_without, estimate_seed(step_no), base, model)
         if params is None or _adds_nothing(step.effect, params):
             return
         trial = base.with_effect(step.effect, params)
@@ -539,8 +541,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         # measured fallbacks only once no physical effect explains the residuals left
         for batch in (physical, [o for o in options if _measured(o[0])]):
             for token, label, evidence in batch:
-                params = _estimate(token, stacks, diags, int(np.random.default_rng(seed + step_no).integers(1, 2**31)),
-                                   current, model)
+                params = _estimate(token, stacks, diags, estimate_seed(step_no), current, model)
                 if params is None:
                     tried.add(token)
                     say(f"step {step_no}: {token} suggested by {evidence.statistic} but no stack can estimate it")
