@@ -452,6 +452,62 @@ def warming_dark(dn, rng, kind="bias", exposure=0.0, k=1.0, **_):
     return dn + k * rng.poisson(1.0 * 1.2 ** _WALK[key] * exposure, dn.shape)
 
 
+# 2026-11-29 (nineteenth session): a fresh batch, written and committed before the loop ran on any
+# of them: classic effects of a calibration engineer's list that no earlier probe planted.
+
+def _sensor_grid(dn):
+    """Sensor-pixel coordinates (y, x) of the raw mosaic behind a packed frame."""
+    _, h, w = dn.shape
+    return np.mgrid[0:2 * h, 0:2 * w]
+
+
+def amp_glow(dn, rng, exposure=0.0, k=1.0, **_):
+    """Amplifier glow: dark current from the readout amplifier in the top-right corner, 30 e-/s there and falling off as exp(-d / 48 sensor pixels), with its shot noise; bias frames show none."""
+    y, x = _sensor_grid(dn)
+    rate = 30.0 * np.exp(-np.hypot(y, x - x.max()) / 48.0)
+    return dn + k * rng.poisson(_raw_to_packed(rate) * exposure)
+
+
+_MISSING = np.random.default_rng(71).random(40000) < 0.05  # codes -8000 .. 31999 DN
+_WRITTEN = np.minimum.accumulate(np.where(_MISSING, 40000, np.arange(40000))[::-1])[::-1] - 8000  # next code written
+
+
+def random_missing_codes(dn, rng, **_):
+    """ADC differential non-linearity without a period: 5 % of the codes (a fixed random set) never written, their inputs read as the next code up."""
+    return _WRITTEN[(np.floor(dn + 0.5) + 8000).astype(np.int64)].astype(float)
+
+
+def defect_couplets(dn, rng, **_):
+    """Couplet defects: 0.03 % of the sensor pixels (fixed) start a pair of hot pixels with their right-hand neighbour, each of the two 25 to 60 DN high in every frame."""
+    _, h, w = dn.shape
+    g = np.random.default_rng(83)
+    start = g.random((2 * h, 2 * w)) < 0.0003
+    start[:, -1] = False
+    pair = start | np.roll(start, 1, axis=1)
+    return dn + _raw_to_packed(np.where(pair, g.uniform(25.0, 60.0, pair.shape), 0.0))
+
+
+def black_shading(dn, rng, **_):
+    """Black shading: a smooth fixed offset, 2 DN at the sensor's centre and falling off as a Gaussian of a quarter of the sensor's width, the same in every frame (bias, dark and flat)."""
+    y, x = _sensor_grid(dn)
+    s = (x.max() + 1) / 4.0
+    bump = 2.0 * np.exp(-((y - y.mean()) ** 2 + (x - x.mean()) ** 2) / (2 * s * s))
+    return dn + _raw_to_packed(bump)
+
+
+def gain_drift(dn, rng, k=1.0, **_):
+    """The analog gain drifting as the camera warms: at each ISO every frame's gain is 0.15 % above the previous frame's (signal and noise alike), so a flat series climbs."""
+    key = ("gain", id(rng), k)
+    _WALK[key] = _WALK.get(key, -1.0) + 1.0
+    return dn * (1.0 + 0.0015 * _WALK[key])
+
+
+def column_noise(dn, rng, **_):
+    """Temporal column noise: each sensor column's level moves by 0.7 DN rms, new in every frame (a column amplifier's own noise), in every kind of frame."""
+    c = rng.normal(0.0, 0.7, 2 * dn.shape[2])
+    return dn + np.stack([c[0::2], c[1::2], c[1::2], c[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -461,7 +517,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  ramp_jitter, pixel_prnu, dark_current, dsnu, pixel_offsets, column_offsets, soft_knee,
                                  hot_pixels, black_clip, fixed_tone, locked_tone, noisy_pixels, thermal_gradient, leaky_rows,
                                  dark_telegraph, noisy_columns, adc_banks, row_telegraph, wide_codes, split_black,
-                                 split_gain, top_bottom_black, clamp_ramp, channel_gain, weak_columns, warming_dark)}
+                                 split_gain, top_bottom_black, clamp_ramp, channel_gain, weak_columns, warming_dark,
+                                 amp_glow, random_missing_codes, defect_couplets, black_shading, gain_drift, column_noise)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
