@@ -3,7 +3,7 @@ writes.
 
 Not a named physical effect: digital gain after the ADC, a non-linear or dithered
 re-quantization in firmware or a lossy raw compression leave some codes unused (a comb in
-the histogram, ``missing_codes``) that no noise stage reproduces. The loop tries this
+the histogram, ``missing_codes``, which also widens the codes beside each gap: ``code_dnl``) that no noise stage reproduces. The loop tries this
 component only when no physical effect explains the comb; the report lists it as
 reproduced by measurement.
 
@@ -43,7 +43,7 @@ from ..statistics import MAX_GAP, written_codes  # the rule for a missing code (
 from .base import CLIP, NoiseEffect, register
 from .k_records import record_index, validate_records, value_at_k
 
-STATISTICS = ("missing_codes",)
+STATISTICS = ("missing_codes", "code_dnl")  # a missing code widens its neighbours: the code histogram's DNL too
 MEASURED = True
 
 

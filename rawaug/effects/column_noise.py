@@ -28,6 +28,7 @@ from .k_records import check_seed, validate_records, value_at_k
 
 STATISTICS = ("col_excess", "fixed_col_excess")
 AMPLITUDES = ("sigma_dn", "fixed_dn")  # corrected by simulation under a clip (rawaug.loop.clip_correction)
+SHARES_READ_NOISE_UNDER_CLIP = True  # the censored read-noise fit took the pattern's spread (rawaug.loop.frames_loop)
 
 
 @register

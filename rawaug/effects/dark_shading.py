@@ -44,6 +44,8 @@ from .k_records import check_seed, frame_size, grid_columns, validate_records, v
 
 STATISTICS = ("fixed_std", "fixed_pixel_var", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
 MAX_GRID = 8
+AMPLITUDES = ("sigma_dn", "shading_dn")  # corrected by simulation under a clip (rawaug.loop.clip_correction)
+SHARES_READ_NOISE_UNDER_CLIP = True  # the censored read-noise fit took the pattern's spread (rawaug.loop.frames_loop)
 
 
 def _grids(params) -> torch.Tensor:

@@ -7,7 +7,8 @@ model clips as the camera does, so the size is found by simulation: the candidat
 estimated is planted in the model, each stack synthesized with it and estimated again, and
 each of the effect's amplitudes (``AMPLITUDES`` of its module) is scaled by what the
 estimator lost on the synthesis, then moved along the secant through a second synthesis
-(two steps of indirect inference: the share lost depends on the size). A module whose
+(two steps of indirect inference: the share lost depends on the size; a signed amplitude, an
+offset map's cell, where the simulated estimate keeps its sign). A module whose
 records hold lists of found things (tones) gives ``aligned(simulated, params)``, which
 arranges the simulated estimate as ``params``. Only records at the gains
 of clipped stacks are scaled; an effect without ``AMPLITUDES`` is left as estimated.
@@ -32,14 +33,16 @@ def share_at_floor(stack, floor_dn: float) -> float:
 
 def _elementwise(fn, first, *others, flags=True):
     """``fn(first, *others)`` on each number of like-shaped (nested) lists where ``flags`` (a
-    bool, or one per record) is set and every argument is positive; ``first`` elsewhere, and
-    where shapes differ."""
+    bool, or one per record) is set and every argument is non-zero and of one sign (an offset
+    map's cells may be negative); ``first`` elsewhere, and where shapes differ."""
     if isinstance(first, (list, tuple)):
         if any(not isinstance(o, (list, tuple)) or len(o) != len(first) for o in others):
             return first
         each = flags if isinstance(flags, (list, tuple)) else [flags] * len(first)
         return [_elementwise(fn, v, *(o[i] for o in others), flags=each[i]) for i, v in enumerate(first)]
-    if not flags or not all(isinstance(x, (int, float)) and x > 0.0 for x in (first, *others)):
+    values = (first, *others)
+    if not flags or not all(isinstance(x, (int, float)) for x in values) or not (
+            all(x > 0.0 for x in values) or all(x < 0.0 for x in values)):
         return first
     return float(fn(first, *others))
 
@@ -54,7 +57,8 @@ def _secant_step(t1, v, s0, s1):
     would read as ``v`` (a secant; the ratio step where the two readings coincide)."""
     if abs(s1 - s0) <= 1e-9 * abs(s1):
         return t1
-    return float(np.clip(t1 + (v - s1) * (t1 - v) / (s1 - s0), v / MAX_RATIO, v * MAX_RATIO))
+    bounds = sorted((v / MAX_RATIO, v * MAX_RATIO))
+    return float(np.clip(t1 + (v - s1) * (t1 - v) / (s1 - s0), *bounds))
 
 
 def clip_corrected(token: str, params: dict, profile, stacks, estimate, model=None, seed: int = 0) -> dict:

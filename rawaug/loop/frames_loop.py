@@ -230,13 +230,17 @@ def _evidence_error(token, evidence, before, after) -> tuple[float, float]:
     return mean(before), mean(after)
 
 
-def _shares_noise(token) -> str:
+def _shares_noise(token, profile=None) -> str:
     """The base stage whose variance a candidate takes over ("read noise": ``SHARES_READ_NOISE``
     in its module; "row noise": ``SHARES_ROW_NOISE``), which calibration gave all of it; the
-    candidate is then judged with that stage re-fitted. "" for the others."""
+    candidate is then judged with that stage re-fitted. A fixed pattern's spread is read noise
+    too where ``profile`` clips at its floor (``SHARES_READ_NOISE_UNDER_CLIP``): the censored fit
+    reads the upper half of each frame's values, which the pattern widens. "" for the others."""
     module = CANDIDATES[token].module
-    return ("read noise" if getattr(module, "SHARES_READ_NOISE", False)
-            else "row noise" if getattr(module, "SHARES_ROW_NOISE", False) else "")
+    if getattr(module, "SHARES_READ_NOISE", False) or (
+            getattr(module, "SHARES_READ_NOISE_UNDER_CLIP", False) and profile is not None and "Clip" in profile.effects):
+        return "read noise"
+    return "row noise" if getattr(module, "SHARES_ROW_NOISE", False) else ""
 
 
 def _adds_nothing(token, params) -> bool:
@@ -419,7 +423,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         # the re-fit reads the bias stacks only: the others are diagnosed once, with it or without
         got = run(trial, [st for st in stacks if st.kind == "bias"], "model")
         factors = (read_noise_factors(stacks, got, trial, model, z_min=z_min, seed=step_seed) if shared == "read noise"
-                   else row_noise_factors(stacks, got, trial, z_min=refit_z or z_min))
+                   else row_noise_factors(stacks, got, trial, z_min=refit_z or z_min, model=model, seed=step_seed))
         if not factors:
             return run(trial, which, "model", bound), stacks, trial, factors
         refit_stacks, refitted = (apply_read_noise_factors(stacks, trial, factors, model) if shared == "read noise"
@@ -551,7 +555,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                     say(f"step {step_no}: {token} suggested by {evidence.statistic}, but its estimate adds nothing")
                     continue
                 trial = current.with_effect(token, params)
-                shared = _shares_noise(token)  # judged with its variance taken out of the base stage it shares
+                shared = _shares_noise(token, current)  # judged with its variance taken out of the base stage it shares
 
                 # its evidence first, on the stack it comes from (and the bias stacks a re-fit
                 # reads): most candidates fail there, and the whole battery is not run for them
@@ -629,7 +633,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             by_label = {st.label: st for st in stacks}
             result.refits.append({"after": chosen[0].effect, "round": step_no, "factors": chosen[4], "kept": True,
                                   **({"lambdas_before": chosen[5]} if chosen[5] else {}),
-                                  "what": _shares_noise(chosen[0].effect),
+                                  "what": _shares_noise(chosen[0].effect, current),
                                   "battery_before": chosen[0].battery_before, "battery_after": chosen[0].battery_after})
         tried = {t for t in tried if t in current.effects}  # estimates depend on the model: retry the rejected
         checks.clear()
@@ -688,7 +692,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
             if refit.get("after") == step.effect and refit.get("what") and refit.get("kept"):
                 refit["kept"], refit["undone"] = False, f"{step.effect} removed"
         # an effect added after it was estimated beside it: estimated again on the model without it
-        for later in [s for s in result.steps if s.accepted and s.round > step.round and not _shares_noise(s.effect)]:
+        for later in [s for s in result.steps if s.accepted and s.round > step.round and not _shares_noise(s.effect, current)]:
             without = current.without_effect(later.effect)
             without_diags = diagnose_all(without, diags_seed, stacks)
             params = _estimate(later.effect, stacks, without_diags,

@@ -156,20 +156,28 @@ def _temporal_std_at(stack, profile, factor: float, model, seed: int) -> float:
     return float(np.mean([frame_statistics(f, "bias", names=["temporal_std"])["temporal_std"] for f in synth]))
 
 
+def _factor_by_simulation(at, measured: float, power: float, lowest: float) -> float | None:
+    """The factor f on a noise sigma whose synthesis ``at(f)`` gives the ``measured`` value of a
+    statistic that falls with f: the ratio step ``(measured / at(1)) ** power`` from the model
+    as it is, then the secant through the two syntheses. None where the model is not above the
+    measurement or the factor would fall below ``lowest``."""
+    s0 = at(1.0)
+    if not s0 > measured:
+        return None
+    f1 = max((measured / s0) ** power, lowest)
+    s1 = at(f1)
+    f = f1 if abs(s1 - s0) <= 1e-9 * s0 else f1 + (measured - s1) * (f1 - 1.0) / (s1 - s0)
+    return float(f) if lowest <= f < 1.0 else None
+
+
 def _factor_through_clip(stack, profile, model, measured: float, seed: int) -> float | None:
     """The read-noise factor that gives a clipped bias stack's synthesis the measured
     ``temporal_std`` (DN). A clip keeps only part of a pixel's temporal variance, a part
     that depends on the noise itself (half the values at a black level at code 0 keep about
     a third of it), so the variance difference of the unclipped case cuts too little; the
-    factor is found by simulation instead: the ratio step from the model as it is, then the
-    secant through the two syntheses. None where it would cut below ``MIN_FACTOR``."""
-    s0 = _temporal_std_at(stack, profile, 1.0, model, seed)
-    if not s0 > measured:
-        return None
-    f1 = max(measured / s0, MIN_FACTOR)
-    s1 = _temporal_std_at(stack, profile, f1, model, seed)
-    f = f1 if abs(s1 - s0) <= 1e-9 * s0 else f1 + (measured - s1) * (f1 - 1.0) / (s1 - s0)
-    return float(f) if MIN_FACTOR <= f < 1.0 else None
+    factor is found by simulation instead (``_factor_by_simulation``). None where it would
+    cut below ``MIN_FACTOR``."""
+    return _factor_by_simulation(lambda f: _temporal_std_at(stack, profile, f, model, seed), measured, 1.0, MIN_FACTOR)
 
 
 def _shift(rel: LogLinear | None, slope: float, intercept: float, k_ref: float) -> LogLinear | None:
@@ -371,26 +379,46 @@ def _tap_rows(profile) -> list:
     return list(taps["row_edges"]) if isinstance(taps, dict) else []
 
 
-def row_noise_factors(stacks, diags, profile, z_min: float = 6.0) -> dict:
+def _row_variance_at(stack, profile, factor: float, model, seed: int, edges) -> float:
+    """The model's ``_row_variance`` (DN^2) of bias stack ``stack`` with its row noise times
+    ``factor``: two syntheses, the colour bias fitted again (a clip moves the mean with the noise)."""
+    scaled, prof = stack, profile
+    if factor != 1.0:
+        [scaled], prof = apply_row_noise_factors([stack], profile, {stack.label: factor})
+    synth = synthesize(prof, scaled, 2, seed, model, offsets=fitted_offsets(prof, scaled, seed, model))
+    return float(np.mean([_row_variance(f, edges) for f in synth]))
+
+
+def row_noise_factors(stacks, diags, profile, z_min: float = 6.0, model=None, seed: int = 0) -> dict:
     """{bias stack label: factor on the row-noise sigma_r} where the model's sensor-row
     means vary more than the measured ones by more than ``z_min`` spreads of the syntheses:
     an added effect (a banding tone) now explains row variance calibration gave sigma_r.
-    sigma_r_new^2 = sigma_r^2 - (synthesized - measured variance); no cut below ROW_MIN_FACTOR."""
+    sigma_r_new^2 = sigma_r^2 - (synthesized - measured variance); no cut below ROW_MIN_FACTOR.
+    A stack clipped by the model's ``Clip`` keeps only part of its row variance (a third with
+    half the values at the floor), so there the factor comes by simulation, as for the read
+    noise (``_factor_by_simulation``)."""
     factors = {}
     edges = _tap_rows(profile)
-    for stack in stacks:
+    clip = profile.effects.get("Clip")
+    for i, stack in enumerate(stacks):
         if stack.kind != "bias":
             continue
         synth = [_row_variance(s, edges) for s in diags[stack.label][1]]
         if len(synth) < 2:
             continue
-        measured, model, spread = _row_variance(stack.frames_dn, edges), float(np.mean(synth)), float(np.std(synth, ddof=1))
-        if model - measured <= z_min * spread:
+        measured, model_var, spread = _row_variance(stack.frames_dn, edges), float(np.mean(synth)), float(np.std(synth, ddof=1))
+        if model_var - measured <= z_min * spread:
             continue
         sigma_r = float(synthesis_fixed(profile, stack).get("sigma_r", 0.0))
         if sigma_r <= 0:
             continue
-        f2 = 1.0 - (model - measured) / sigma_r**2
+        if clip is not None and share_at_floor(stack, clip["floor_dn"]) >= CLIPPED_SHARE:
+            f = _factor_by_simulation(lambda g: _row_variance_at(stack, profile, g, model, seed + 7 * i, edges),
+                                      measured, 0.5, ROW_MIN_FACTOR)
+            if f is not None:
+                factors[stack.label] = f
+            continue
+        f2 = 1.0 - (model_var - measured) / sigma_r**2
         if f2 < ROW_MIN_FACTOR**2:
             continue
         factors[stack.label] = float(math.sqrt(f2))
