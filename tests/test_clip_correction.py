@@ -95,6 +95,18 @@ def test_line_offsets_under_a_clip_at_black_are_estimated_at_their_size(seed, to
         assert abs(got[key][0] / params[key][0] - 1.0) < 0.1, got
 
 
+def _nikon_bias(clip):
+    """NikonD850 at ISO 800 (K 0.75) and 8 bias frames of it: with ``Clip`` (black level 0)
+    about half of the values at the floor, without it none."""
+    base = NoiseProfile.load("NikonD850")
+    camera = base.with_effect("Clip", {"floor_dn": 0.0}) if clip else base
+    template = FrameStack(np.full((8, 4, 128, 128), 0.5), 0.75, kind="bias", offsets_dn=[0.0] * 4)
+    frames = synthesize(camera, template, 1, 31)[0].astype(np.float64)
+    stack = FrameStack(frames, 0.75, kind="bias", offsets_dn=[0.0] * 4, label="bias")
+    assert (np.mean(stack.frames_dn == 0.0) > 0.3) == clip  # the clip piles values on the floor
+    return camera, stack
+
+
 @pytest.mark.parametrize("clip", [False, True])
 def test_read_noise_re_fit_through_a_clip_finds_the_factor(clip):
     """A model whose read noise is 1.25x the camera's (NikonD850 at ISO 800, black level 0:
@@ -107,13 +119,7 @@ def test_read_noise_re_fit_through_a_clip_finds_the_factor(clip):
     from rawaug.loop import diagnose
     from rawaug.loop.refit import apply_read_noise_factors, read_noise_factors
 
-    base = NoiseProfile.load("NikonD850")
-    camera = base.with_effect("Clip", {"floor_dn": 0.0}) if clip else base
-    k = 0.75
-    template = FrameStack(np.full((8, 4, 128, 128), 0.5), k, kind="bias", offsets_dn=[0.0] * 4)
-    frames = synthesize(camera, template, 1, 31)[0].astype(np.float64)
-    stack = FrameStack(frames, k, kind="bias", offsets_dn=[0.0] * 4, label="bias")
-    assert (np.mean(stack.frames_dn == 0.0) > 0.3) == clip  # the clip piles values on the floor
+    camera, stack = _nikon_bias(clip)
     [noisy], model = apply_read_noise_factors([stack], camera, {"bias": 1.25})
     diags = {"bias": diagnose(noisy, model, n_synth=4, seed=3)}
     factors = read_noise_factors([noisy], diags, model, seed=5)
@@ -132,13 +138,7 @@ def test_row_noise_re_fit_through_a_clip_finds_the_factor(clip):
     from rawaug.loop import diagnose
     from rawaug.loop.refit import apply_row_noise_factors, row_noise_factors
 
-    base = NoiseProfile.load("NikonD850")
-    camera = base.with_effect("Clip", {"floor_dn": 0.0}) if clip else base
-    k = 0.75
-    template = FrameStack(np.full((8, 4, 128, 128), 0.5), k, kind="bias", offsets_dn=[0.0] * 4)
-    frames = synthesize(camera, template, 1, 31)[0].astype(np.float64)
-    stack = FrameStack(frames, k, kind="bias", offsets_dn=[0.0] * 4, label="bias")
-    assert (np.mean(stack.frames_dn == 0.0) > 0.3) == clip
+    camera, stack = _nikon_bias(clip)
     [noisy], model = apply_row_noise_factors([stack], camera, {"bias": 1.5})
     diags = {"bias": diagnose(noisy, model, n_synth=4, seed=3)}
     factors = row_noise_factors([noisy], diags, model, seed=5)
