@@ -171,3 +171,16 @@ def test_a_black_shading_under_a_clip_at_black_is_estimated_at_its_size(seed):
     assert gain(est) < 0.7, est["shading_dn"]
     assert abs(gain(got) - 1.0) < 0.1, got["shading_dn"]
     assert np.sqrt(np.mean((grid - grid.mean() - bump) ** 2)) < 0.12, got["shading_dn"]
+
+
+def test_a_fixed_pattern_is_judged_with_the_read_noise_re_fitted_only_under_a_clip():
+    """``FPN`` and ``Col`` share the read noise where the model clips at its floor (the censored
+    fit took their spread), and nowhere else; an effect that always shares it keeps doing so."""
+    from rawaug.loop.frames_loop import _shares_noise
+
+    for token in ("FPN", "Col"):
+        assert _shares_noise(token, CLIPPED) == "read noise"
+        assert _shares_noise(token, BASE) == ""
+        assert _shares_noise(token) == ""
+    assert _shares_noise("Xtalk", BASE) == "read noise" and _shares_noise("Band", CLIPPED) == "row noise"
+    assert _shares_noise("Hot", CLIPPED) == ""
