@@ -184,3 +184,18 @@ def test_a_fixed_pattern_is_judged_with_the_read_noise_re_fitted_only_under_a_cl
         assert _shares_noise(token) == ""
     assert _shares_noise("Xtalk", BASE) == "read noise" and _shares_noise("Band", CLIPPED) == "row noise"
     assert _shares_noise("Hot", CLIPPED) == ""
+
+
+def test_the_report_says_when_an_effect_was_sized_again_through_the_clip():
+    """``report.md`` states the second sizing in the re-fitted base, kept or not (it was only in the log)."""
+    from rawaug.loop.frames_loop import LoopResult
+    from rawaug.loop.report import outcome_summary
+
+    result = LoopResult(CLIPPED)
+    before, after = {"mean_rel_error": 0.2, "n_significant": 3}, {"mean_rel_error": 0.15, "n_significant": 2}
+    result.resized = [{"effect": "Col", "round": 1, "kept": True, "battery_before": before, "battery_after": after},
+                      {"effect": "Band", "round": 2, "kept": False, "battery_before": after, "battery_after": before}]
+    text = outcome_summary(result)
+    assert "`Col`, its size was found again through the clip in the re-fitted base" in text
+    assert "battery 0.200 -> 0.150, kept." in text
+    assert "`Band`" in text and "battery 0.150 -> 0.200, not kept (the first size stays)." in text

@@ -328,6 +328,7 @@ def _run_manifest(args, path):
               "unexplained": [{"stack": label, **r.to_dict()} for label, r in result.unexplained()],
               "unconfirmed": result.unconfirmed,
               "removed": result.removed,
+              "resized_through_clip": result.resized,
               "read_noise_refits": result.refits,
               "colour_bias_fitted_dn": {str(k): list(v) for k, v in result.colour_bias.items()},
               "initial": {k: [r.to_dict() for r in v] for k, v in result.initial.items()},

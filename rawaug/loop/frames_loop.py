@@ -90,6 +90,7 @@ class LoopResult:
     colour_bias: dict = field(default_factory=dict)  # K -> offsets (DN) fitted with the added effects
     unconfirmed: list = field(default_factory=list)  # residuals of the final model a larger synthesis sample did not confirm
     removed: list = field(default_factory=list)  # effects taken out at the end as redundant (backward elimination)
+    resized: list = field(default_factory=list)  # effects sized again through a clip in the re-fitted base
 
     @property
     def added(self) -> list[str]:
@@ -526,6 +527,8 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         fits = new_b["n_significant"] <= old_b["n_significant"] and new_b["mean_rel_error"] <= old_b["mean_rel_error"]
         say(f"step {step_no}: {step.effect} sized again through the clip in the re-fitted base: battery "
             f"{old_b['mean_rel_error']:.3f} -> {new_b['mean_rel_error']:.3f}: " + ("kept" if fits else "dropped"))
+        result.resized.append({"effect": step.effect, "round": step_no, "kept": fits,
+                               "battery_before": old_b, "battery_after": new_b})
         if fits:
             step.params, current, diags = params, trial, trial_diags
             step.battery_after = new_b

@@ -103,6 +103,11 @@ def outcome_summary(result) -> str:
             lines.append(f"After `{refit['after']}` was added, the model's read-noise tail exceeded the measured one: "
                          "the base read noise's Tukey lambda was re-fitted, its variance kept: "
                          + ", ".join(f"{lam:.3f} ({label})" for label, lam in lambdas.items()) + ".")
+    for again in getattr(result, "resized", []):
+        lines.append(f"After the base was re-fitted with `{again['effect']}`, its size was found again through the clip "
+                     f"in the re-fitted base (the share the clip hides depends on the noise around it): battery "
+                     f"{again['battery_before']['mean_rel_error']:.3f} -> {again['battery_after']['mean_rel_error']:.3f}, "
+                     + ("kept." if again["kept"] else "not kept (the first size stays)."))
     for gone in getattr(result, "removed", []):
         lines.append(f"`{gone['effect']}` was added, then removed: beside " + ", ".join(f"`{t}`" for t in gone["beside"])
                      + (" the model overshot its statistic with it, and the battery is no worse without it (battery "
