@@ -31,6 +31,12 @@ def share_at_floor(stack, floor_dn: float) -> float:
     return float(np.mean(stack.frames_dn <= float(floor_dn) + 0.5))
 
 
+def clipped(stack, profile) -> bool:
+    """True when ``profile`` has a ``Clip`` and ``stack`` holds ``CLIPPED_SHARE`` of its values at its floor."""
+    clip = profile.effects.get("Clip")
+    return clip is not None and share_at_floor(stack, clip["floor_dn"]) >= CLIPPED_SHARE
+
+
 def _elementwise(fn, first, *others, flags=True):
     """``fn(first, *others)`` on each number of like-shaped (nested) lists where ``flags`` (a
     bool, or one per record) is set and every argument is non-zero and of one sign (an offset
@@ -71,7 +77,7 @@ def clip_corrected(token: str, params: dict, profile, stacks, estimate, model=No
     clip = profile.effects.get("Clip")
     if not keys or clip is None:
         return params
-    clipped_k = {st.k for st in stacks if share_at_floor(st, clip["floor_dn"]) >= CLIPPED_SHARE}
+    clipped_k = {st.k for st in stacks if clipped(st, profile)}
     if not clipped_k:
         return params
 

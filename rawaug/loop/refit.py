@@ -34,7 +34,7 @@ from ..augment import parse_model
 from ..distributions import tukey_lambda_survival, tukey_lambda_variance
 from ..relations import LogLinear
 from ..statistics import MAD_TO_SIGMA, center_scale, frame_statistics, grid_step, repaired, sensor_row_means
-from .clip_correction import CLIPPED_SHARE, share_at_floor
+from .clip_correction import clipped
 from .diagnose import fitted_offsets, synthesis_fixed, synthesize
 
 MIN_FACTOR = 0.5  # no re-fit that would cut sigma below half its calibrated value
@@ -122,7 +122,6 @@ def read_noise_factors(stacks, diags, profile, model=None, z_min: float = 6.0, s
     by the model's ``Clip`` gets the factor by simulation (``_factor_through_clip``).
     ``diags``: label -> (residuals, syntheses)."""
     tokens = parse_model(model or profile.richest_model)
-    clip = profile.effects.get("Clip")
     factors = {}
     for i, stack in enumerate(stacks):
         if stack.kind != "bias":
@@ -130,7 +129,7 @@ def read_noise_factors(stacks, diags, profile, model=None, z_min: float = 6.0, s
         r = next((r for r in diags[stack.label][0] if r.statistic == "temporal_std"), None)
         if r is None or r.z >= -z_min:
             continue
-        if clip is not None and share_at_floor(stack, clip["floor_dn"]) >= CLIPPED_SHARE:
+        if clipped(stack, profile):
             f = _factor_through_clip(stack, profile, model, float(r.measured), seed + 7 * i)
             if f is not None:
                 factors[stack.label] = f
@@ -151,9 +150,15 @@ def _temporal_std_at(stack, profile, factor: float, model, seed: int) -> float:
     scaled, prof = stack, profile
     if factor != 1.0:
         [scaled], prof = apply_read_noise_factors([stack], profile, {stack.label: factor}, model)
-    offsets = fitted_offsets(prof, scaled, seed, model)
-    synth = synthesize(prof, scaled, 2, seed, model, offsets=offsets)
-    return float(np.mean([frame_statistics(f, "bias", names=["temporal_std"])["temporal_std"] for f in synth]))
+    return _mean_over_syntheses(scaled, prof, model, seed,
+                                lambda f: frame_statistics(f, "bias", names=["temporal_std"])["temporal_std"])
+
+
+def _mean_over_syntheses(stack, profile, model, seed: int, statistic) -> float:
+    """``statistic`` of two syntheses of ``stack`` by ``profile``, averaged, the colour bias
+    fitted again first (a clip moves the mean with the noise)."""
+    synth = synthesize(profile, stack, 2, seed, model, offsets=fitted_offsets(profile, stack, seed, model))
+    return float(np.mean([statistic(f) for f in synth]))
 
 
 def _factor_by_simulation(at, measured: float, power: float, lowest: float) -> float | None:
@@ -385,8 +390,7 @@ def _row_variance_at(stack, profile, factor: float, model, seed: int, edges) -> 
     scaled, prof = stack, profile
     if factor != 1.0:
         [scaled], prof = apply_row_noise_factors([stack], profile, {stack.label: factor})
-    synth = synthesize(prof, scaled, 2, seed, model, offsets=fitted_offsets(prof, scaled, seed, model))
-    return float(np.mean([_row_variance(f, edges) for f in synth]))
+    return _mean_over_syntheses(scaled, prof, model, seed, lambda f: _row_variance(f, edges))
 
 
 def row_noise_factors(stacks, diags, profile, z_min: float = 6.0, model=None, seed: int = 0) -> dict:
@@ -399,7 +403,6 @@ def row_noise_factors(stacks, diags, profile, z_min: float = 6.0, model=None, se
     noise (``_factor_by_simulation``)."""
     factors = {}
     edges = _tap_rows(profile)
-    clip = profile.effects.get("Clip")
     for i, stack in enumerate(stacks):
         if stack.kind != "bias":
             continue
@@ -412,7 +415,7 @@ def row_noise_factors(stacks, diags, profile, z_min: float = 6.0, model=None, se
         sigma_r = float(synthesis_fixed(profile, stack).get("sigma_r", 0.0))
         if sigma_r <= 0:
             continue
-        if clip is not None and share_at_floor(stack, clip["floor_dn"]) >= CLIPPED_SHARE:
+        if clipped(stack, profile):
             f = _factor_by_simulation(lambda g: _row_variance_at(stack, profile, g, model, seed + 7 * i, edges),
                                       measured, 0.5, ROW_MIN_FACTOR)
             if f is not None:
