@@ -508,6 +508,52 @@ def column_noise(dn, rng, **_):
     return dn + np.stack([c[0::2], c[1::2], c[1::2], c[0::2]])[:, None, :]  # R, G2 on even sensor columns
 
 
+
+# 2026-11-29 (twentieth session): a second fresh batch, written and committed before the loop ran on
+# any of them.
+
+def stuck_pixels(dn, rng, **_):
+    """Stuck pixels: 0.05 % of the sensor pixels (fixed) always read the same code, 150 to 400 DN above black, with no noise and no response to light, in every kind of frame."""
+    where = np.random.default_rng(89).random(dn.shape) < 0.0005
+    return np.where(where, np.floor(np.random.default_rng(97).uniform(150.0, 400.0, dn.shape)), dn)
+
+
+def charge_transfer(dn, rng, kind="", **_):
+    """Horizontal charge-transfer inefficiency: along each sensor row, in readout order, every pixel leaves 2 % of its charge behind, read with the next pixel (a trail to the right), in frames that hold charge (darks and flats)."""
+    if kind == "bias":
+        return dn
+    raw = np.empty((2 * dn.shape[1], 2 * dn.shape[2]))
+    for i, (r, c) in enumerate(((0, 0), (0, 1), (1, 1), (1, 0))):
+        raw[r::2, c::2] = dn[i]
+    left = np.concatenate([np.zeros((raw.shape[0], 1)), raw[:, :-1]], axis=1)
+    return _raw_mask_to_packed(0.98 * raw + 0.02 * left)
+
+
+def dark_read_noise(dn, rng, kind="", **_):
+    """Noise that grows with the exposure and not with the dark signal: the 4 s darks read 1.2 DN more white noise (Gaussian, new in every frame, no change of level), as from an amplifier warmed by the long exposure; bias frames and flats untouched."""
+    if kind != "dark":
+        return dn
+    return dn + rng.normal(0.0, 1.2, dn.shape)
+
+
+def read_noise_gradient(dn, rng, **_):
+    """Read noise rising across the sensor, away from the amplifier: extra white noise growing linearly from 0 DN at the left edge to 2 DN at the right one, new in every frame, in every kind of frame."""
+    _, x = _sensor_grid(dn)
+    return dn + rng.normal(0.0, 1.0, dn.shape) * _raw_to_packed(2.0 * x / x.max())
+
+
+def parity_row_gain(dn, rng, **_):
+    """Two-phase row drivers: sensor row pairs alternate in gain, +0.6 % on rows 4n and 4n+1, -0.6 % on rows 4n+2 and 4n+3 (fixed), so flats show a period-2 row pattern in each channel, in proportion to the signal."""
+    g = np.where(np.arange(2 * dn.shape[1]) % 4 < 2, 1.006, 0.994)
+    return dn * np.stack([g[0::2], g[0::2], g[1::2], g[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
+def channel_dark(dn, rng, exposure=0.0, k=1.0, **_):
+    """Dark current of one colour's pixel design: the blue pixels collect 4 e-/s of dark current, with its shot noise, the others none."""
+    out = dn.copy()
+    out[2] = dn[2] + k * rng.poisson(4.0 * exposure, dn.shape[1:])
+    return out
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -518,7 +564,9 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  hot_pixels, black_clip, fixed_tone, locked_tone, noisy_pixels, thermal_gradient, leaky_rows,
                                  dark_telegraph, noisy_columns, adc_banks, row_telegraph, wide_codes, split_black,
                                  split_gain, top_bottom_black, clamp_ramp, channel_gain, weak_columns, warming_dark,
-                                 amp_glow, random_missing_codes, defect_couplets, black_shading, gain_drift, column_noise)}
+                                 amp_glow, random_missing_codes, defect_couplets, black_shading, gain_drift, column_noise,
+                                 stuck_pixels, charge_transfer, dark_read_noise, read_noise_gradient, parity_row_gain,
+                                 channel_dark)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
