@@ -123,7 +123,11 @@ def test_loop_rates_over_seeds(name):
 DARK = {"Dark": {"seed": 21, "k": [K], "rate_e_per_s": [4.0], "dsnu": [0.3]}}
 
 
-@pytest.mark.parametrize("effects", [DARK, {}], ids=["Dark", "none"])
+# a colour whose pixels leak more (their layout in the 2x2 tile): B 4 times R
+DARK_CHANNEL = {"Dark": {**DARK["Dark"], "channel": [0.4, 1.0, 1.6, 1.0]}}
+
+
+@pytest.mark.parametrize("effects", [DARK, DARK_CHANNEL, {}], ids=["Dark", "Dark per channel", "none"])
 def test_loop_finds_dark_current_in_dark_frames_only_where_there_is_some(effects):
     # bias frames cannot show dark current; dark frames of 5 s (20 e- a pixel) do
     stacks = [measured_stack(effects, seed=300, n=6, size=96, label="bias"),
@@ -135,6 +139,9 @@ def test_loop_finds_dark_current_in_dark_frames_only_where_there_is_some(effects
         rec = result.profile.effects["Dark"]
         # rate: mean excess of 6 x 4 x 96 x 96 pixels, ~1 % spread; DSNU from a 221k-pixel map
         assert abs(rec["rate_e_per_s"][0] - 4.0) < 0.2 and abs(rec["dsnu"][0] - 0.3) < 0.05, rec
+        # each channel's mean of 6 x 96 x 96 pixels: its relative rate within 0.002 (measured
+        # 0.401, 1.003, 1.596, 1.000 against 0.4, 1, 1.6, 1); equal rates read as such
+        assert np.allclose(rec["channel"], effects["Dark"].get("channel", [1.0] * 4), atol=0.03), rec
 
 
 DARK_HOT = {"DarkHot": {"seed": 63, "density": 2e-3, "median_e_per_s": 10.0, "log_std": 0.4}}
@@ -157,7 +164,8 @@ def dark_hot_named(seed):
 # a black level that sags 0.4 DN per second of exposure (no electrons: no shot noise)
 DARK_ONLY = {"DarkCol": {"seed": 73, "density": 0.02, "median_e_per_s": 8.0, "log_std": 0.3},
              "DarkRow": {"seed": 89, "density": 0.02, "median_e_per_s": 8.0, "log_std": 0.3},
-             "DarkOffset": {"k": [K], "dn_per_s": [-0.4]}}
+             "DarkOffset": {"k": [K], "dn_per_s": [-0.4]},
+             "DarkNoise": {"k": [K], "rate_dn2_per_s": [1.0]}}
 
 
 def dark_only_named(token, seed):
@@ -181,6 +189,8 @@ def dark_only_named(token, seed):
 
         seeded = bright_rows(measured_stack(effects, seed=seed, n=2, size=96, exposure_s=100.0).frames_dn)[0]
         return abs(rec["density"] - seeded) <= 1 / 192 + 1e-12 and abs(np.log(rec["median_e_per_s"] / 8.0)) < 0.5
+    if token == "DarkNoise":  # 5 DN^2 at 5 s over the read noise's 14.3 (17 % in std): the rate within a sixth
+        return abs(rec["rate_dn2_per_s"][0] - 1.0) < 0.15
     # the mean of 6 x 4 x 96 x 96 pixels and their temporal variance: ~0.04 DN, 0.008 DN/s over 5 s
     return abs(rec["dn_per_s"][0] + 0.4) < 0.05
 
@@ -420,7 +430,8 @@ def dnl_named(seed):
 # each check: seed -> the effect named, nothing left and its estimate within bounds
 NAMED = {"DarkHot": dark_hot_named, "DarkCol": lambda seed: dark_only_named("DarkCol", seed),
          "DarkRow": lambda seed: dark_only_named("DarkRow", seed),
-         "DarkOffset": lambda seed: dark_only_named("DarkOffset", seed), "Spikes": spikes_named, "ColRTS": telegraph_columns_named, "RowRTS": telegraph_rows_named,
+         "DarkOffset": lambda seed: dark_only_named("DarkOffset", seed),
+         "DarkNoise": lambda seed: dark_only_named("DarkNoise", seed), "Spikes": spikes_named, "ColRTS": telegraph_columns_named, "RowRTS": telegraph_rows_named,
          "Noisy": noisy_named, "DarkRTS": dark_telegraph_named, "NoisyCol": noisy_columns_named,
          "TapBlack": readout_taps_named, "ChargeShare": charge_sharing_named, "TapGain": tap_gains_named,
          "LineGain": gain_lines_named, "DarkDrift": dark_drift_named, "DNL": dnl_named}

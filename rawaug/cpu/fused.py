@@ -33,7 +33,7 @@ _HD, _HM, _HL = L.COLUMN["hot_density"], L.COLUMN["hot_median"], L.COLUMN["hot_l
 _Q, _B0 = L.COLUMN["step_dn"], L.COLUMN["bias_r"]
 _BS, _BC, _CL = L.COLUMN["ble_sigma"], L.COLUMN["ble_channel_sigma"], L.COLUMN["clip_floor"]
 _RATIO = L.COLUMN["ratio"]
-_DARK_E, _DSNU_LOG = L.COLUMN["dark_e"], L.COLUMN["dsnu_log"]
+_DARK_E, _DSNU_LOG, _DARK_C0 = L.COLUMN["dark_e"], L.COLUMN["dsnu_log"], L.COLUMN["dark_c0"]
 _DSNU_PATTERN = L.STREAM["dsnu_pattern"]
 _LF, _LF_GH, _LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
 _CM_REC, _CM_LO, _CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
@@ -88,6 +88,7 @@ _TPE = L.TAP_EDGES
 _LGRD, _LGCD, _LGM, _LGLS, _LGNEG = (L.COLUMN[n] for n in ("lgain_row_density", "lgain_col_density", "lgain_median", "lgain_log_std", "lgain_negative"))
 _LGAIN_ROW, _LGAIN_COL = L.STREAM["lgain_row"], L.STREAM["lgain_col"]
 _DDF = L.COLUMN["dark_factor"]
+_DNS, _DARK_NOISE = L.COLUMN["dark_noise"], L.STREAM["dark_noise"]
 _DNL_P, _DNL_E0 = L.COLUMN["dnl_period"], L.COLUMN["dnl_e0"]
 _TGR, _TGC0, _TGR0 = L.COLUMN["tgain_record"], L.COLUMN["tgain_c0"], L.COLUMN["tgain_r0"]
 _TGOY, _TGOX, _TGH, _TGW = L.COLUMN["tgain_oy"], L.COLUMN["tgain_ox"], L.COLUMN["tgain_h"], L.COLUMN["tgain_w"]
@@ -399,7 +400,7 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
                 p = p0 + x
                 s = sig[x]
                 sl = v[_DSNU_LOG]  # a log-normal rate map of mean 1
-                s += k * v[_DARK_E] * math.exp(sl * symmetric(normal, draw(keys[_DSNU_PATTERN], p)) - 0.5 * sl * sl)
+                s += k * v[_DARK_E] * v[_DARK_C0 + c] * math.exp(sl * symmetric(normal, draw(keys[_DSNU_PATTERN], p)) - 0.5 * sl * sl)
                 sig[x] = s
         if stages & L.GLOW:
             for x in range(w):
@@ -551,6 +552,9 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
                 if unit(draw(keys[_NCOL_WHERE], q)) < v[_NCD]:
                     s += v[_NCM] * math.exp(v[_NCL] * symmetric(normal, draw(keys[_NCOL_SIZE], q))) * symmetric(normal, draw(keys[_NCOL_READ], g))
                 sig[x] = s
+        if stages & L.DARK_NOISE:  # exposure noise: white, new at every pixel and frame
+            for x in range(w):
+                sig[x] += v[_DNS] * symmetric(normal, draw(keys[_DARK_NOISE], g0 + x))
         if stages & (L.READ_TABLE | L.READ_TUKEY | L.READ_GAUSS):
             for x in range(w):
                 g = g0 + x

@@ -7,8 +7,10 @@ stage), and the rate differs from pixel to pixel (a fixed pattern whose spread g
 ``t``: DSNU). The ELD paper lumps dark current into the read noise of its short bias frames;
 dark frames at longer exposures show it apart.
 
-Stage (DN, before shot noise): ``s -> s + K * dark_e * exp(b g - b^2 / 2)`` with
-``dark_e = rate(K) * exposure_s`` electrons, ``g`` a standard-normal map keyed by the
+Stage (DN, before shot noise): ``s -> s + K * dark_e * f_c * exp(b g - b^2 / 2)`` with
+``dark_e = rate(K) * exposure_s`` electrons, ``f_c`` the relative rate of the pixel's colour
+channel (the pixels of a 2x2 tile differ in layout: a shared readout, a transfer gate on
+another side; mean 1 over R, G1, B, G2, 1 each when the entry has none), ``g`` a standard-normal map keyed by the
 profile's seed and the pixel position and ``b = sqrt(log(1 + dsnu^2))``: a log-normal rate
 map of mean 1 and relative spread ``dsnu``. Dark current is skewed (a few pixels leak far
 more than most), and a rate is never negative. The exposure is a synthesis setting
@@ -16,7 +18,9 @@ more than most), and a rate is never negative. The exposure is a synthesis setti
 
 Profile entry (per-K records, nearest record in log K)::
 
-    Dark: {seed: 19, k: [K, ...], rate_e_per_s: [...], dsnu: [...]}
+    Dark: {seed: 19, k: [K, ...], rate_e_per_s: [...], dsnu: [...], channel: [f_R, f_G1, f_B, f_G2]}
+
+(``channel`` optional: one set for the camera, a property of the pixels' layout.)
 
 Detected on dark stacks (``FrameStack(kind="dark", exposure_s=t)``, synthesized with the
 offsets and read noise of the bias frames of the same ISO) by ``mean_dn`` (the dark signal),
@@ -24,7 +28,8 @@ offsets and read noise of the bias frames of the same ISO) by ``mean_dn`` (the d
 mean excess over the model gives the rate, the excess white fixed-pattern variance
 (``fixed_pixel_var``: the dark shot noise left in an N-frame mean, ``Glow`` and ``FPN``
 shading cancel) gives DSNU, solved for through the same statistic (``log_normal_spread``:
-it leaves out a heavy tail's far cells).
+it leaves out a heavy tail's far cells), and each channel's mean excess over their mean its
+relative rate (``combine``: averaged over the stacks, weighted by their signal).
 """
 from __future__ import annotations
 
@@ -48,14 +53,17 @@ class DarkCurrent(NoiseEffect):
     token = "Dark"
     order = PHOTON + 5
     flag = L.DARK_CURRENT
-    columns = ("dark_e", "dsnu_log")
+    columns = ("dark_e", "dsnu_log", "dark_c0", "dark_c1", "dark_c2", "dark_c3")
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
         exposure = ctx.fixed.get("exposure_s", 0.0)
         exposure = torch.as_tensor(exposure, dtype=torch.float64, device=ctx.device).expand(ctx.batch)
         dsnu = value_at_k(p, "dsnu", ctx.k)
-        return {"dark_e": value_at_k(p, "rate_e_per_s", ctx.k) * exposure, "dsnu_log": torch.sqrt(torch.log1p(dsnu * dsnu))}
+        out = {"dark_e": value_at_k(p, "rate_e_per_s", ctx.k) * exposure, "dsnu_log": torch.sqrt(torch.log1p(dsnu * dsnu))}
+        for c, f in enumerate(p.get("channel", (1.0,) * 4)):
+            out[f"dark_c{c}"] = ctx.k.new_full((ctx.batch,), float(f))
+        return out
 
     def pattern_streams(self):
         return {"dsnu_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
@@ -64,6 +72,13 @@ class DarkCurrent(NoiseEffect):
     def validate_params(cls, params):
         validate_records(cls.token, params, ("rate_e_per_s", "dsnu"), nonnegative=("rate_e_per_s", "dsnu"))
         check_seed(cls.token, params)
+        if "channel" in params:
+            f = params["channel"]
+            ok = isinstance(f, (list, tuple)) and len(f) == 4 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                                      and math.isfinite(x) and x >= 0 for x in f)
+            if not ok or abs(sum(f) / 4.0 - 1.0) > 1e-6:
+                raise ValueError(f"effect {cls.token!r}: channel (relative dark rates of R, G1, B, G2) must be 4 numbers "
+                                 f">= 0 with mean 1, got {f!r}")
 
 
 def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, kind: str = "dark", **_) -> dict:
@@ -74,26 +89,32 @@ def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, kin
     if kind != "dark" or not exposure_s or frames.shape[0] < 2:
         raise ValueError("Dark needs a dark stack of >= 2 frames and its exposure_s")
     base = [np.asarray(s, dtype=np.float64) for s in synthesized]
-    signal_dn = float(frames.mean() - np.mean([s.mean() for s in base]))
+    channel_dn = frames.mean(axis=(0, 2, 3)) - np.mean([s.mean(axis=(0, 2, 3)) for s in base], axis=0)
+    signal_dn = float(channel_dn.mean())
     if signal_dn <= 0:
-        return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [0.0], "dsnu": [0.0]}
+        return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [0.0], "dsnu": [0.0], "channel": [1.0] * 4,
+                "signal_dn": 0.0}
+    channel = np.maximum(channel_dn, 0.0)
+    channel = channel / channel.mean()
     # the white fixed spread over the model's: its dark shot noise, glow and shading cancel
     excess = fixed_pixel_var(frames) - float(np.mean([fixed_pixel_var(s) for s in base]))
-    dsnu = log_normal_spread(excess, base[0], signal_dn / k, k)
-    return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [signal_dn / (k * float(exposure_s))], "dsnu": [dsnu]}
+    dsnu = log_normal_spread(excess, base[0], signal_dn / k * channel[:, None, None], k)
+    return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [signal_dn / (k * float(exposure_s))], "dsnu": [dsnu],
+            "channel": [float(f) for f in channel], "signal_dn": signal_dn}
 
 
 DSNU_MAX = 20.0  # relative spread searched up to (log-normal b = 2.45)
 
 
-def log_normal_spread(excess_dn2: float, base, signal_e: float, k: float, seed: int = 0) -> float:
-    """Relative spread ``dsnu`` of a log-normal rate map of mean ``signal_e`` electrons whose
+def log_normal_spread(excess_dn2: float, base, signal_e, k: float, seed: int = 0) -> float:
+    """Relative spread ``dsnu`` of a log-normal rate map of mean ``signal_e`` electrons (a
+    number, or per channel (4, 1, 1)) whose
     ``fixed_pixel_var`` excess over the stack ``base`` (N, 4, h, w) in DN is ``excess_dn2``.
     ``fixed_pixel_var`` leaves out cells beyond ``OUTLIER_SIGMAS`` robust sigmas, and a
     log-normal's tail reaches there (a sigma of 0.8 in log loses a third of its variance):
     the map is planted on ``base`` with its shot noise (Gaussian, common random numbers) and
     its spread solved for, so that the excess is measured as the frames' was."""
-    if excess_dn2 <= 0.0 or signal_e <= 0.0:
+    if excess_dn2 <= 0.0 or not np.mean(signal_e) > 0.0:
         return 0.0
     rng = np.random.default_rng(seed)
     g = rng.standard_normal(base.shape[1:])
@@ -121,11 +142,17 @@ def log_normal_spread(excess_dn2: float, base, signal_e: float, k: float, seed: 
 
 def combine(records: list[dict]) -> dict:
     """One record per gain: the rate and DSNU of the stacks at one K (several exposures)
-    averaged, weighted by nothing but their count."""
+    averaged, weighted by nothing but their count; one set of relative channel rates for the
+    camera, the stacks' weighted by their dark signal (DN)."""
     by_k: dict = {}
     for r in records:
         by_k.setdefault(r["k"][0], []).append(r)
     ks = sorted(by_k)
-    return {"seed": records[0]["seed"], "k": ks,
-            "rate_e_per_s": [float(np.mean([r["rate_e_per_s"][0] for r in by_k[k]])) for k in ks],
-            "dsnu": [float(np.mean([r["dsnu"][0] for r in by_k[k]])) for k in ks]}
+    out = {"seed": records[0]["seed"], "k": ks,
+           "rate_e_per_s": [float(np.mean([r["rate_e_per_s"][0] for r in by_k[k]])) for k in ks],
+           "dsnu": [float(np.mean([r["dsnu"][0] for r in by_k[k]])) for k in ks]}
+    weights = np.array([max(float(r.get("signal_dn", 0.0)), 0.0) for r in records])
+    if weights.sum() > 0.0:
+        channel = np.average([r.get("channel", [1.0] * 4) for r in records], axis=0, weights=weights)
+        out["channel"] = [float(f) for f in channel / channel.mean()]
+    return out

@@ -62,6 +62,7 @@ TAP_GAIN = 1 << 51  # readout taps: a grid of regions, each with a gain of its o
 LINE_GAIN = 1 << 52  # gain defect lines: sparse sensor rows and columns with a gain far off, on the pixel's signal and noise
 ADC_DNL = 1 << 54  # ADC differential non-linearity: the codes' decision levels off their places, periodic in the code
 DARK_DRIFT = 1 << 53  # dark-signal drift: a factor per frame on every dark signal (the sensor's temperature), before shot noise
+DARK_NOISE = 1 << 55  # exposure noise: white Gaussian temporal noise whose variance grows with the exposure time, with the read noise
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
@@ -71,7 +72,7 @@ DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
 COLUMNS = (
     "k", "ratio",
     "prnu_sigma",
-    "dark_e", "dsnu_log",
+    "dark_e", "dsnu_log", "dark_c0", "dark_c1", "dark_c2", "dark_c3",  # dark current: electrons, DSNU, each channel's relative rate
     "sigma_tl", "lambda", "sigma_g",
     "sigma_r",
     "col_sigma", "col_fixed",
@@ -134,6 +135,7 @@ COLUMNS = (
     "lgain_row_density", "lgain_col_density", "lgain_median", "lgain_log_std", "lgain_negative",  # gain defect lines: densities, median gain offset (fraction), spread, share dim
     "dark_factor",  # dark-signal drift: this frame's factor on the dark signal
     "dnl_period", *(f"dnl_e{i}" for i in range(DNL_PERIOD_MAX)),  # ADC non-linearity: period (codes), decision-level offsets (DN)
+    "dark_noise",  # exposure noise: its std this exposure (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -151,7 +153,7 @@ STREAMS = (
     "spike_where", "spike_size", "crts_where", "crts_size", "crts_state", "rowgain_pattern", "rowgain_frame",
     "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
-    "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col",
+    "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

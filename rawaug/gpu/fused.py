@@ -21,7 +21,7 @@ def _column(name: str) -> tl.constexpr:
 
 
 C_K, C_RATIO, C_PRNU = _column("k"), _column("ratio"), _column("prnu_sigma")
-C_DARK_E, C_DSNU_LOG = _column("dark_e"), _column("dsnu_log")
+C_DARK_E, C_DSNU_LOG, C_DARK_C0 = _column("dark_e"), _column("dsnu_log"), _column("dark_c0")
 C_LF, C_LF_GH, C_LF_GW = _column("lowfreq_sigma"), _column("lowfreq_gh"), _column("lowfreq_gw")
 C_CM_REC, C_CM_LO, C_CM_N = _column("codemap_record"), _column("codemap_lo"), _column("codemap_n")
 C_CM_P = _column("codemap_period")
@@ -56,6 +56,7 @@ C_TGOY, C_TGOX, C_TGH, C_TGW = _column("tgain_oy"), _column("tgain_ox"), _column
 C_LGRD, C_LGCD, C_LGM, C_LGLS, C_LGNEG = (_column("lgain_row_density"), _column("lgain_col_density"), _column("lgain_median"),
                                         _column("lgain_log_std"), _column("lgain_negative"))
 C_DDF = _column("dark_factor")
+C_DNS = _column("dark_noise")
 C_DNL_P, C_DNL_E0 = _column("dnl_period"), _column("dnl_e0")
 TPE = tl.constexpr(L.TAP_EDGES)
 C_DOFF = _column("dark_offset")
@@ -111,6 +112,7 @@ K_NOISY_WHERE, K_NOISY_SIZE, K_NOISY_READ = S["noisy_where"], S["noisy_size"], S
 K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
 K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["crts_state"]
 K_DIAG_BAND = S["diag_band"]
+K_DARK_NOISE = S["dark_noise"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -290,7 +292,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     s_pixel = s  # ... and after them: the dark signal is what the stages below add
     if FLAGS & 16384:  # dark current: K * dark electrons * a log-normal DSNU map of mean 1, before shot noise
         sl = _col(v, C_DSNU_LOG)
-        s += k * _col(v, C_DARK_E) * tl.exp(sl * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)) - 0.5 * sl * sl)
+        s += k * _col(v, C_DARK_E) * tl.load(v + C_DARK_C0 + c) * tl.exp(sl * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)) - 0.5 * sl * sl)
     if FLAGS & 524288:  # amplifier glow: K * exposure * a smooth dark-current map (e-/s), a window of glow_h x glow_w
         gh_ = _col(v, C_GLH)
         gw_ = _col(v, C_GLW)
@@ -389,6 +391,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         noisy_col = unit(draw(_key(keys_ptr, K_NCOL_WHERE), q)) < _col(v, C_NCD)
         size = _col(v, C_NCM) * tl.exp(_col(v, C_NCL) * _normal(draw(_key(keys_ptr, K_NCOL_SIZE), q)))
         s += tl.where(noisy_col, size * _normal(draw(_key(keys_ptr, K_NCOL_READ), g)), 0.0)
+    if FLAGS & 36028797018963968:  # exposure noise: white, new at every pixel and frame
+        s += _col(v, C_DNS) * _normal(draw(_key(keys_ptr, K_DARK_NOISE), g))
     read_gain = 1.0
     if FLAGS & 274877906944:  # frame-to-frame read-noise level: this frame's factor on the base read noise
         read_gain = _col(v, C_RG)
