@@ -135,15 +135,19 @@ def line_mean_variance(c, axis):
     """Variance across lines of the line means (lines run along ``axis`` of a (..., h, w)
     array), from first differences of neighbouring lines: robust (1.4826 MAD)^2 / 2. Smooth
     shading does not count; offsets that differ line to line do; a few defect lines (a
-    stuck column, a dead row) do not: they are outliers, not line noise. The MAD is taken
-    about the mean difference (the end lines' over the span: no inner defect moves it), not
-    the median, which a pattern alternating from line to line puts on one of its two modes,
-    at random. Shape (...)."""
-    d = np.diff(c.mean(axis=axis), axis=-1)
+    stuck column, a dead row) do not: they are outliers, not line noise (``difference_scale``).
+    Shape (...)."""
+    return difference_scale(np.diff(c.mean(axis=axis), axis=-1)) ** 2 / 2.0
+
+
+def difference_scale(d):
+    """1.4826 MAD along the last axis of differences of neighbouring lines' means, about
+    their mean (the end lines' difference over the span: no inner defect line moves it), not
+    their median, which a pattern alternating from line to line puts on one of its two modes,
+    at random; the rms where the MAD is 0 (coarse codes). Shape (...)."""
     dev = np.abs(d - d.mean(axis=-1, keepdims=True))
     mad = MAD_TO_SIGMA * median(dev, axis=-1)
-    scale = np.where(mad > 0, mad, np.sqrt(np.mean(dev * dev, axis=-1)))  # coarse codes: the rms
-    return scale ** 2 / 2.0
+    return np.where(mad > 0, mad, np.sqrt(np.mean(dev * dev, axis=-1)))
 
 
 def _profile_excess(frames, axis):
@@ -180,7 +184,7 @@ def _defects(means):
     size = [1] * (means.ndim - 1) + [5]
     resid = means - median_filter(means, size=size, mode="mirror")  # an edge line is judged by its inner neighbours
     _, scale = robust_scale(resid, axis=-1)
-    _, step = robust_scale(np.diff(means, axis=-1), axis=-1)
+    step = difference_scale(np.diff(means, axis=-1))[..., None]
     return np.abs(resid) > DEFECT_Z * np.maximum(scale, step / np.sqrt(2.0)), resid
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..engine import layout as L
-from ..statistics import robust_scale, sensor_row_means
+from ..statistics import difference_scale, sensor_row_means
 from .base import BANDING, NoiseEffect, pattern_key, register
 from .k_records import all_zero, check_seed, combine_sigma, validate_records, value_at_k
 
@@ -50,9 +50,8 @@ class RowPattern(NoiseEffect):
 
 def _row_variance(rows) -> float:
     """Variance across sensor rows of (..., 2h) row means from neighbouring-row differences
-    (robust: (1.4826 MAD)^2 / 2; smooth shading does not count), mean over the leading axes, DN^2."""
-    _, scale = robust_scale(np.diff(rows, axis=-1), axis=-1)
-    return float(np.mean(scale**2) / 2.0)
+    (robust: ``difference_scale``^2 / 2; smooth shading does not count), mean over the leading axes, DN^2."""
+    return float(np.mean(difference_scale(np.diff(rows, axis=-1)) ** 2) / 2.0)
 
 
 def _row_parts(frames):
