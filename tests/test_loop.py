@@ -439,10 +439,10 @@ NAMED = {"DarkHot": dark_hot_named, "DarkCol": lambda seed: dark_only_named("Dar
 
 # DarkRow is DarkCol's code along the other axis: in the default run its round trip is checked
 # (tests/test_effects_loop.py), its naming with the slow rates below; so are DarkDrift's and
-# DNL's (tests/test_dark_drift.py, tests/test_adc_dnl.py), and those of the effects after them
+# DNL's and DarkNoise's (tests/test_dark_drift.py, tests/test_adc_dnl.py, tests/test_dark_noise.py), and those of the effects after them
 # (round trips in tests/test_effects_loop.py and tests/test_charge_sharing.py; RowRTS's
 # estimator is ColRTS's), to keep the default run near 5 minutes
-SLOW_NAMED = ("DarkRow", "DarkDrift", "DNL", "DarkRTS", "NoisyCol", "LineGain", "TapBlack", "TapGain", "ChargeShare", "RowRTS")
+SLOW_NAMED = ("DarkRow", "DarkDrift", "DNL", "DarkNoise", "DarkRTS", "NoisyCol", "LineGain", "TapBlack", "TapGain", "ChargeShare", "RowRTS")
 
 
 @pytest.mark.parametrize("token", [pytest.param(t, marks=pytest.mark.slow) if t in SLOW_NAMED else t for t in NAMED])
