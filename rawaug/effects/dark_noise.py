@@ -33,7 +33,7 @@ from scipy import optimize, stats
 
 from ..engine import layout as L
 from .base import READ, NoiseEffect, register
-from .k_records import all_zero, validate_records, value_at_k
+from .k_records import all_zero, combine_mean, validate_records, value_at_k
 
 STATISTICS = ("temporal_std", "pixel_std")
 AMPLITUDES = ("rate_dn2_per_s",)  # corrected by simulation under a clip (rawaug.loop.clip_correction)
@@ -94,11 +94,7 @@ def estimate(frames, synthesized, k: float, kind=None, exposure_s=None, seed: in
 
 def combine(records: list[dict]) -> dict:
     """One rate per gain: its stacks' rates averaged."""
-    by_k: dict = {}
-    for r in records:
-        by_k.setdefault(r["k"][0], []).append(r["rate_dn2_per_s"][0])
-    ks = sorted(by_k)
-    return {"k": ks, "rate_dn2_per_s": [float(np.mean(by_k[k])) for k in ks]}
+    return combine_mean(records, "rate_dn2_per_s")
 
 
 def empty(params) -> bool:

@@ -84,6 +84,16 @@ def merge_records(records: list[dict]) -> dict:
     return out
 
 
+def combine_mean(records: list[dict], key: str) -> dict:
+    """One record per gain from single-K records ``{k: [K], key: [value]}`` (one per stack):
+    the stacks at one K averaged."""
+    by_k: dict = {}
+    for r in records:
+        by_k.setdefault(float(r["k"][0]), []).append(r[key][0])
+    ks = sorted(by_k)
+    return {"k": ks, key: [float(sum(v) / len(v)) for v in (by_k[k] for k in ks)]}
+
+
 def combine_sigma(records: list[dict], key: str = "sigma_dn") -> dict:
     """One record per gain from single-K records ``{k: [K], key: [sigma]}`` (one per stack):
     the stacks at one K averaged in variance."""
