@@ -554,6 +554,56 @@ def channel_dark(dn, rng, exposure=0.0, k=1.0, **_):
     out[2] = dn[2] + k * rng.poisson(4.0 * exposure, dn.shape[1:])
     return out
 
+
+# 2026-11-29 (twenty-first session): a third fresh batch, written and committed before the loop ran
+# on any of them.
+
+def image_lag(dn, rng, k=1.0, **_):
+    """Image lag: each pixel keeps 1 % of the previous frame's charge and reads it with the next frame (incomplete transfer from the photodiode), in the order the frames were taken (bias, darks, then the flats by level), so the second flat of a pair and the first of a new level carry part of the one before."""
+    key = ("lag", id(rng), k)
+    out = dn + 0.01 * _WALK.get(key, 0.0)
+    _WALK[key] = np.maximum(dn, 0.0)
+    return out
+
+
+def black_by_iso(dn, rng, k=1.0, **_):
+    """An offset before the analog gain: 0.8 e- in every pixel of every frame, so black reads 0.8 K DN high, more at each higher ISO (the black clamp acts after the gain and does not see it)."""
+    return dn + 0.8 * k
+
+
+def cosmic_rays(dn, rng, exposure=0.0, k=1.0, **_):
+    """Cosmic-ray hits: 2e-5 per sensor pixel per second, each a short straight track of 1 to 4 sensor pixels in a random direction, 300 to 3000 e- per pixel, new in every frame (so about 16 in a 4 s dark of the issue's size and almost none in bias frames)."""
+    _, h, w = dn.shape
+    raw = np.zeros((2 * h, 2 * w))
+    for _hit in range(rng.poisson(2e-5 * raw.size * exposure)):
+        y, x, a = rng.integers(0, 2 * h), rng.integers(0, 2 * w), rng.uniform(0, np.pi)
+        for t in range(rng.integers(1, 5)):
+            yy, xx = int(round(y + t * np.sin(a))), int(round(x + t * np.cos(a)))
+            if 0 <= yy < 2 * h and 0 <= xx < 2 * w:
+                raw[yy, xx] += rng.uniform(300.0, 3000.0)
+    return dn + k * _raw_to_packed(raw)
+
+
+def row_gain_noise(dn, rng, **_):
+    """Temporal row gain noise: each sensor row's gain moves by 0.1 % rms, new in every frame (noise on a row's reference voltage), so flats show row banding growing with the signal and bias frames none."""
+    g = 1.0 + 0.001 * rng.normal(0.0, 1.0, 2 * dn.shape[1])
+    return dn * np.stack([g[0::2], g[0::2], g[1::2], g[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
+def column_telegraph(dn, rng, **_):
+    """Random telegraph noise of column amplifiers: 2 % of the sensor columns (fixed) switch between two levels 3 DN apart, each frame in one of the two at random, in every kind of frame."""
+    cols = np.random.default_rng(101).random(2 * dn.shape[2]) < 0.02
+    c = 3.0 * cols * (rng.random(cols.shape) < 0.5)
+    return dn + np.stack([c[0::2], c[1::2], c[1::2], c[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
+def low_light_toe(dn, rng, k=1.0, kind="", **_):
+    """Charge trapping at low light: a pixel loses t (1 - exp(-q / t)) of its photo-charge q, with t = 15 e- (traps that fill first), so the response has a toe and, above a few hundred electrons, a constant 15 e- short; in flats (the darks' charge here is too small to matter)."""
+    if kind != "flat":
+        return dn
+    q = np.maximum(dn / k, 0.0)
+    return dn - k * 15.0 * (1.0 - np.exp(-q / 15.0))
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -566,7 +616,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  split_gain, top_bottom_black, clamp_ramp, channel_gain, weak_columns, warming_dark,
                                  amp_glow, random_missing_codes, defect_couplets, black_shading, gain_drift, column_noise,
                                  stuck_pixels, charge_transfer, dark_read_noise, read_noise_gradient, parity_row_gain,
-                                 channel_dark)}
+                                 channel_dark, image_lag, black_by_iso, cosmic_rays, row_gain_noise, column_telegraph,
+                                 low_light_toe)}
 CASES["none"] = None
 NOTHING_TO_ADD = {"none", "lens_shading"}  # cameras whose right answer is to add nothing
 
