@@ -31,7 +31,7 @@ import torch
 from ..engine import layout as L
 from ..statistics import frame_noise_spread
 from .base import READ, NoiseEffect, register
-from .k_records import all_zero, validate_records, value_at_k
+from .k_records import all_zero, combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("frame_noise_spread",)
 MAX_LOG_STD = 1.0
@@ -70,11 +70,7 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
 
 def combine(records: list[dict]) -> dict:
     """One spread per gain: its stacks' spreads averaged in variance."""
-    by_k: dict = {}
-    for r in records:
-        by_k.setdefault(r["k"][0], []).append(r["log_std"][0] ** 2)
-    ks = sorted(by_k)
-    return {"k": ks, "log_std": [float(math.sqrt(np.mean(by_k[k]))) for k in ks]}
+    return combine_sigma(records, "log_std")
 
 
 def empty(params) -> bool:

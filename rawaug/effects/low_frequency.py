@@ -31,7 +31,7 @@ import torch
 from ..engine import layout as L
 from ..statistics import repaired
 from .base import ADC, NoiseEffect, register
-from .k_records import frame_size, validate_records, value_at_k
+from .k_records import combine_mean, frame_size, validate_records, value_at_k
 
 STATISTICS = ("psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
 MEASURED = True
@@ -144,10 +144,6 @@ def estimate(frames, synthesized, k: float, **_) -> dict:
 def combine(records: list[dict]) -> dict:
     """One record per gain (several stacks at one K: their sigmas averaged); the grid of the
     first stack (a camera's frames share one size)."""
-    by_k: dict = {}
-    for r in records:
-        by_k.setdefault(r["k"][0], []).append(r["sigma_dn"][0])
-    ks = sorted(by_k)
-    out = {"grid": list(records[0]["grid"]), "k": ks, "sigma_dn": [float(np.mean(by_k[k])) for k in ks]}
+    out = {"grid": list(records[0]["grid"]), **combine_mean(records, "sigma_dn")}
     out.update({key: records[0][key] for key in ("frame_h", "frame_w") if key in records[0]})
     return out
