@@ -249,25 +249,67 @@ def without_stuck(frames):
     return c
 
 
+def without_impulses(frames):
+    """The frames (N >= 3) with each impulse (``spike_outliers``: a bright single-frame event
+    beyond the read noise's own tail, as a cosmic ray makes) replaced by its pixel's median
+    over the stack, DN: an impulse is counted once, as an impulse, and not also as a defect
+    line, a flickering line, a hot pixel or a heavy tail. Fewer frames, or no significant
+    excess of bright events: the frames themselves."""
+    f = np.asarray(frames, dtype=np.float64)
+    if f.shape[0] < 3:
+        return f
+    hit = spike_outliers(f)
+    if not hit.any():
+        return f
+    c = f.copy()
+    n, ch, y, x = np.nonzero(hit)
+    c[n, ch, y, x] = np.median(f[:, ch, y, x], axis=0)
+    return c
+
+
+def without_outliers(frames):
+    """The frames with their dead pixels (``without_stuck``) and impulses (``without_impulses``)
+    replaced, DN: what line statistics and the line estimators read."""
+    return without_impulses(without_stuck(frames))
+
+
 def repaired(frames):
-    """The frames with their dead pixels replaced (``without_stuck``), then every defect line
-    (``defect_line_masks``) replaced by its nearest normal line of the same frame and channel,
-    DN: what every statistic but ``defect_lines`` and ``stuck_fraction`` and the shading
-    estimators look at, so that a stuck column is counted once, as a defect, and not also as
-    hot pixels, heavy tails, pixel noise or low-frequency power. Read-only; computed once for
+    """The frames with their dead pixels and impulses replaced (``without_outliers``), then
+    every defect line (``defect_line_masks``) replaced by its nearest normal line of the same
+    frame and channel, DN: what every statistic but ``defect_lines``, ``stuck_fraction`` and the
+    impulse statistics (``with_impulses``) and the shading estimators look at, so that a stuck
+    column is counted once, as a defect, and not also as hot pixels, heavy tails, pixel noise
+    or low-frequency power. Read-only; computed once for the same array in a row."""
+    return _repaired_views(frames)[0]
+
+
+def with_impulses(frames):
+    """``repaired`` with the impulses left in (defect lines found without them), DN: what the
+    impulse statistics (``spike_fraction``, ``tail_mass``) read. Read-only; computed once for
     the same array in a row."""
+    return _repaired_views(frames)[1]
+
+
+def _repaired_views(frames):
+    """(repaired, with_impulses) of a stack, computed once for the same array in a row."""
     if getattr(_last, "source", None) is frames:
         return _last.result
-    c = np.array(without_stuck(frames), dtype=np.float64)
-    rows, _ = _defects(c.mean(axis=3))
-    for n, ch in zip(*np.nonzero(rows.any(axis=2))):
-        c[n, ch] = c[n, ch][_nearest_good(rows[n, ch])]
-    cols, _ = _defects(c.mean(axis=2))
-    for n, ch in zip(*np.nonzero(cols.any(axis=2))):
-        c[n, ch] = c[n, ch][:, _nearest_good(cols[n, ch])]
-    c.flags.writeable = False
-    _last.source, _last.result = frames, c
-    return c
+    kept = np.asarray(without_stuck(frames), dtype=np.float64)
+    clean = without_impulses(kept)
+    rows, _ = _defects(clean.mean(axis=3))
+    cols, _ = _defects(clean.mean(axis=2))
+    views = []
+    for c in (clean, kept) if clean is not kept else (clean,):
+        c = np.array(c, dtype=np.float64)
+        for n, ch in zip(*np.nonzero(rows.any(axis=2))):
+            c[n, ch] = c[n, ch][_nearest_good(rows[n, ch])]
+        for n, ch in zip(*np.nonzero(cols.any(axis=2))):
+            c[n, ch] = c[n, ch][:, _nearest_good(cols[n, ch])]
+        c.flags.writeable = False
+        views.append(c)
+    result = (views[0], views[-1])
+    _last.source, _last.result = frames, result
+    return result
 
 
 def defect_lines(frames, level_dn=None):
@@ -1119,12 +1161,16 @@ def spike_outliers(frames):
     outnumber the dark ones significantly (``significant_spikes``), the brightest of them,
     all but as many as there are dark ones (those are the read noise's own tail); else none."""
     f = np.asarray(frames, dtype=np.float64)
-    scale = spike_scale(f) if f.shape[0] >= 3 else None
-    bright, n_dark = spikes(f, scale), int(spikes(-f, scale).sum())
-    if not significant_spikes(int(bright.sum()), n_dark):
-        return np.zeros(f.shape, dtype=bool)
     out = np.zeros(f.shape, dtype=bool)
-    out[bright] = beyond_dark((f - median(f, axis=0))[bright], n_dark)
+    if f.shape[0] < 3:
+        return out
+    scale, mean = spike_scale(f), temporal_moments(f)[0]
+    bright = _spike_hits(f, f.max(axis=0) - mean, scale, 1.0)
+    n_dark = _spike_hits(f, mean - f.min(axis=0), scale, -1.0)[0].size
+    if not significant_spikes(bright[0].size, n_dark):
+        return out
+    _, ch, y, x = bright
+    out[bright] = beyond_dark(f[bright] - median(f[:, ch, y, x], axis=0), n_dark)
     return out
 
 
@@ -1685,7 +1731,7 @@ class Statistic:
     fn: Callable
     min_frames: int = 1
     kind: str = "any"  # "any", "bias" or "flat"
-    view: str = "repaired"  # the frames it reads: "repaired" (repaired), "lines" (without_stuck), "raw"
+    view: str = "repaired"  # the frames it reads: "repaired" (repaired), "impulses" (with_impulses), "lines" (without_outliers), "raw"
     pixel_fraction: bool = False  # resolution: one pixel of the stack
     mad_of_mean: bool = False  # a robust (MAD) scale of the N-frame mean map: a grid of 1/(2N) DN on whole codes
     line_fraction: bool = False  # resolution: one line of the stack
@@ -1732,7 +1778,7 @@ STATISTICS: dict[str, Statistic] = {
     for s in (
         Statistic("pixel_std", pixel_std, base="read noise scale sigma_TL / sigma_G"),
         Statistic("ppcc_r2", ppcc_r2, base="read-noise shape (Tukey lambda)"),
-        Statistic("tail_mass", tail_mass, pixel_fraction=True, base="read-noise shape (Tukey lambda)"),
+        Statistic("tail_mass", tail_mass, pixel_fraction=True, base="read-noise shape (Tukey lambda)", view="impulses"),
         Statistic("row_excess", row_excess, base="row noise sigma_r"),
         Statistic("col_excess", col_excess),
         Statistic("row_lowfreq", row_lowfreq),
@@ -1755,7 +1801,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
         Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),
         Statistic("noisy_fraction", noisy_fraction, min_frames=4, kind="bias", pixel_fraction=True),
-        Statistic("spike_fraction", spike_fraction, min_frames=3, kind="bias", pixel_fraction=True),
+        Statistic("spike_fraction", spike_fraction, min_frames=3, kind="bias", pixel_fraction=True, view="impulses"),
         Statistic("col_flicker_fraction", col_flicker_fraction, min_frames=4, kind="bias", line_fraction=True, view="lines"),
         Statistic("row_flicker_fraction", row_flicker_fraction, min_frames=4, kind="bias", line_fraction=True, view="lines"),
         Statistic("noisy_col_fraction", noisy_col_fraction, min_frames=4, kind="bias", column_fraction=True),
@@ -1813,4 +1859,5 @@ def statistic_view(name: str, frames):
     defect line, and a dead pixel once, as a stuck pixel."""
     view = STATISTICS[name].view if name in STATISTICS else "repaired"
     frames = np.asarray(frames, dtype=np.float64)
-    return frames if view == "raw" else without_stuck(frames) if view == "lines" else repaired(frames)
+    return {"raw": lambda: frames, "lines": lambda: without_outliers(frames), "impulses": lambda: with_impulses(frames),
+            "repaired": lambda: repaired(frames)}[view]()

@@ -1286,6 +1286,27 @@ def test_dead_pixels_are_stuck_at_their_levels_and_estimated():
         dead_pixels.estimate(f[:2], base, K)
 
 
+def test_impulses_count_once_as_impulses():
+    """Cosmic-ray-like impulses (300 DN over 1 DN of noise, 0.1 % of the values) are seen by the
+    impulse statistics only: line, hot-pixel and tail statistics read them replaced."""
+    from rawaug.statistics import (hot_fraction, spike_fraction, statistic_view, with_impulses, without_impulses,
+                                   without_outliers)
+
+    big = {**SPIKES, "density_per_s": 0.0, "median_dn": [300.0], "log_std": 0.3}
+    clean = synth({}, batch=6, size=64, seed=4)
+    f = synth({"Spikes": big}, batch=6, size=64, seed=4)
+    assert defect_line_fraction(without_stuck(f)) > 0.02  # the line means a 300 DN value moves by 5 DN
+    assert defect_line_fraction(statistic_view("defect_lines", f)) <= defect_line_fraction(clean) + 2 / 1536
+    assert hot_fraction(repaired(f)) <= 2 / (4 * 64 * 64) and tail_mass(repaired(f)) < 1e-3
+    assert spike_fraction(statistic_view("spike_fraction", f)) > 5e-4 and tail_mass(with_impulses(f)) > 5e-4
+    assert np.abs(without_outliers(f) - clean).max() < 10.0  # each replaced by its pixel's median
+    # heavy-tailed read noise without impulses (Tukey lambda -0.3: bright and dark extremes alike):
+    # nothing replaced, in every one of 20 stacks (a 5-sd rule: expected false rate ~3e-7 each)
+    untouched = [without_impulses(g) is g for g in
+                 (synth({}, batch=6, size=64, seed=s, model="G*", sigma_tl=1.0, **{"lambda": -0.3}) for s in range(40, 60))]
+    assert all(untouched), untouched.count(False)
+
+
 def test_dead_pixels_count_once_and_clipped_pixels_are_not_dead():
     f = synth({"Dead": DEAD}, batch=6, size=64, sigma_g=1.0)
     # every other statistic reads the frames with their dead pixels replaced by live neighbours

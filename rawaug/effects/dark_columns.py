@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import defect_line_residuals, without_stuck
+from ..statistics import defect_line_residuals, without_outliers
 from .base import PHOTON, NoiseEffect, pattern_key, register
 from .dark_hot_pixels import combine as combine_populations, validate_population
 
@@ -70,7 +70,7 @@ def bright_lines(frames, along: str = "columns"):
     """(fraction of sensor lines, their excess DN) of a stack (N, 4, h, w; DN): the sensor
     columns (or rows) of the stack mean brighter than their neighbours by the defect-line
     threshold, a line counted once over the two packed channels it crosses."""
-    mean = without_stuck(frames).mean(axis=0)
+    mean = without_outliers(frames).mean(axis=0)
     rows, row_res, cols, col_res = defect_line_residuals(mean)
     mask, res, sets, n = (cols, col_res, _COL_SETS, mean.shape[2]) if along == "columns" else (rows, row_res, _ROW_SETS, mean.shape[1])
     excess, count = [], 0

@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from ..engine import layout as L
-from ..statistics import defect_line_residuals, without_stuck
+from ..statistics import defect_line_residuals, without_outliers
 from .base import BANDING, NoiseEffect, pattern_key, register
 from .k_records import _number, check_seed, validate_records, value_at_k
 
@@ -87,9 +87,9 @@ _COL_SETS = tuple(tuple(c for c in range(4) if L.COLUMN_SET[c] == s) for s in (0
 
 def sensor_lines(frames):
     """Defect lines of a stack's mean: (row fraction, column fraction, signed offsets DN),
-    a sensor line counted once over the two packed channels it crosses; dead pixels
-    (``without_stuck``) are not lines."""
-    mean = without_stuck(frames).mean(axis=0)
+    a sensor line counted once over the two packed channels it crosses; dead pixels and
+    impulses (``without_outliers``) are not lines."""
+    mean = without_outliers(frames).mean(axis=0)
     rows, row_res, cols, col_res = defect_line_residuals(mean)
     offsets = []
     for mask, res, sets in ((rows, row_res, _ROW_SETS), (cols, col_res, _COL_SETS)):

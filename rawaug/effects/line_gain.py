@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from ..engine import layout as L
-from ..statistics import defect_line_residuals, without_stuck
+from ..statistics import defect_line_residuals, without_outliers
 from .base import READ, NoiseEffect, pattern_key, register
 from .defect_lines import MAX_DENSITY, validate_line_pattern
 from .k_records import _number, check_seed
@@ -85,7 +85,7 @@ def gain_lines(frames) -> tuple[float, float, np.ndarray]:
     stack (defect lines in place): its sensor lines ``defect_lines`` finds (a line counted once
     over its two packed channels) whose pixels deviate alike (``_uniform``), each line's
     offset over the stack's level, mean over its channels."""
-    mean = without_stuck(frames).mean(axis=0)
+    mean = without_outliers(frames).mean(axis=0)
     level = max(float(mean.mean()), 1e-12)
     rows, row_res, cols, col_res = defect_line_residuals(mean)
     found = {"row": {}, "col": {}}
