@@ -45,7 +45,7 @@ _LINES_ROW, _LINES_COL = L.STREAM["lines_row"], L.STREAM["lines_col"]
 _FGH, _FGW = L.COLUMN["fpn_gh"], L.COLUMN["fpn_gw"]
 _GLS, _GLR, _GLOY, _GLOX = L.COLUMN["glow_s"], L.COLUMN["glow_record"], L.COLUMN["glow_oy"], L.COLUMN["glow_ox"]
 _GLH, _GLW, _GLGH, _GLGW = L.COLUMN["glow_h"], L.COLUMN["glow_w"], L.COLUMN["glow_gh"], L.COLUMN["glow_gw"]
-_NL = L.COLUMN["nl_c"]
+_NL, _TRAP = L.COLUMN["nl_c"], L.COLUMN["trap_dn"]
 Z_MAX = L.READ_TABLE_Z
 _LOWFREQ = L.STREAM["lowfreq"]
 _ROW = L.STREAM["row"]
@@ -495,6 +495,14 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
                     else:
                         s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
                 sig[x] = s
+        if stages & L.TRAP:  # traps of q DN (K q electrons) take q (1 - exp(-s / q)) of a charge s > 0
+            trap = v[_TRAP]
+            if trap > 0.0:
+                for x in range(w):
+                    s = sig[x]
+                    if s > 0.0:
+                        s -= trap * (1.0 - math.exp(-s / trap))
+                    sig[x] = s
         if stages & L.NONLIN:  # the photo signal compressed: s (1 - c s) above 0 DN
             for x in range(w):
                 s = sig[x]

@@ -63,6 +63,7 @@ LINE_GAIN = 1 << 52  # gain defect lines: sparse sensor rows and columns with a 
 ADC_DNL = 1 << 54  # ADC differential non-linearity: the codes' decision levels off their places, periodic in the code
 DARK_DRIFT = 1 << 53  # dark-signal drift: a factor per frame on every dark signal (the sensor's temperature), before shot noise
 DARK_NOISE = 1 << 55  # exposure noise: white Gaussian temporal noise whose variance grows with the exposure time, with the read noise
+TRAP = 1 << 56  # charge trapping: the first electrons of a pixel's charge lost, after shot noise, before the gain non-linearity
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
@@ -136,6 +137,7 @@ COLUMNS = (
     "dark_factor",  # dark-signal drift: this frame's factor on the dark signal
     "dnl_period", *(f"dnl_e{i}" for i in range(DNL_PERIOD_MAX)),  # ADC non-linearity: period (codes), decision-level offsets (DN)
     "dark_noise",  # exposure noise: its std this exposure (DN)
+    "trap_dn",  # charge trapping: the traps' capacity (DN at this K)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

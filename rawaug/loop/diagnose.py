@@ -27,6 +27,7 @@ from threadpoolctl import threadpool_limits
 
 from ..augment import RawNoiseAugment, parse_model
 from ..calibration.censored import black_floor, clipped_share
+from ..effects.charge_trap import fit_rates as trap_rates, trap_at
 from ..effects.gain_nonlinearity import fit_rates, linear_rates
 from ..effects.k_records import value_at_k
 from ..profile import NoiseProfile
@@ -53,7 +54,7 @@ class FlatSeries:
         self.signal_dn = np.asarray(self.signal_dn, dtype=np.float64)
         self.offsets_dn = np.asarray(self.offsets_dn, dtype=np.float64)
         self.rates = linear_rates(self.doses, self.signal_dn)  # DN per unit dose, per channel (validates the series)
-        self._rates_at = {}  # (c, K) -> rates the compression implies (fitted once, not per synthesis)
+        self._rates_at = {}  # (c, q, K) -> rates the response implies (fitted once, not per synthesis)
 
     def nominal(self, dose: float) -> np.ndarray:
         """(4,) clean level (DN) of a linear response at ``dose``."""
@@ -61,14 +62,17 @@ class FlatSeries:
 
     def clean_level(self, profile: NoiseProfile, k: float, dose: float) -> np.ndarray:
         """(4,) clean level (DN) that puts the model's mean on the series at ``dose``:
-        the nominal one, or, with a gain non-linearity, the rate its compression implies."""
+        the nominal one, or, with charge traps or a gain non-linearity, the rate their
+        response implies."""
         params = profile.effects.get("NonLin")
-        if not params:
+        c = float(value_at_k(params, "compression_per_dn", torch.tensor([float(k)], dtype=torch.float64))[0]) if params else 0.0
+        q = trap_at(profile, k)
+        if c == 0.0 and q == 0.0:
             return self.nominal(dose)
-        c = float(value_at_k(params, "compression_per_dn", torch.tensor([float(k)], dtype=torch.float64))[0])
-        if (c, k) not in self._rates_at:
-            self._rates_at[(c, k)] = fit_rates(self.doses, self.signal_dn, c, k)
-        return self._rates_at[(c, k)] * float(dose)
+        if (c, q, k) not in self._rates_at:
+            self._rates_at[(c, q, k)] = (fit_rates(self.doses, self.signal_dn, c, k) if q == 0.0
+                                         else trap_rates(self.doses, self.signal_dn, q, k, c))
+        return self._rates_at[(c, q, k)] * float(dose)
 
 
 @dataclass
