@@ -48,6 +48,16 @@ def soft_knee(dn, rng, **_):
     return dn / (1.0 + 0.08 * np.maximum(dn, 0.0) / BASE.span_dn)
 
 
+def shallow_traps(dn, rng, kind="", k=1.0, **_):
+    """Charge traps (made outside rawaug): a flat's pixel of q electrons (its value over K, shot
+    noise included) loses 25 (1 - exp(-q / 25)) of them: a toe at low light, a 25 e- shortfall
+    above it."""
+    if kind != "flat":
+        return dn
+    q = np.maximum(dn / k, 0.0)
+    return dn - k * 25.0 * -np.expm1(-q / 25.0)
+
+
 def coupled_readout(dn, rng, **_):
     """Read noise coupled between raw neighbours (made outside rawaug): a raw field of 1.5 DN
     plus 0.6 of its left neighbour's and 0.4 of its upper neighbour's value."""
@@ -242,6 +252,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "comb": (None, None, digital_gain, ["CodeMap"]), "interference": (None, None, interference, ["LowFreq"]),
          "glow": (None, None, amp_glow, ["Glow"]),
          "nonlin": (None, None, soft_knee, ["NonLin"]),
+         "toe": (None, None, shallow_traps, ["Trap"]),
          "crosstalk": (None, None, coupled_readout, ["Xtalk"]),
          "banding": (None, None, interference_tone, ["Band"]),
          "column banding": (None, None, column_interference_tone, ["ColBand"]),
@@ -269,7 +280,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 # every other case: two levels, no series; the gain jitter's pairs at five levels (one degree
 # of freedom each, judged pooled over the 10 pairs of the camera)
-FLAT_LEVELS = {"nonlin": SERIES, "none_series": SERIES, "gain jitter": SERIES}
+FLAT_LEVELS = {"nonlin": SERIES, "toe": SERIES, "none_series": SERIES, "gain jitter": SERIES}
 # physical effects a case may add besides its own: the clamp's decay has low-frequency power that
 # FPN's fixed shading (a smooth fixed offset) reproduces; where FPN takes that part first (3 of
 # sessions 1-10), LineMap reproduces the rest
@@ -291,7 +302,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 # by its round trip in tests/test_effects_loop.py, on a manifest at two exposures by the slow tests below)
 SLOW_CASES = {"Col", "crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
               "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
-              "skewed dark current", "raised floor", "frame-locked tone", "glow"}
+              "skewed dark current", "raised floor", "frame-locked tone", "glow", "toe"}
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])
