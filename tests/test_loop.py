@@ -807,3 +807,22 @@ def test_a_battery_that_cannot_win_is_stopped_without_changing_the_outcome(monke
     assert stopped, [s.note for s in bounded.steps]
     assert all(not s.battery_after for s in stopped)  # the part-way battery is not reported as a whole one
     assert not [s for s in whole.steps if s.note.startswith("not judged whole")]
+
+
+def test_a_flat_is_synthesized_with_its_exposure_dark_signal_and_its_measured_level():
+    """A flat of t seconds holds t seconds of dark signal: its synthesis carries the model's dark
+    effects (their patterns too) and starts from the measured level less their mean, so the
+    synthesized mean is the measured one."""
+    k, t, level = 1.0, 2.0, 400.0
+    dark = {"seed": 19, "k": [k], "rate_e_per_s": [10.0], "dsnu": [0.5]}
+    camera = NoiseProfile.load("SonyA7S2").with_effect("Dark", dark)
+    bias = FrameStack(np.zeros((4, 4, 64, 64)), k, offsets_dn=[0.0] * 4)
+    flat = FrameStack(np.full((2, 4, 64, 64), level), k, kind="flat", level_dn=level, exposure_s=t, offsets_of=bias)
+    synth = synthesize(camera, flat, 4, seed=3).astype(np.float64)
+    # the mean of 131072 values per synthesis, each of variance ~ k (level) + read noise: 5 standard errors
+    assert abs(synth.mean() - level) < 5 * math.sqrt((k * level + 20.0) / synth[0].size)
+    # the dark current's DSNU (a log-normal map of mean 20 e-, relative spread 0.5) is in the mean map
+    plain = synthesize(NoiseProfile.load("SonyA7S2"), flat, 4, seed=3).astype(np.float64)
+    excess = synth.mean(axis=1).var(axis=(1, 2, 3)).mean() - plain.mean(axis=1).var(axis=(1, 2, 3)).mean()
+    expected = (k * 10.0 * t * 0.5) ** 2  # the DSNU map's variance, 100 DN^2, plus its shot noise over 2 frames (10)
+    assert 0.7 * expected < excess < 1.3 * expected + k * 10.0 * t

@@ -52,6 +52,7 @@ class AmpGlow(NoiseEffect):
     order = PHOTON + 6  # dark electrons, after Dark, before the shot noise that counts them
     flag = L.GLOW
     columns = ("glow_s", "glow_record", "glow_oy", "glow_ox", "glow_h", "glow_w", "glow_gh", "glow_gw")
+    exposure = True
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]

@@ -102,6 +102,7 @@ class NoiseEffect:
     order: ClassVar[int] = 0
     flag: ClassVar[int] = 0  # stage flag of rawaug.engine.layout
     columns: ClassVar[tuple[str, ...]] = ()  # parameter columns this effect fills
+    exposure: ClassVar[bool] = False  # it grows with the exposure time (the synthesis setting exposure_s)
 
     def __init__(self, profile):
         self.profile = profile

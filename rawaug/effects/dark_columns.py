@@ -46,6 +46,7 @@ class DarkColumns(NoiseEffect):
     order = PHOTON + 7  # with the dark current, before shot noise
     flag = L.DARK_COL
     columns = ("dcol_density", "dcol_e", "dcol_log_std")
+    exposure = True
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]

@@ -54,6 +54,7 @@ class DarkCurrent(NoiseEffect):
     order = PHOTON + 5
     flag = L.DARK_CURRENT
     columns = ("dark_e", "dsnu_log", "dark_c0", "dark_c1", "dark_c2", "dark_c3")
+    exposure = True
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]

@@ -47,6 +47,7 @@ class DarkHotPixels(NoiseEffect):
     order = PHOTON + 6  # with the dark current, before shot noise
     flag = L.DARK_HOT
     columns = ("dhot_density", "dhot_e", "dhot_log_std")
+    exposure = True
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]

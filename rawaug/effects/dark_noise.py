@@ -46,6 +46,7 @@ class DarkNoise(NoiseEffect):
     order = READ + 2
     flag = L.DARK_NOISE
     columns = ("dark_noise",)
+    exposure = True
 
     def draw(self, ctx):
         rate = value_at_k(self.profile.effects[self.token], "rate_dn2_per_s", ctx.k)

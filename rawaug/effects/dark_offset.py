@@ -38,6 +38,7 @@ class DarkOffset(NoiseEffect):
     order = OFFSET + 1
     flag = L.DARK_OFFSET
     columns = ("dark_offset",)
+    exposure = True
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]

@@ -39,6 +39,7 @@ class DarkRows(NoiseEffect):
     order = PHOTON + 8  # with the dark current, before shot noise
     flag = L.DARK_ROW
     columns = ("drow_density", "drow_e", "drow_log_std")
+    exposure = True
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]

@@ -47,6 +47,7 @@ class DarkTelegraph(NoiseEffect):
     order = PHOTON + 6  # with the dark current, before shot noise
     flag = L.DARK_RTS
     columns = ("drts_density", "drts_e", "drts_log_std", "drts_high")
+    exposure = True
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]

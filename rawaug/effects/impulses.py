@@ -46,6 +46,7 @@ class Impulses(NoiseEffect):
     order = READ + 5
     flag = L.SPIKES
     columns = ("spike_density", "spike_median", "spike_log_std")
+    exposure = True
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]

@@ -302,7 +302,7 @@ def _run_manifest(args, path):
             series = flat_series(iso, [(f.dose, f.level) for f in items], measured[iso][1])
         for f in items:
             stacks.append(FrameStack(f.stack, f.k, kind="flat", level_dn=[float(v) for v in (series.nominal(f.dose) if series else f.level)],
-                                     base=f.base, offsets_of=f.bias_stack, label=f.label, exposure_s=f.exposure if series else None,
+                                     base=f.base, offsets_of=f.bias_stack, label=f.label, exposure_s=f.exposure or None,
                                      series=series, dose=f.dose if series else None))
     sensor_taps = consensus_edges([s.gain_edges for s in stacks if s.kind == "flat"])  # the same at every ISO and level
     for s in stacks:

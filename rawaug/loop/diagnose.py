@@ -28,6 +28,7 @@ from threadpoolctl import threadpool_limits
 from ..augment import RawNoiseAugment, parse_model
 from ..calibration.censored import black_floor, clipped_share
 from ..effects.charge_trap import fit_rates as trap_rates, trap_at
+from ..effects.base import EFFECTS
 from ..effects.gain_nonlinearity import fit_rates, linear_rates
 from ..effects.k_records import value_at_k
 from ..profile import NoiseProfile
@@ -235,9 +236,28 @@ def synthesis_fixed(profile: NoiseProfile, stack: FrameStack) -> dict:
     if profile.row_scale is not None:
         fixed["sigma_r"] = profile.row_scale.median(k)
     fixed.update(stack.base)
-    if stack.kind == "dark":
-        fixed["exposure_s"] = float(stack.exposure_s)
+    if stack.kind == "dark" or (stack.kind == "flat" and stack.exposure_s and exposed(profile)):
+        fixed["exposure_s"] = float(stack.exposure_s)  # a flat of t seconds holds t seconds of dark signal too
     return fixed
+
+
+def exposed(profile: NoiseProfile) -> bool:
+    """True when an effect of the profile grows with the exposure time (``NoiseEffect.exposure``)."""
+    return any(getattr(EFFECTS.get(token), "exposure", False) for token in profile.effects)
+
+
+def dark_signal(profile: NoiseProfile, stack: FrameStack, tokens, fixed, seed: int) -> np.ndarray:
+    """(4,) mean dark signal (DN) the model adds to a flat of ``fixed["exposure_s"]``: a frame
+    synthesized at 0 DN with that exposure less one with none (the same draws). A flat's
+    measured level holds it already, so its synthesis starts that much lower."""
+    n, _, h, w = stack.frames_dn.shape
+    means = []
+    for t in (fixed["exposure_s"], 0.0):
+        aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed={**fixed, "exposure_s": t, "sensor": 0},
+                              generator=torch.Generator().manual_seed(int(seed) + 5_555_555), rank_seeding=False)
+        with torch.no_grad():
+            means.append(aug(torch.zeros(1, 4, h, w)).numpy().astype(np.float64).mean(axis=(0, 2, 3)) * profile.span_dn)
+    return means[0] - means[1]
 
 
 def sensor_realization(profile: NoiseProfile, index: int) -> NoiseProfile:
@@ -268,12 +288,15 @@ def clean_level(profile: NoiseProfile, stack: FrameStack):
     return stack.level_dn
 
 
-def _one(profile, stack, tokens, fixed, generator) -> np.ndarray:
-    """One synthesized stack like ``stack``, DN."""
+def _one(profile, stack, tokens, fixed, generator, dark_dn=None) -> np.ndarray:
+    """One synthesized stack like ``stack``, DN (a flat from ``dark_dn`` (4,) lower: the dark
+    signal its exposure adds, ``dark_signal``)."""
     n, _, h, w = stack.frames_dn.shape
     level = np.broadcast_to(np.asarray(clean_level(profile, stack), dtype=np.float64), (4,))[:, None, None]
     if stack.illumination is not None:  # a flat as it was taken: under its light's measured shape
         level = level * stack.illumination
+    if dark_dn is not None:
+        level = level - np.asarray(dark_dn, dtype=np.float64)[:, None, None]
     clean = torch.from_numpy(level / profile.span_dn).float().expand(n, 4, h, w).contiguous()
     aug = RawNoiseAugment(profile, model="+".join(tokens), ratio=1.0, fixed={**fixed, "sensor": 0, "sequence": 1},
                           generator=generator, rank_seeding=False)  # one sensor, frames in the order taken
@@ -326,10 +349,11 @@ def synthesize(profile: NoiseProfile, stack: FrameStack, n_synth: int, seed: int
     fixed = synthesis_fixed(profile, stack)
     fixed["color_bias_dn"] = list(offsets) if offsets is not None else fitted_offsets(profile, stack, seed, model)
     generator = torch.Generator().manual_seed(int(seed))
+    dark_dn = dark_signal(profile, stack, tokens, fixed, seed) if stack.kind == "flat" and "exposure_s" in fixed else None
     n, _, h, w = stack.frames_dn.shape
     out = np.empty((n_synth, n, 4, h, w), dtype=np.float32)
     for i in range(n_synth):
-        out[i] = _one(sensor_realization(profile, i), stack, tokens, fixed, generator)
+        out[i] = _one(sensor_realization(profile, i), stack, tokens, fixed, generator, dark_dn)
     return out
 
 
