@@ -31,7 +31,7 @@ from ..engine import layout as L
 from .base import SHOT, NoiseEffect, register
 from .gain_nonlinearity import _check_series, linear_rates
 from .gain_nonlinearity import mean_response as compressed
-from .k_records import all_zero, validate_records, value_at_k
+from .k_records import all_zero, combine_first, validate_records, value_at_k
 
 STATISTICS = ("flat_linearity",)
 
@@ -108,11 +108,7 @@ def estimate(frames, synthesized, k: float, series=None, **_) -> dict:
 
 def combine(records: list[dict]) -> dict:
     """One record per gain (the stacks of one series give the same one)."""
-    by_k = {}
-    for r in records:
-        by_k.setdefault(float(r["k"][0]), r["trap_e"][0])
-    ks = sorted(by_k)
-    return {"k": ks, "trap_e": [float(by_k[k]) for k in ks]}
+    return combine_first(records, "trap_e")
 
 
 def empty(params) -> bool:

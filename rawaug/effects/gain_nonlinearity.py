@@ -28,7 +28,7 @@ from scipy import optimize
 
 from ..engine import layout as L
 from .base import SHOT, NoiseEffect, register
-from .k_records import validate_records, value_at_k
+from .k_records import combine_first, validate_records, value_at_k
 
 STATISTICS = ("flat_linearity",)
 MIN_EXPOSURES = 3  # distinct exposure times a flat series needs: a line through zero and its curvature
@@ -124,8 +124,4 @@ def estimate(frames, synthesized, k: float, series=None, **_) -> dict:
 
 def combine(records: list[dict]) -> dict:
     """One record per gain (the stacks of one series give the same one)."""
-    by_k = {}
-    for r in records:
-        by_k.setdefault(float(r["k"][0]), r["compression_per_dn"][0])
-    ks = sorted(by_k)
-    return {"k": ks, "compression_per_dn": [float(by_k[k]) for k in ks]}
+    return combine_first(records, "compression_per_dn")

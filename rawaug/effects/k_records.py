@@ -94,6 +94,16 @@ def combine_mean(records: list[dict], key: str) -> dict:
     return {"k": ks, key: [float(sum(v) / len(v)) for v in (by_k[k] for k in ks)]}
 
 
+def combine_first(records: list[dict], key: str) -> dict:
+    """One record per gain from single-K records ``{k: [K], key: [value]}``: the first stack's
+    at each K (where every stack of a gain gives the same record, as a flat series' do)."""
+    by_k: dict = {}
+    for r in records:
+        by_k.setdefault(float(r["k"][0]), r[key][0])
+    ks = sorted(by_k)
+    return {"k": ks, key: [float(by_k[k]) for k in ks]}
+
+
 def combine_sigma(records: list[dict], key: str = "sigma_dn") -> dict:
     """One record per gain from single-K records ``{k: [K], key: [sigma]}`` (one per stack):
     the stacks at one K averaged in variance."""
