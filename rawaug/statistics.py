@@ -291,23 +291,33 @@ def with_impulses(frames):
 
 
 def _repaired_views(frames):
-    """(repaired, with_impulses) of a stack, computed once for the same array in a row."""
+    """(repaired, with_impulses, without_outliers) of a stack, computed once for the same array
+    in a row: rows found and replaced first, then columns, on the frames without impulses; the
+    same lines replaced in the frames with them."""
     if getattr(_last, "source", None) is frames:
         return _last.result
     kept = np.asarray(without_stuck(frames), dtype=np.float64)
     clean = without_impulses(kept)
-    rows, _ = _defects(clean.mean(axis=3))
-    cols, _ = _defects(clean.mean(axis=2))
-    views = []
-    for c in (clean, kept) if clean is not kept else (clean,):
-        c = np.array(c, dtype=np.float64)
-        for n, ch in zip(*np.nonzero(rows.any(axis=2))):
-            c[n, ch] = c[n, ch][_nearest_good(rows[n, ch])]
-        for n, ch in zip(*np.nonzero(cols.any(axis=2))):
-            c[n, ch] = c[n, ch][:, _nearest_good(cols[n, ch])]
-        c.flags.writeable = False
-        views.append(c)
-    result = (views[0], views[-1])
+    c = np.array(clean, dtype=np.float64)
+    rows, _ = _defects(c.mean(axis=3))
+    bad_rows = list(zip(*np.nonzero(rows.any(axis=2))))
+    for n, ch in bad_rows:
+        c[n, ch] = c[n, ch][_nearest_good(rows[n, ch])]
+    cols, _ = _defects(c.mean(axis=2))
+    bad_cols = list(zip(*np.nonzero(cols.any(axis=2))))
+    for n, ch in bad_cols:
+        c[n, ch] = c[n, ch][:, _nearest_good(cols[n, ch])]
+    views = [c]
+    if clean is not kept:  # the impulses left in, the same lines replaced
+        d = np.array(kept, dtype=np.float64)
+        for n, ch in bad_rows:
+            d[n, ch] = d[n, ch][_nearest_good(rows[n, ch])]
+        for n, ch in bad_cols:
+            d[n, ch] = d[n, ch][:, _nearest_good(cols[n, ch])]
+        views.append(d)
+    for v in views:
+        v.flags.writeable = False
+    result = (views[0], views[-1], clean)
     _last.source, _last.result = frames, result
     return result
 
@@ -1859,5 +1869,5 @@ def statistic_view(name: str, frames):
     defect line, and a dead pixel once, as a stuck pixel."""
     view = STATISTICS[name].view if name in STATISTICS else "repaired"
     frames = np.asarray(frames, dtype=np.float64)
-    return {"raw": lambda: frames, "lines": lambda: without_outliers(frames), "impulses": lambda: with_impulses(frames),
+    return {"raw": lambda: frames, "lines": lambda: _repaired_views(frames)[2], "impulses": lambda: with_impulses(frames),
             "repaired": lambda: repaired(frames)}[view]()
