@@ -604,6 +604,45 @@ def low_light_toe(dn, rng, k=1.0, kind="", **_):
     q = np.maximum(dn / k, 0.0)
     return dn - k * 15.0 * (1.0 - np.exp(-q / 15.0))
 
+def pixel_gain_noise(dn, rng, **_):
+    """Temporal gain noise of each pixel: every pixel's gain moves by 0.5 % rms, new in every frame and independent between pixels (noise on the pixel's conversion), so a flat's temporal variance grows with the square of its signal and bias frames show none."""
+    return dn * (1.0 + 0.005 * rng.standard_normal(dn.shape))
+
+
+def stuck_bit(dn, rng, **_):
+    """A stuck ADC bit: bit 3 (value 8) of every code reads 0, so codes come in runs of 8 with gaps of 8 between them (black is a multiple of 16)."""
+    c = np.rint(dn).astype(np.int64) + 4096
+    return (c & ~8) - 4096.0
+
+
+def alternating_black(dn, rng, **_):
+    """Black alternating between frames: +0.8 DN in one frame, -0.8 DN in the next, in the order the frames were taken (two readout phases)."""
+    key = ("alternate", id(rng))
+    _WALK[key] = _WALK.get(key, 0) + 1
+    return dn + (0.8 if _WALK[key] % 2 else -0.8)
+
+
+def blotchy_fpn(dn, rng, **_):
+    """A blotchy fixed pattern: white noise smoothed over 2 sensor pixels (Gaussian sigma), scaled to 1 DN rms, the same in every frame of every setting (mura of the readout)."""
+    from scipy.ndimage import gaussian_filter
+
+    _, h, w = dn.shape
+    raw = gaussian_filter(_fixed(113, (2 * h, 2 * w)), 2.0, mode="wrap")
+    return dn + _raw_to_packed(raw / raw.std())
+
+
+def dim_pixels(dn, rng, kind="", **_):
+    """Dim pixels: 0.3 % of the pixels (fixed) respond to light at half the rate, so flats show dark outliers in proportion to the signal and bias frames none."""
+    if kind != "flat":
+        return dn
+    return np.where(np.random.default_rng(127).random(dn.shape) < 0.003, 0.5 * dn, dn)
+
+
+def laplace_rows(dn, rng, **_):
+    """Heavy-tailed row noise: each sensor row offset by a Laplace draw of 1 DN rms, new in every frame, on top of the model's Gaussian row noise."""
+    r = rng.laplace(0.0, 1.0 / np.sqrt(2.0), 2 * dn.shape[1])
+    return dn + np.stack([r[0::2], r[0::2], r[1::2], r[1::2]])[:, :, None]
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -617,7 +656,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  amp_glow, random_missing_codes, defect_couplets, black_shading, gain_drift, column_noise,
                                  stuck_pixels, charge_transfer, dark_read_noise, read_noise_gradient, parity_row_gain,
                                  channel_dark, image_lag, black_by_iso, cosmic_rays, row_gain_noise, column_telegraph,
-                                 low_light_toe)}
+                                 low_light_toe, pixel_gain_noise, stuck_bit, alternating_black, blotchy_fpn, dim_pixels,
+                                 laplace_rows)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
