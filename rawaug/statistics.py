@@ -117,12 +117,32 @@ def temporal_moments(frames):
     (N, 4, h, w), DN and DN^2. Computed once for the same read-only array in a row (the
     battery's views): the mean map and the per-pixel variance serve several statistics."""
     def compute():
-        mean = frames.mean(axis=0)
-        var = frames.var(axis=0, ddof=1) if frames.shape[0] > 1 else np.zeros_like(mean)
+        n = frames.shape[0]
+        mean = frames.sum(axis=0) / n
+        if n > 1:  # one centred copy, its squares summed without another (einsum: ~2.5x np.var)
+            d = frames - mean
+            var = np.einsum("i...,i...->...", d, d) / (n - 1)
+        else:
+            var = np.zeros_like(mean)
         mean.flags.writeable = var.flags.writeable = False  # shared: no statistic may change them
         return mean, var
 
     return _once(_last_temporal, frames, compute)
+
+
+_last_range = threading.local()  # the last read-only stack's temporal range on this thread
+
+
+def temporal_range(frames):
+    """(lowest, highest) value of each pixel over a stack (N, 4, h, w), (4, h, w) each, DN.
+    Computed once for the same read-only array in a row: dead pixels, impulses and outliers
+    are all found from it."""
+    def compute():
+        lo, hi = frames.min(axis=0), frames.max(axis=0)
+        lo.flags.writeable = hi.flags.writeable = False
+        return lo, hi
+
+    return _once(_last_range, frames, compute)
 
 
 # ----------------------------------------------------------------- single-frame statistics
@@ -227,7 +247,7 @@ def without_stuck(frames):
     frames = np.asarray(frames, dtype=np.float64)
     if frames.shape[0] < 3:
         return frames
-    lo, hi = frames.min(axis=0), frames.max(axis=0)
+    lo, hi = temporal_range(frames)
     if not (lo == hi).any():  # no pixel stuck at all: the common case, without the medians
         return frames
     dead = stuck_outliers(lo, hi, frames[0])
@@ -1108,12 +1128,13 @@ def tap_step_ratio(frames, level_dn=None):
 SPIKE_Z = 8.0  # robust sigmas above the pixel's other frames: a single-frame event, not noise
 
 
-def spike_scale(frames):
+def spike_scale(frames, var=None):
     """(4,) temporal scale of each channel of a stack (N >= 3; DN): the median pixel's temporal
-    variance as a Gaussian's sigma (what ``spikes`` measures single-frame events against)."""
+    variance as a Gaussian's sigma (what ``spikes`` measures single-frame events against).
+    ``var``: the stack's temporal variance map (``temporal_moments``) if known."""
     f = np.asarray(frames, dtype=np.float64)
     n = f.shape[0]
-    var = temporal_moments(f)[1]
+    var = temporal_moments(f)[1] if var is None else var
     return np.sqrt(median(var.reshape(f.shape[1], -1), axis=1) / (sstats.chi2.median(n - 1) / (n - 1)))
 
 
@@ -1159,10 +1180,11 @@ def spike_fraction(frames, level_dn=None):
     f = np.asarray(frames, dtype=np.float64)
     if f.shape[0] < 3:
         return 0.0
-    scale = spike_scale(f)
-    mean = temporal_moments(f)[0]
-    bright = _spike_hits(f, f.max(axis=0) - mean, scale, 1.0)[0].size
-    dark = _spike_hits(f, mean - f.min(axis=0), scale, -1.0)[0].size
+    mean, var = temporal_moments(f)
+    scale = spike_scale(f, var)
+    lo, hi = temporal_range(f)
+    bright = _spike_hits(f, hi - mean, scale, 1.0)[0].size
+    dark = _spike_hits(f, mean - lo, scale, -1.0)[0].size
     return float((bright - dark) / f.size)
 
 
@@ -1174,9 +1196,11 @@ def spike_outliers(frames):
     out = np.zeros(f.shape, dtype=bool)
     if f.shape[0] < 3:
         return out
-    scale, mean = spike_scale(f), temporal_moments(f)[0]
-    bright = _spike_hits(f, f.max(axis=0) - mean, scale, 1.0)
-    n_dark = _spike_hits(f, mean - f.min(axis=0), scale, -1.0)[0].size
+    mean, var = temporal_moments(f)  # one computation, the array may be writeable (uncached)
+    scale = spike_scale(f, var)
+    lo, hi = temporal_range(f)
+    bright = _spike_hits(f, hi - mean, scale, 1.0)
+    n_dark = _spike_hits(f, mean - lo, scale, -1.0)[0].size
     if not significant_spikes(bright[0].size, n_dark):
         return out
     _, ch, y, x = bright
@@ -1221,7 +1245,7 @@ def stuck_pixels(frames):
     same value in every frame, far from the channel's noise; their values, DN). A pixel stuck
     within the noise is left out: coarse codes (a digital gain) make that happen by chance."""
     v = np.asarray(frames, dtype=np.float64)
-    lo, hi = v.min(axis=0), v.max(axis=0)
+    lo, hi = temporal_range(v)
     stuck = stuck_outliers(lo, hi, v[0]) if (lo == hi).any() else np.zeros(lo.shape, dtype=bool)
     return stuck, lo[stuck]
 
@@ -1845,7 +1869,10 @@ def frame_statistics(frames, kind: str = "bias", level_dn=None, names=None) -> d
     level_dn : the clean level of a flat stack (DN), scalar or (4,).
     names : restrict to these statistics.
     """
+    given = frames
     frames = np.asarray(frames, dtype=np.float64)
+    if frames is not given:  # our own copy (a synthesis in float32): read-only, so its statistics share what they compute
+        frames.flags.writeable = False
     if frames.ndim != 4 or frames.shape[1] != 4:
         raise ValueError(f"frames must be packed (N, 4, h, w), got shape {frames.shape}")
     if min(frames.shape[2:]) < 8:

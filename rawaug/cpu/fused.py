@@ -89,6 +89,7 @@ _LGRD, _LGCD, _LGM, _LGLS, _LGNEG = (L.COLUMN[n] for n in ("lgain_row_density", 
 _LGAIN_ROW, _LGAIN_COL = L.STREAM["lgain_row"], L.STREAM["lgain_col"]
 _DDF = L.COLUMN["dark_factor"]
 _DNS, _DARK_NOISE = L.COLUMN["dark_noise"], L.STREAM["dark_noise"]
+_GNS, _GAIN_NOISE = L.COLUMN["gain_noise"], L.STREAM["gain_noise"]
 _DNL_P, _DNL_E0 = L.COLUMN["dnl_period"], L.COLUMN["dnl_e0"]
 _TGR, _TGC0, _TGR0 = L.COLUMN["tgain_record"], L.COLUMN["tgain_c0"], L.COLUMN["tgain_r0"]
 _TGOY, _TGOX, _TGH, _TGW = L.COLUMN["tgain_oy"], L.COLUMN["tgain_ox"], L.COLUMN["tgain_h"], L.COLUMN["tgain_w"]
@@ -522,6 +523,11 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
             for x in range(w):
                 s = sig[x]
                 s *= row_gain
+                sig[x] = s
+        if stages & L.GAIN_NOISE:  # the pixel's gain this frame on its signal: a relative normal draw, new at every pixel and frame
+            for x in range(w):
+                s = sig[x]
+                s *= 1.0 + v[_GNS] * symmetric(normal, draw(keys[_GAIN_NOISE], g0 + x))
                 sig[x] = s
         if stages & L.FPN:
             for x in range(w):

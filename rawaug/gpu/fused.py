@@ -57,6 +57,7 @@ C_LGRD, C_LGCD, C_LGM, C_LGLS, C_LGNEG = (_column("lgain_row_density"), _column(
                                         _column("lgain_log_std"), _column("lgain_negative"))
 C_DDF = _column("dark_factor")
 C_DNS = _column("dark_noise")
+C_GNS = _column("gain_noise")
 C_DNL_P, C_DNL_E0 = _column("dnl_period"), _column("dnl_e0")
 TPE = tl.constexpr(L.TAP_EDGES)
 C_DOFF = _column("dark_offset")
@@ -113,6 +114,7 @@ K_SPIKE_WHERE, K_SPIKE_SIZE = S["spike_where"], S["spike_size"]
 K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["crts_state"]
 K_DIAG_BAND = S["diag_band"]
 K_DARK_NOISE = S["dark_noise"]
+K_GAIN_NOISE = S["gain_noise"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -369,6 +371,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 2199023255552:  # row gain: the sensor row's gain on the photo signal and its shot noise, fixed and this frame's
         s *= (1.0 + _col(v, C_RGF) * _normal(draw(_key(keys_ptr, K_ROWGAIN), ((sensor * 2 + row_set) * H + y).to(tl.uint64)))
               + _col(v, C_RGT) * _normal(draw(_key(keys_ptr, K_ROWGAIN_FRAME), ((b.to(tl.int64) * 2 + row_set) * H + y).to(tl.uint64))))
+    if FLAGS & 144115188075855872:  # pixel gain noise: the pixel's gain this frame on its signal, new at every pixel and frame
+        s *= 1.0 + _col(v, C_GNS) * _normal(draw(_key(keys_ptr, K_GAIN_NOISE), g))
     if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading, a window (fpn_oy, fpn_ox) of fpn_h x fpn_w
         fh = _col(v, C_FH)
         fw = _col(v, C_FW)
