@@ -49,6 +49,7 @@ LOOP_EFFECTS = {
     "NonLin": {"k": [1.0, 3.0], "compression_per_dn": [3e-6, -2e-6]},  # compression at one gain, expansion at the other
     "Trap": {"k": [1.0, 3.0], "trap_e": [12.0, 4.0]},  # traps of 12 and 4 electrons: a toe at low light
     "GainNoise": {"k": [1.0, 3.0], "sigma_rel": [0.03, 0.01]},  # a relative draw per pixel and frame on the signal
+    "PixelGain": {"seed": 43, "density": 0.05, "median": 0.3, "log_std": 0.5, "negative": 0.6},  # dim and bright pixels
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "Lines": {"seed": 23, "row_density": 0.05, "col_density": 0.08, "log_std": 0.5, "negative": 0.3, "k": [1.0, 3.0],
               "median_dn": [20.0, 40.0]},

@@ -90,6 +90,8 @@ _LGAIN_ROW, _LGAIN_COL = L.STREAM["lgain_row"], L.STREAM["lgain_col"]
 _DDF = L.COLUMN["dark_factor"]
 _DNS, _DARK_NOISE = L.COLUMN["dark_noise"], L.STREAM["dark_noise"]
 _GNS, _GAIN_NOISE = L.COLUMN["gain_noise"], L.STREAM["gain_noise"]
+_PGD, _PGM, _PGL, _PGN = (L.COLUMN[n] for n in ("pgain_density", "pgain_median", "pgain_log_std", "pgain_negative"))
+_PGAIN = L.STREAM["pgain"]
 _DNL_P, _DNL_E0 = L.COLUMN["dnl_period"], L.COLUMN["dnl_e0"]
 _TGR, _TGC0, _TGR0 = L.COLUMN["tgain_record"], L.COLUMN["tgain_c0"], L.COLUMN["tgain_r0"]
 _TGOY, _TGOX, _TGH, _TGW = L.COLUMN["tgain_oy"], L.COLUMN["tgain_ox"], L.COLUMN["tgain_h"], L.COLUMN["tgain_w"]
@@ -523,6 +525,11 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
             for x in range(w):
                 s = sig[x]
                 s *= row_gain
+                sig[x] = s
+        if stages & L.PIXEL_GAIN:  # a gain defect pixel's gain on its photo signal (keyed by the sensor's pixel)
+            for x in range(w):
+                s = sig[x]
+                s *= max(1.0 + defect_line_at(normal, keys[_PGAIN], p0 + x, v[_PGD], v[_PGM], v[_PGL], v[_PGN]), 0.0)
                 sig[x] = s
         if stages & L.GAIN_NOISE:  # the pixel's gain this frame on its signal: a relative normal draw, new at every pixel and frame
             for x in range(w):

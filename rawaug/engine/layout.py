@@ -64,6 +64,7 @@ ADC_DNL = 1 << 54  # ADC differential non-linearity: the codes' decision levels 
 DARK_DRIFT = 1 << 53  # dark-signal drift: a factor per frame on every dark signal (the sensor's temperature), before shot noise
 DARK_NOISE = 1 << 55  # exposure noise: white Gaussian temporal noise whose variance grows with the exposure time, with the read noise
 TRAP = 1 << 56  # charge trapping: the first electrons of a pixel's charge lost, after shot noise, before the gain non-linearity
+PIXEL_GAIN = 1 << 58  # gain defect pixels: sparse pixels whose gain on the photo signal is far off, fixed
 GAIN_NOISE = 1 << 57  # pixel gain noise: each pixel's gain on its signal moves by a relative normal draw, new at every pixel and frame
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
@@ -140,6 +141,7 @@ COLUMNS = (
     "dark_noise",  # exposure noise: its std this exposure (DN)
     "trap_dn",  # charge trapping: the traps' capacity (DN at this K)
     "gain_noise",  # pixel gain noise: its relative std at this K
+    "pgain_density", "pgain_median", "pgain_log_std", "pgain_negative",  # gain defect pixels: share, median gain offset (fraction), spread, share dim
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -157,7 +159,7 @@ STREAMS = (
     "spike_where", "spike_size", "crts_where", "crts_size", "crts_state", "rowgain_pattern", "rowgain_frame",
     "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
-    "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise",
+    "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

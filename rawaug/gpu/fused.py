@@ -58,6 +58,7 @@ C_LGRD, C_LGCD, C_LGM, C_LGLS, C_LGNEG = (_column("lgain_row_density"), _column(
 C_DDF = _column("dark_factor")
 C_DNS = _column("dark_noise")
 C_GNS = _column("gain_noise")
+C_PGD, C_PGM, C_PGL, C_PGN = (_column(n) for n in ("pgain_density", "pgain_median", "pgain_log_std", "pgain_negative"))
 C_DNL_P, C_DNL_E0 = _column("dnl_period"), _column("dnl_e0")
 TPE = tl.constexpr(L.TAP_EDGES)
 C_DOFF = _column("dark_offset")
@@ -115,6 +116,7 @@ K_CRTS_WHERE, K_CRTS_SIZE, K_CRTS_STATE = S["crts_where"], S["crts_size"], S["cr
 K_DIAG_BAND = S["diag_band"]
 K_DARK_NOISE = S["dark_noise"]
 K_GAIN_NOISE = S["gain_noise"]
+K_PGAIN = S["pgain"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -371,6 +373,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 2199023255552:  # row gain: the sensor row's gain on the photo signal and its shot noise, fixed and this frame's
         s *= (1.0 + _col(v, C_RGF) * _normal(draw(_key(keys_ptr, K_ROWGAIN), ((sensor * 2 + row_set) * H + y).to(tl.uint64)))
               + _col(v, C_RGT) * _normal(draw(_key(keys_ptr, K_ROWGAIN_FRAME), ((b.to(tl.int64) * 2 + row_set) * H + y).to(tl.uint64))))
+    if FLAGS & 288230376151711744:  # gain defect pixels: the pixel's gain on its photo signal if it is a defect (keyed by the sensor's pixel)
+        s *= tl.maximum(1.0 + _defect_line(normal_ptr, _key(keys_ptr, K_PGAIN), p, _col(v, C_PGD), _col(v, C_PGM), _col(v, C_PGL),
+                                           _col(v, C_PGN)), 0.0)
     if FLAGS & 144115188075855872:  # pixel gain noise: the pixel's gain this frame on its signal, new at every pixel and frame
         s *= 1.0 + _col(v, C_GNS) * _normal(draw(_key(keys_ptr, K_GAIN_NOISE), g))
     if FLAGS & 8:  # FPN: white fixed pattern + bilinear dark shading, a window (fpn_oy, fpn_ox) of fpn_h x fpn_w
