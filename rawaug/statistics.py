@@ -1347,6 +1347,24 @@ def line_tone_spectrum(m):
     return f[keep], p[keep]
 
 
+def temporal_row_means(frames) -> np.ndarray:
+    """(N, 2h) mean of each sensor row of a stack's temporal residual (each frame less the stack
+    mean; N >= 2), each frame's mean taken out, DN: the row noise new in every frame, without
+    the fixed rows and the frame's black level."""
+    f = np.asarray(frames, dtype=np.float64)
+    rm = sensor_row_means(f - temporal_moments(f)[0])
+    return rm - rm.mean(axis=1, keepdims=True)
+
+
+def row_kurtosis(frames, level_dn=None):
+    """Kurtosis (Pearson: 3 for a Gaussian) of the temporal row means (``temporal_row_means``):
+    above 3 where the row noise has heavy tails (bursts), below where its rows take few values
+    (a tone, two telegraph levels)."""
+    rm = temporal_row_means(frames)
+    v = float(np.mean(rm**2))
+    return float(np.mean(rm**4) / max(v * v, 1e-30))
+
+
 def row_tone_spectrum(frames):
     """``line_tone_spectrum`` of each frame's sensor-row means: tones along the sensor rows."""
     return line_tone_spectrum(frame_row_means(np.asarray(frames, dtype=np.float64)))
@@ -1841,6 +1859,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("noisy_col_fraction", noisy_col_fraction, min_frames=4, kind="bias", column_fraction=True),
         Statistic("tap_step_ratio", tap_step_ratio, min_frames=3, kind="bias"),
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
+        Statistic("row_kurtosis", row_kurtosis, min_frames=2, kind="bias", base="row noise shape (Gaussian)"),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("col_tone", col_tone, kind="bias"),
         Statistic("diag_tone", diag_tone, kind="bias"),

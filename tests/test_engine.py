@@ -55,6 +55,7 @@ LOOP_EFFECTS = {
               "median_dn": [20.0, 40.0]},
     "RowFix": {"seed": 31, "k": [1.0, 3.0], "fixed_dn": [0.8, 1.4]},
     "RowCh": {"k": [1.0, 3.0], "sigma_dn": [0.7, 1.3]},
+    "RowTail": {"k": [1.0, 3.0], "h": [0.15, 0.05]},  # heavy-tailed row draws
     "Band": {"k": [1.0, 3.0], "freq_per_row": [[0.0713, 0.31], [0.45]], "amplitude_dn": [[1.2, 0.4], [0.9]]},
     "ColBand": {"k": [1.0, 3.0], "freq_per_col": [[0.093], [0.5, 0.21]], "amplitude_dn": [[1.1], [0.7, 0.3]]},  # Nyquist too
     "DiagBand": {"k": [1.0, 3.0], "freq_per_col": [[0.11], [0.3, 0.05]], "freq_per_row": [[0.23], [-0.17, 0.41]],

@@ -92,6 +92,7 @@ _DNS, _DARK_NOISE = L.COLUMN["dark_noise"], L.STREAM["dark_noise"]
 _GNS, _GAIN_NOISE = L.COLUMN["gain_noise"], L.STREAM["gain_noise"]
 _PGD, _PGM, _PGL, _PGN = (L.COLUMN[n] for n in ("pgain_density", "pgain_median", "pgain_log_std", "pgain_negative"))
 _PGAIN = L.STREAM["pgain"]
+_RH = L.COLUMN["row_h"]
 _DNL_P, _DNL_E0 = L.COLUMN["dnl_period"], L.COLUMN["dnl_e0"]
 _TGR, _TGC0, _TGR0 = L.COLUMN["tgain_record"], L.COLUMN["tgain_c0"], L.COLUMN["tgain_r0"]
 _TGOY, _TGOX, _TGH, _TGW = L.COLUMN["tgain_oy"], L.COLUMN["tgain_ox"], L.COLUMN["tgain_h"], L.COLUMN["tgain_w"]
@@ -306,7 +307,10 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
         sensor = int(v[_SENSOR])  # fixed patterns of this sample's sensor instance: planes of their own
         line = 0.0  # offsets shared by the whole row
         if stages & L.ROW:
-            line += v[_R] * symmetric(normal, draw(keys[_ROW], (b * 2 + row_set) * h + y))
+            z_row = symmetric(normal, draw(keys[_ROW], (b * 2 + row_set) * h + y))
+            if stages & L.ROW_TAIL:  # heavy tails: Tukey's h transform, scaled back to unit variance
+                z_row *= math.exp(0.5 * v[_RH] * z_row * z_row) * (1.0 - 2.0 * v[_RH]) ** 0.75
+            line += v[_R] * z_row
         if stages & L.BIAS:
             line += v[_B0 + c]
         if stages & L.BLE:

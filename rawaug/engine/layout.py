@@ -64,6 +64,7 @@ ADC_DNL = 1 << 54  # ADC differential non-linearity: the codes' decision levels 
 DARK_DRIFT = 1 << 53  # dark-signal drift: a factor per frame on every dark signal (the sensor's temperature), before shot noise
 DARK_NOISE = 1 << 55  # exposure noise: white Gaussian temporal noise whose variance grows with the exposure time, with the read noise
 TRAP = 1 << 56  # charge trapping: the first electrons of a pixel's charge lost, after shot noise, before the gain non-linearity
+ROW_TAIL = 1 << 59  # heavy-tailed row noise: R's standard normal draw through Tukey's h transform
 PIXEL_GAIN = 1 << 58  # gain defect pixels: sparse pixels whose gain on the photo signal is far off, fixed
 GAIN_NOISE = 1 << 57  # pixel gain noise: each pixel's gain on its signal moves by a relative normal draw, new at every pixel and frame
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
@@ -142,6 +143,7 @@ COLUMNS = (
     "trap_dn",  # charge trapping: the traps' capacity (DN at this K)
     "gain_noise",  # pixel gain noise: its relative std at this K
     "pgain_density", "pgain_median", "pgain_log_std", "pgain_negative",  # gain defect pixels: share, median gain offset (fraction), spread, share dim
+    "row_h",  # heavy-tailed row noise: Tukey h of the row draws at this K
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

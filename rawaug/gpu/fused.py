@@ -58,6 +58,7 @@ C_LGRD, C_LGCD, C_LGM, C_LGLS, C_LGNEG = (_column("lgain_row_density"), _column(
 C_DDF = _column("dark_factor")
 C_DNS = _column("dark_noise")
 C_GNS = _column("gain_noise")
+C_RH = _column("row_h")
 C_PGD, C_PGM, C_PGL, C_PGN = (_column(n) for n in ("pgain_density", "pgain_median", "pgain_log_std", "pgain_negative"))
 C_DNL_P, C_DNL_E0 = _column("dnl_period"), _column("dnl_e0")
 TPE = tl.constexpr(L.TAP_EDGES)
@@ -493,7 +494,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += _col(v, C_LF) * ((z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy)
     line = 0.0
     if FLAGS & 128:  # R: one offset per sensor row
-        line += _col(v, C_R) * _normal(draw(_key(keys_ptr, K_ROW), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
+        z_row = _normal(draw(_key(keys_ptr, K_ROW), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
+        if FLAGS & 576460752303423488:  # heavy-tailed row noise: Tukey's h transform, scaled back to unit variance
+            h_row = _col(v, C_RH)
+            z_row *= tl.exp(0.5 * h_row * z_row * z_row) * tl.exp(0.75 * tl.log(1.0 - 2.0 * h_row))
+        line += _col(v, C_R) * z_row
     if FLAGS & 4194304:  # banding: tones along the sensor rows, a phase per frame and tone
         ry = 2 * y + row_set
         kb = _key(keys_ptr, K_BAND)
