@@ -51,6 +51,7 @@ LOOP_EFFECTS = {
     "GainNoise": {"k": [1.0, 3.0], "sigma_rel": [0.03, 0.01]},  # a relative draw per pixel and frame on the signal
     "PixelGain": {"seed": 43, "density": 0.05, "median": 0.3, "log_std": 0.5, "negative": 0.6},  # dim and bright pixels
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
+    "FixedField": {"seed": 29, "grid": [5, 7], "k": [1.0, 3.0], "sigma_dn": [0.6, 1.1], "frame_h": 12, "frame_w": 20},  # a sensor's own grid
     "Lines": {"seed": 23, "row_density": 0.05, "col_density": 0.08, "log_std": 0.5, "negative": 0.3, "k": [1.0, 3.0],
               "median_dn": [20.0, 40.0]},
     "RowFix": {"seed": 31, "k": [1.0, 3.0], "fixed_dn": [0.8, 1.4]},

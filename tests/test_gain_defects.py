@@ -16,7 +16,7 @@ def flats(level_dn, params, k, seed, n=2, size=96):
     """(n, 4, size, size) flats in DN at gain ``k``: Poisson shot noise, the base camera's read and
     row noise, gain defect pixels ``params`` (None: none)."""
     profile = BASE.with_effect("PixelGain", params) if params else BASE
-    fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": BASE.row_scale.median(k), "sensor": 0}
+    fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_g": BASE.gaussian_scale.median(k), "sigma_r": BASE.row_scale.median(k), "sensor": 0}
     aug = RawNoiseAugment(profile, model="G+P+R" + ("+PixelGain" if params else ""), ratio=1.0, fixed=fixed,
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     with torch.no_grad():

@@ -15,7 +15,7 @@ def bias(h, k, seed, n=8, sigma_r=1.0, size=(96, 128)):
     """(n, 4, h, w) bias frames in DN at gain ``k``: the base camera's read noise, row noise of
     ``sigma_r`` DN with Tukey h ``h`` (0: Gaussian)."""
     profile = BASE.with_effect("RowTail", {"k": [k], "h": [h]}) if h else BASE
-    fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_r": sigma_r, "sensor": 0}
+    fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_g": BASE.gaussian_scale.median(k), "sigma_r": sigma_r, "sensor": 0}
     aug = RawNoiseAugment(profile, model="G+P+R" + ("+RowTail" if h else ""), ratio=1.0, fixed=fixed,
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     with torch.no_grad():
@@ -46,7 +46,7 @@ def test_the_stage_keeps_the_row_variance_and_gives_the_rows_their_kurtosis():
 
 def test_bias_frames_without_row_noise_are_unchanged_bit_for_bit():
     profile = BASE.with_effect("RowTail", {"k": [1.0], "h": [0.1]})
-    fixed = {"k": 1.0, "sigma_tl": 1.0, "lambda": 0.05, "sigma_r": 1.0, "sensor": 0}
+    fixed = {"k": 1.0, "sigma_tl": 1.0, "lambda": 0.05, "sigma_g": 1.0, "sigma_r": 1.0, "sensor": 0}
     out = []
     for p, model in ((profile, "G+P+RowTail"), (BASE, "G+P")):  # no R: the transform has no row draw to act on
         aug = RawNoiseAugment(p, model=model, ratio=1.0, fixed=fixed, generator=torch.Generator().manual_seed(4), rank_seeding=False)

@@ -93,6 +93,7 @@ _GNS, _GAIN_NOISE = L.COLUMN["gain_noise"], L.STREAM["gain_noise"]
 _PGD, _PGM, _PGL, _PGN = (L.COLUMN[n] for n in ("pgain_density", "pgain_median", "pgain_log_std", "pgain_negative"))
 _PGAIN = L.STREAM["pgain"]
 _RH = L.COLUMN["row_h"]
+_FF, _FF_GH, _FF_GW, _FFIELD = L.COLUMN["ffield_sigma"], L.COLUMN["ffield_gh"], L.COLUMN["ffield_gw"], L.STREAM["ffield"]
 _DNL_P, _DNL_E0 = L.COLUMN["dnl_period"], L.COLUMN["dnl_e0"]
 _TGR, _TGC0, _TGR0 = L.COLUMN["tgain_record"], L.COLUMN["tgain_c0"], L.COLUMN["tgain_r0"]
 _TGOY, _TGOX, _TGH, _TGW = L.COLUMN["tgain_oy"], L.COLUMN["tgain_ox"], L.COLUMN["tgain_h"], L.COLUMN["tgain_w"]
@@ -670,6 +671,11 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
             for x in range(w):
                 s = sig[x]
                 s += v[_LF] * lowfreq_at(normal, keys[_LOWFREQ], b, y, x, h, w, int(v[_LF_GH]), int(v[_LF_GW]))
+                sig[x] = s
+        if stages & L.FIXED_FIELD:  # the sensor's measured fixed field: its normal grid (counter by sensor), bilinear
+            for x in range(w):
+                s = sig[x]
+                s += v[_FF] * lowfreq_at(normal, keys[_FFIELD], sensor, y, x, h, w, int(v[_FF_GH]), int(v[_FF_GW]))
                 sig[x] = s
         if stages & L.LINE_GAIN:  # a gain defect line's gain on the pixel's signal and noise, its row's and its column's
             for x in range(w):

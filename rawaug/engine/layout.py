@@ -64,6 +64,7 @@ ADC_DNL = 1 << 54  # ADC differential non-linearity: the codes' decision levels 
 DARK_DRIFT = 1 << 53  # dark-signal drift: a factor per frame on every dark signal (the sensor's temperature), before shot noise
 DARK_NOISE = 1 << 55  # exposure noise: white Gaussian temporal noise whose variance grows with the exposure time, with the read noise
 TRAP = 1 << 56  # charge trapping: the first electrons of a pixel's charge lost, after shot noise, before the gain non-linearity
+FIXED_FIELD = 1 << 60  # measured fallback: a fixed smooth field, a sensor's bilinear normal grid at a measured cell size
 ROW_TAIL = 1 << 59  # heavy-tailed row noise: R's standard normal draw through Tukey's h transform
 PIXEL_GAIN = 1 << 58  # gain defect pixels: sparse pixels whose gain on the photo signal is far off, fixed
 GAIN_NOISE = 1 << 57  # pixel gain noise: each pixel's gain on its signal moves by a relative normal draw, new at every pixel and frame
@@ -144,6 +145,7 @@ COLUMNS = (
     "gain_noise",  # pixel gain noise: its relative std at this K
     "pgain_density", "pgain_median", "pgain_log_std", "pgain_negative",  # gain defect pixels: share, median gain offset (fraction), spread, share dim
     "row_h",  # heavy-tailed row noise: Tukey h of the row draws at this K
+    "ffield_sigma", "ffield_gh", "ffield_gw",  # measured fixed field: std (DN), grid rows and columns
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -161,7 +163,7 @@ STREAMS = (
     "spike_where", "spike_size", "crts_where", "crts_size", "crts_state", "rowgain_pattern", "rowgain_frame",
     "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
-    "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain",
+    "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

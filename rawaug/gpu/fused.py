@@ -59,6 +59,7 @@ C_DDF = _column("dark_factor")
 C_DNS = _column("dark_noise")
 C_GNS = _column("gain_noise")
 C_RH = _column("row_h")
+C_FF, C_FF_GH, C_FF_GW = _column("ffield_sigma"), _column("ffield_gh"), _column("ffield_gw")
 C_PGD, C_PGM, C_PGL, C_PGN = (_column(n) for n in ("pgain_density", "pgain_median", "pgain_log_std", "pgain_negative"))
 C_DNL_P, C_DNL_E0 = _column("dnl_period"), _column("dnl_e0")
 TPE = tl.constexpr(L.TAP_EDGES)
@@ -118,6 +119,7 @@ K_DIAG_BAND = S["diag_band"]
 K_DARK_NOISE = S["dark_noise"]
 K_GAIN_NOISE = S["gain_noise"]
 K_PGAIN = S["pgain"]
+K_FFIELD = S["ffield"]
 K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["fpn_pattern"], S["hot_where"],
                                                          S["hot_size"], S["col_pattern"])
 
@@ -492,6 +494,17 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         z10 = symmetric_table(normal_ptr, draw(kl, ((base + y1) * gw + x0).to(tl.uint64)))
         z11 = symmetric_table(normal_ptr, draw(kl, ((base + y1) * gw + x1).to(tl.uint64)))
         s += _col(v, C_LF) * ((z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy)
+    if FLAGS & 1152921504606846976:  # measured fixed field: the sensor's normal grid, bilinear
+        fgh = _col(v, C_FF_GH).to(tl.int64)
+        fgw = _col(v, C_FF_GW).to(tl.int64)
+        y0, x0, y1, x1, fy, fx = _bilinear(y, x, H, W, fgh, fgw)
+        kf = _key(keys_ptr, K_FFIELD)
+        base = sensor.to(tl.int64) * fgh
+        z00 = symmetric_table(normal_ptr, draw(kf, ((base + y0) * fgw + x0).to(tl.uint64)))
+        z01 = symmetric_table(normal_ptr, draw(kf, ((base + y0) * fgw + x1).to(tl.uint64)))
+        z10 = symmetric_table(normal_ptr, draw(kf, ((base + y1) * fgw + x0).to(tl.uint64)))
+        z11 = symmetric_table(normal_ptr, draw(kf, ((base + y1) * fgw + x1).to(tl.uint64)))
+        s += _col(v, C_FF) * ((z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy)
     line = 0.0
     if FLAGS & 128:  # R: one offset per sensor row
         z_row = _normal(draw(_key(keys_ptr, K_ROW), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
