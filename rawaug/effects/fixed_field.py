@@ -5,7 +5,8 @@ Not a named physical effect: a blotchy fixed pattern (mura of the readout, a non
 implant or oxide, a pattern of the substrate) is neither the white pixel-to-pixel spread nor
 the frame-wide shading of ``FPN``, nor a line pattern: its power lies at the spatial
 frequencies of its blotches. It shows in the fixed pattern's variance (``fixed_pixel_var``,
-``fixed_std``) and in the low-frequency statistics. The loop tries this component only when
+``fixed_std``, ``pixel_std``), in the low-frequency statistics and in the tone statistics
+(the periodograms of its low-pass row and column means peak above their median bin). The loop tries this component only when
 no physical effect explains such a residual, and the report lists it as reproduced by
 measurement.
 
@@ -35,7 +36,8 @@ from .base import ADC, NoiseEffect, pattern_key, register
 from .dark_shading import upsample_grid
 from .k_records import check_seed, frame_size, validate_records, value_at_k
 
-STATISTICS = ("fixed_pixel_var", "fixed_std", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
+STATISTICS = ("fixed_pixel_var", "fixed_std", "pixel_std", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq", "row_tone", "col_tone",
+              "diag_tone")  # a blotchy pattern's row and column means are low-pass: their periodograms peak
 MEASURED = True
 MAX_GRID = 1 << 15  # grid nodes per axis
 RINGS = 16  # log-spaced rings of the 2-D spectrum
