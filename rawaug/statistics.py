@@ -1348,18 +1348,21 @@ def line_tone_spectrum(m):
 
 
 def temporal_row_means(frames) -> np.ndarray:
-    """(N, 2h) mean of each sensor row of a stack's temporal residual (each frame less the stack
-    mean; N >= 2), each frame's mean taken out, DN: the row noise new in every frame, without
-    the fixed rows and the frame's black level."""
+    """(N, rows) mean of each sensor row of a stack's temporal residual (each frame less the
+    stack mean; N >= 2), each frame's mean taken out, DN: the row noise new in every frame,
+    without the fixed rows and the frame's black level. With N >= 4, the rows with two states
+    (``flickering_rows``: telegraph rows, counted once, as flickering rows) are left out."""
     f = np.asarray(frames, dtype=np.float64)
     rm = sensor_row_means(f - temporal_moments(f)[0])
+    if f.shape[0] >= 4:
+        rm = rm[:, ~flickering_rows(f)[0]]
     return rm - rm.mean(axis=1, keepdims=True)
 
 
 def row_kurtosis(frames, level_dn=None):
-    """Kurtosis (Pearson: 3 for a Gaussian) of the temporal row means (``temporal_row_means``):
-    above 3 where the row noise has heavy tails (bursts), below where its rows take few values
-    (a tone, two telegraph levels)."""
+    """Kurtosis (Pearson: 3 for a Gaussian) of the temporal row means (``temporal_row_means``,
+    telegraph rows left out): above 3 where the row noise has heavy tails (bursts), below where
+    its rows take few values (a tone)."""
     rm = temporal_row_means(frames)
     v = float(np.mean(rm**2))
     return float(np.mean(rm**4) / max(v * v, 1e-30))
