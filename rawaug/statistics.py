@@ -1350,18 +1350,22 @@ def line_tone_spectrum(m):
 def temporal_row_means(frames) -> np.ndarray:
     """(N, rows) mean of each sensor row of a stack's temporal residual (each frame less the
     stack mean; N >= 2), each frame's mean taken out, DN: the row noise new in every frame,
-    without the fixed rows and the frame's black level. With N >= 4, the rows with two states
-    (``flickering_rows``: telegraph rows, counted once, as flickering rows) are left out."""
+    without the fixed rows and the frame's black level. With N >= 4, the rows whose temporal
+    variance exceeds ``FLICKER`` x the median row's are left out: a few rows of their own
+    (telegraph or noisy rows, ``RowRTS``) are not the row noise of every row."""
     f = np.asarray(frames, dtype=np.float64)
     rm = sensor_row_means(f - temporal_moments(f)[0])
+    rm = rm - rm.mean(axis=1, keepdims=True)
     if f.shape[0] >= 4:
-        rm = rm[:, ~flickering_rows(f)[0]]
-    return rm - rm.mean(axis=1, keepdims=True)
+        v = rm.var(axis=0)
+        rm = rm[:, v <= FLICKER * max(float(np.median(v)), 1e-30)]
+        rm = rm - rm.mean(axis=1, keepdims=True)
+    return rm
 
 
 def row_kurtosis(frames, level_dn=None):
     """Kurtosis (Pearson: 3 for a Gaussian) of the temporal row means (``temporal_row_means``,
-    telegraph rows left out): above 3 where the row noise has heavy tails (bursts), below where
+    rows of their own left out): above 3 where the row noise has heavy tails (bursts), below where
     its rows take few values (a tone)."""
     rm = temporal_row_means(frames)
     v = float(np.mean(rm**2))
