@@ -1350,26 +1350,30 @@ def line_tone_spectrum(m):
 def temporal_row_means(frames) -> np.ndarray:
     """(N, rows) mean of each sensor row of a stack's temporal residual (each frame less the
     stack mean; N >= 2), each frame's mean taken out, DN: the row noise new in every frame,
-    without the fixed rows and the frame's black level. With N >= 4, the rows whose temporal
-    variance exceeds ``FLICKER`` x the median row's are left out: a few rows of their own
-    (telegraph or noisy rows, ``RowRTS``) are not the row noise of every row."""
+    without the fixed rows and the frame's black level. With N >= 4, rows of their own are left
+    out: those with two states (``flickering_rows``) and those whose temporal variance exceeds
+    ``FLICKER`` x the median row's (telegraph or noisy rows, ``RowRTS``: not every row's noise)."""
     f = np.asarray(frames, dtype=np.float64)
     rm = sensor_row_means(f - temporal_moments(f)[0])
     rm = rm - rm.mean(axis=1, keepdims=True)
     if f.shape[0] >= 4:
         v = rm.var(axis=0)
-        rm = rm[:, v <= FLICKER * max(float(np.median(v)), 1e-30)]
+        rm = rm[:, (v <= FLICKER * max(float(np.median(v)), 1e-30)) & ~flickering_rows(f)[0]]
         rm = rm - rm.mean(axis=1, keepdims=True)
     return rm
 
 
-def row_kurtosis(frames, level_dn=None):
-    """Kurtosis (Pearson: 3 for a Gaussian) of the temporal row means (``temporal_row_means``,
-    rows of their own left out): above 3 where the row noise has heavy tails (bursts), below where
-    its rows take few values (a tone)."""
-    rm = temporal_row_means(frames)
-    v = float(np.mean(rm**2))
-    return float(np.mean(rm**4) / max(v * v, 1e-30))
+ROW_TAIL_Z = 4.0  # robust sigmas of the temporal row means: a row burst, where a Gaussian gives 6e-5
+
+
+def row_tail_mass(frames, level_dn=None):
+    """Fraction of the temporal row means (``temporal_row_means``, rows of their own left out)
+    beyond ``ROW_TAIL_Z`` robust sigmas (1.4826 MAD) of their median: heavy-tailed row noise
+    (bursts in random rows). A count, so one odd row moves it by one value, not as it moves a
+    kurtosis."""
+    rm = temporal_row_means(frames).ravel()
+    med, scale = robust_scale(rm[:, None], axis=0)
+    return float(np.mean(np.abs(rm - med[0]) > ROW_TAIL_Z * scale[0]))
 
 
 def row_tone_spectrum(frames):
@@ -1866,7 +1870,8 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("noisy_col_fraction", noisy_col_fraction, min_frames=4, kind="bias", column_fraction=True),
         Statistic("tap_step_ratio", tap_step_ratio, min_frames=3, kind="bias"),
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
-        Statistic("row_kurtosis", row_kurtosis, min_frames=2, kind="bias", base="row noise shape (Gaussian)"),
+        Statistic("row_tail_mass", row_tail_mass, min_frames=2, kind="bias", view="lines", line_fraction=True,
+                  base="row noise shape (Gaussian)"),
         Statistic("row_tone", row_tone, kind="bias"),
         Statistic("col_tone", col_tone, kind="bias"),
         Statistic("diag_tone", diag_tone, kind="bias"),

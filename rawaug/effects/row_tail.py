@@ -16,8 +16,10 @@ Profile entry (per-K records)::
 
     RowTail: {k: [K, ...], h: [...]}
 
-Detected on bias and dark stacks by ``row_kurtosis``. Estimated by ``estimate``: the fourth
-cumulant of the stack's temporal row means beyond the model's syntheses', over the square of
+Detected on bias and dark stacks by ``row_tail_mass`` (the share of temporal row means beyond
+4 robust sigmas; rows of their own, telegraph or noisy, left out). Estimated by ``estimate``:
+the fourth cumulant of the stack's temporal row means (on the frames with their defect lines
+in place: a row burst is not a defect line) beyond the model's syntheses', over the square of
 their variance (the pixel noise's share taken out), is the rows' excess kurtosis, and h is
 the transform's that gives it (``excess_kurtosis``); ``combine`` averages a gain's stacks.
 """
@@ -27,11 +29,12 @@ import numpy as np
 from scipy import optimize
 
 from ..engine import layout as L
-from ..statistics import temporal_row_means
+from ..statistics import temporal_row_means, without_outliers
 from .base import READ, NoiseEffect, register
 from .k_records import all_zero, combine_mean, validate_records, value_at_k
 
-STATISTICS = ("row_kurtosis",)
+STATISTICS = ("row_tail_mass",)
+RAW_FRAMES = True  # the frames with their defect lines in place (``without_outliers`` only), as ``row_tail_mass`` reads them
 MAX_H = 0.2  # the transform's fourth moment is finite for h < 1/4
 
 
@@ -64,7 +67,7 @@ def _cumulants(frames):
     and DN^4, from a stack's temporal row means (``temporal_row_means``). A frame less the mean
     of N holds (N - 1) / N of a row's variance and (1 - 1/N)^4 + (N - 1) / N^4 of its fourth
     cumulant (the other frames' shares): both are scaled back."""
-    f = np.asarray(frames, dtype=np.float64)
+    f = without_outliers(np.asarray(frames, dtype=np.float64))
     rm = temporal_row_means(f)
     n, _, _, w = f.shape
     v = float(np.mean(rm**2))
