@@ -1355,10 +1355,18 @@ def temporal_row_means(frames) -> np.ndarray:
     ``FLICKER`` x the median row's (telegraph or noisy rows, ``RowRTS``: not every row's noise)."""
     f = np.asarray(frames, dtype=np.float64)
     rm = sensor_row_means(f - temporal_moments(f)[0])
+    return steady_rows(rm, ~flickering_rows(f)[0] if f.shape[0] >= 4 else None)
+
+
+def steady_rows(rm, keep=None) -> np.ndarray:
+    """Temporal row means (N, rows; DN) with each frame's mean taken out and, with N >= 4, the
+    rows whose temporal variance exceeds ``FLICKER`` x the median row's (and those not in
+    ``keep``) left out (``temporal_row_means``)."""
     rm = rm - rm.mean(axis=1, keepdims=True)
-    if f.shape[0] >= 4:
+    if rm.shape[0] >= 4:
         v = rm.var(axis=0)
-        rm = rm[:, (v <= FLICKER * max(float(np.median(v)), 1e-30)) & ~flickering_rows(f)[0]]
+        steady = v <= FLICKER * max(float(np.median(v)), 1e-30)
+        rm = rm[:, steady if keep is None else steady & keep]
         rm = rm - rm.mean(axis=1, keepdims=True)
     return rm
 
@@ -1371,9 +1379,14 @@ def row_tail_mass(frames, level_dn=None):
     beyond ``ROW_TAIL_Z`` robust sigmas (1.4826 MAD) of their median: heavy-tailed row noise
     (bursts in random rows). A count, so one odd row moves it by one value, not as it moves a
     kurtosis."""
-    rm = temporal_row_means(frames).ravel()
-    med, scale = robust_scale(rm[:, None], axis=0)
-    return float(np.mean(np.abs(rm - med[0]) > ROW_TAIL_Z * scale[0]))
+    return tail_share(temporal_row_means(frames))
+
+
+def tail_share(values) -> float:
+    """Share of ``values`` beyond ``ROW_TAIL_Z`` robust sigmas (1.4826 MAD) of their median."""
+    v = np.asarray(values, dtype=np.float64).ravel()
+    med, scale = robust_scale(v[:, None], axis=0)
+    return float(np.mean(np.abs(v - med[0]) > ROW_TAIL_Z * scale[0]))
 
 
 def row_tone_spectrum(frames):

@@ -18,10 +18,10 @@ Profile entry (per-K records)::
 
 Detected on bias and dark stacks by ``row_tail_mass`` (the share of temporal row means beyond
 4 robust sigmas; rows of their own, telegraph or noisy, left out). Estimated by ``estimate``:
-the fourth cumulant of the stack's temporal row means (on the frames with their defect lines
-in place: a row burst is not a defect line) beyond the model's syntheses', over the square of
-their variance (the pixel noise's share taken out), is the rows' excess kurtosis, and h is
-the transform's that gives it (``excess_kurtosis``); ``combine`` averages a gain's stacks.
+h whose simulated row means (``tail_model``: the stack's row variance and pixel noise, the
+transform, the statistic's own steps) exceed the Gaussian's tail share by as much as the
+stack's (on the frames with their defect lines in place: a row burst is not a defect line)
+exceeds the model's syntheses'; ``combine`` averages a gain's stacks.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ import numpy as np
 from scipy import optimize
 
 from ..engine import layout as L
-from ..statistics import temporal_row_means, without_outliers
+from ..statistics import steady_rows, tail_share, temporal_row_means, without_outliers
 from .base import READ, NoiseEffect, register
 from .k_records import all_zero, combine_mean, validate_records, value_at_k
 
@@ -62,36 +62,46 @@ def excess_kurtosis(h):
     return 3.0 * (1.0 - 2.0 * h) ** 3 / (1.0 - 4.0 * h) ** 2.5 - 3.0
 
 
-def _cumulants(frames):
-    """(variance less the pixel noise's share, fourth cumulant) of the rows' own offsets, DN^2
-    and DN^4, from a stack's temporal row means (``temporal_row_means``). A frame less the mean
-    of N holds (N - 1) / N of a row's variance and (1 - 1/N)^4 + (N - 1) / N^4 of its fourth
-    cumulant (the other frames' shares): both are scaled back."""
-    f = without_outliers(np.asarray(frames, dtype=np.float64))
-    rm = temporal_row_means(f)
-    n, _, _, w = f.shape
-    v = float(np.mean(rm**2))
-    k4 = (float(np.mean(rm**4)) - 3.0 * v * v) / ((1.0 - 1.0 / n) ** 4 + (n - 1) / n**4)
-    resid = f - f.mean(axis=0)
-    pix = float(np.mean((resid - resid.mean(axis=3, keepdims=True)) ** 2))  # per pixel, in the residual
-    return max((v - pix / (2 * w)) * n / (n - 1), 1e-30), k4
+SIM_ROWS = 50_000  # simulated rows per frame in the estimator's tail-share model
 
 
-def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
-    """RowTail record at gain ``k`` from a bias or dark stack (N >= 2, 4, h, w; DN) against the
-    model's ``synthesized`` stacks of it: h whose excess kurtosis is the rows' fourth cumulant
-    beyond the syntheses', over their variance squared."""
+def tail_model(h: float, n: int, row_var: float, pixel_var: float, seed: int = 0) -> float:
+    """``row_tail_mass`` of simulated temporal row means: ``SIM_ROWS`` rows of ``n`` frames, each
+    row's offset ``sqrt(row_var)`` times the transform of a standard normal, the rows' pixel
+    noise Gaussian of ``pixel_var`` (DN^2, in the temporal residual), taken through the
+    statistic's own steps (``steady_rows``, ``tail_share``)."""
+    z = np.random.default_rng(seed).standard_normal((2, n, SIM_ROWS))
+    x = np.sqrt(row_var) * z[0] * np.exp(0.5 * h * z[0] ** 2) * (1.0 - 2.0 * h) ** 0.75
+    rm = x - x.mean(axis=0) + np.sqrt(pixel_var) * z[1]
+    return tail_share(steady_rows(rm))
+
+
+def estimate(frames, synthesized, k: float, kind=None, seed: int = 0, **_) -> dict:
+    """RowTail record at gain ``k`` from a bias or dark stack (N >= 2, 4, h, w; DN; its defect
+    lines in place) against the model's ``synthesized`` stacks of it: h whose ``tail_model``
+    rises above the Gaussian's by as much as the stack's ``row_tail_mass`` exceeds the
+    syntheses' (the rows' variance and the pixel noise's share from the stack itself)."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind not in ("bias", "dark") or frames.shape[0] < 2:
         raise ValueError("RowTail is measured on bias or dark stacks of >= 2 frames")
-    var, k4 = _cumulants(frames)
-    base = np.mean([_cumulants(s)[1] for s in synthesized]) if synthesized else 0.0
-    target = (k4 - base) / var**2
-    if not target > 0.0:
+    f = without_outliers(frames)
+    n, _, _, w = f.shape
+    rm = temporal_row_means(f)
+    resid = f - f.mean(axis=0)
+    pixel_var = float(np.mean((resid - resid.mean(axis=3, keepdims=True)) ** 2)) / (2 * w)  # a row mean's share
+    row_var = max((float(np.mean(rm**2)) - pixel_var) * n / (n - 1), 1e-30)
+    base = float(np.mean([tail_share(temporal_row_means(without_outliers(np.asarray(s, dtype=np.float64))))
+                          for s in synthesized])) if synthesized else tail_model(0.0, n, row_var, pixel_var, seed)
+    target = tail_share(rm) - base + tail_model(0.0, n, row_var, pixel_var, seed)
+
+    def short(h):
+        return tail_model(h, n, row_var, pixel_var, seed) - target
+
+    if short(0.0) >= 0.0:
         return {"k": [float(k)], "h": [0.0]}
-    if target >= excess_kurtosis(MAX_H):
+    if short(MAX_H) <= 0.0:
         return {"k": [float(k)], "h": [MAX_H]}
-    return {"k": [float(k)], "h": [float(optimize.brentq(lambda h: excess_kurtosis(h) - target, 0.0, MAX_H))]}
+    return {"k": [float(k)], "h": [float(optimize.brentq(short, 0.0, MAX_H, xtol=1e-4))]}
 
 
 def combine(records: list[dict]) -> dict:
