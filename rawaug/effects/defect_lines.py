@@ -73,11 +73,16 @@ def validate_line_pattern(token: str, params: dict) -> None:
         value = _number(params.get(key), f"{token}.{key}")
         if not 0.0 <= value <= MAX_DENSITY:
             raise ValueError(f"effect {token!r}: {key} (fraction of sensor lines) must be in [0, {MAX_DENSITY}], got {value}")
+    validate_spread(token, params, "lines")
+
+
+def validate_spread(token: str, params: dict, of: str) -> None:
+    """A seeded defect pattern's ``log_std`` (>= 0) and ``negative`` (the share of dark ``of``, in [0, 1])."""
     if _number(params.get("log_std"), f"{token}.log_std") < 0:
         raise ValueError(f"effect {token!r}: log_std must be >= 0, got {params.get('log_std')}")
     negative = _number(params.get("negative"), f"{token}.negative")
     if not 0.0 <= negative <= 1.0:
-        raise ValueError(f"effect {token!r}: negative (fraction of dark lines) must be in [0, 1], got {negative}")
+        raise ValueError(f"effect {token!r}: negative (fraction of dark {of}) must be in [0, 1], got {negative}")
 
 
 # packed channels (R, G1, B, G2) on each sensor row set and column set

@@ -29,12 +29,12 @@ from __future__ import annotations
 from collections import Counter
 
 import numpy as np
-import torch
 
 from ..engine import layout as L
 from .base import ADC, NoiseEffect, pattern_key, register
 from .dark_shading import upsample_grid
-from .k_records import check_seed, frame_size, validate_records, value_at_k
+from .k_records import check_seed, frame_size, validate_records
+from .low_frequency import grid_field_columns
 
 STATISTICS = ("fixed_pixel_var", "fixed_std", "pixel_std", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq", "row_tone", "col_tone",
               "diag_tone")  # a blotchy pattern's row and column means are low-pass: their periodograms peak
@@ -51,13 +51,7 @@ class FixedField(NoiseEffect):
     columns = ("ffield_sigma", "ffield_gh", "ffield_gw")
 
     def draw(self, ctx):
-        p = self.profile.effects[self.token]
-        grid = [float(v) for v in p["grid"]]
-        frame = frame_size(self.token, p)
-        if frame is not None and ctx.shape is not None:  # the measured cell size, on an input of any size
-            grid = [float(min(MAX_GRID, max(1, round(g * n / f)))) for g, n, f in zip(grid, ctx.shape, frame)]
-        return {"ffield_sigma": value_at_k(p, "sigma_dn", ctx.k), "ffield_gh": torch.full_like(ctx.k, grid[0]),
-                "ffield_gw": torch.full_like(ctx.k, grid[1])}
+        return grid_field_columns(ctx, self.token, self.profile.effects[self.token], "ffield", MAX_GRID)
 
     def pattern_streams(self):
         return {"ffield": pattern_key(self.profile.effects[self.token]["seed"], self.token, "field")}

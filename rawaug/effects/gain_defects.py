@@ -32,6 +32,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import flat_relative_map, robust_scale
 from .base import SHOT, NoiseEffect, pattern_key, register
+from .defect_lines import validate_spread
 from .k_records import _number, check_density, check_seed
 
 STATISTICS = ("tail_mass", "hot_fraction")
@@ -65,11 +66,7 @@ class PixelGain(NoiseEffect):
         median = _number(params.get("median"), f"{cls.token}.median")
         if not 0.0 <= median <= MAX_MEDIAN:
             raise ValueError(f"effect {cls.token!r}: median (fraction of the signal) must be in [0, {MAX_MEDIAN}], got {median}")
-        if _number(params.get("log_std"), f"{cls.token}.log_std") < 0:
-            raise ValueError(f"effect {cls.token!r}: log_std must be >= 0, got {params.get('log_std')}")
-        negative = _number(params.get("negative"), f"{cls.token}.negative")
-        if not 0.0 <= negative <= 1.0:
-            raise ValueError(f"effect {cls.token!r}: negative (fraction of dim defects) must be in [0, 1], got {negative}")
+        validate_spread(cls.token, params, "pixels")
 
 
 def defect_pixels(frames) -> np.ndarray:

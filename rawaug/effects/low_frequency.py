@@ -46,13 +46,7 @@ class LowFrequencyNoise(NoiseEffect):
     columns = ("lowfreq_sigma", "lowfreq_gh", "lowfreq_gw")
 
     def draw(self, ctx):
-        p = self.profile.effects[self.token]
-        grid = [float(v) for v in p["grid"]]
-        frame = frame_size(self.token, p)
-        if frame is not None and ctx.shape is not None:  # the measured cell size, on an input of any size
-            grid = [float(min(256, max(1, round(g * n / f)))) for g, n, f in zip(grid, ctx.shape, frame)]
-        return {"lowfreq_sigma": value_at_k(p, "sigma_dn", ctx.k), "lowfreq_gh": torch.full_like(ctx.k, grid[0]),
-                "lowfreq_gw": torch.full_like(ctx.k, grid[1])}
+        return grid_field_columns(ctx, self.token, self.profile.effects[self.token], "lowfreq", 256)
 
     @classmethod
     def validate_params(cls, params):
@@ -61,6 +55,18 @@ class LowFrequencyNoise(NoiseEffect):
         if not (isinstance(grid, (list, tuple)) and len(grid) == 2 and all(isinstance(v, int) and 1 <= v <= 256 for v in grid)):
             raise ValueError(f"effect 'LowFreq' needs grid: [gh, gw], integers in [1, 256], got {grid!r}")
         frame_size(cls.token, params)
+
+
+def grid_field_columns(ctx, token: str, p: dict, prefix: str, max_grid: int) -> dict:
+    """Columns ``{prefix}_sigma``, ``{prefix}_gh``, ``{prefix}_gw`` of a bilinear normal grid
+    field: its sigma at each sample's K and its grid, rescaled on an input of another size than
+    the measured frame so that a cell keeps its measured size (at most ``max_grid`` nodes)."""
+    grid = [float(v) for v in p["grid"]]
+    frame = frame_size(token, p)
+    if frame is not None and ctx.shape is not None:  # the measured cell size, on an input of any size
+        grid = [float(min(max_grid, max(1, round(g * n / f)))) for g, n, f in zip(grid, ctx.shape, frame)]
+    return {f"{prefix}_sigma": value_at_k(p, "sigma_dn", ctx.k), f"{prefix}_gh": torch.full_like(ctx.k, grid[0]),
+            f"{prefix}_gw": torch.full_like(ctx.k, grid[1])}
 
 
 def grid_shape(h: int, w: int, cell: int = CELL) -> tuple[int, int]:

@@ -143,6 +143,18 @@ def _bilinear(y, x, H, W, gh, gw):
 
 
 @triton.jit
+def _normal_grid(normal_ptr, key, base, y, x, H, W, gh, gw):
+    """A standard-normal grid (gh x gw, counter (base + i) * gw + j) upsampled bilinearly at
+    (y, x), as ``rawaug.cpu.fused.lowfreq_at`` (``base``: the frame's or the sensor's rows)."""
+    y0, x0, y1, x1, fy, fx = _bilinear(y, x, H, W, gh, gw)
+    z00 = symmetric_table(normal_ptr, draw(key, ((base + y0) * gw + x0).to(tl.uint64)))
+    z01 = symmetric_table(normal_ptr, draw(key, ((base + y0) * gw + x1).to(tl.uint64)))
+    z10 = symmetric_table(normal_ptr, draw(key, ((base + y1) * gw + x0).to(tl.uint64)))
+    z11 = symmetric_table(normal_ptr, draw(key, ((base + y1) * gw + x1).to(tl.uint64)))
+    return (z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy
+
+
+@triton.jit
 def _defect_line(normal_ptr, key, line, density, median, log_std, negative):
     """As ``rawaug.cpu.fused.defect_line_at``: the offset of sensor lines ``line`` (uint64)."""
     size = median * tl.exp(log_std * symmetric_table(normal_ptr, draw(key, 3 * line + 1)))
@@ -486,25 +498,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 32768:  # measured low-frequency field: a per-frame normal grid, bilinear
         gh = _col(v, C_LF_GH).to(tl.int64)
         gw = _col(v, C_LF_GW).to(tl.int64)
-        y0, x0, y1, x1, fy, fx = _bilinear(y, x, H, W, gh, gw)
-        kl = _key(keys_ptr, K_LOWFREQ)
-        base = b.to(tl.int64) * gh
-        z00 = symmetric_table(normal_ptr, draw(kl, ((base + y0) * gw + x0).to(tl.uint64)))
-        z01 = symmetric_table(normal_ptr, draw(kl, ((base + y0) * gw + x1).to(tl.uint64)))
-        z10 = symmetric_table(normal_ptr, draw(kl, ((base + y1) * gw + x0).to(tl.uint64)))
-        z11 = symmetric_table(normal_ptr, draw(kl, ((base + y1) * gw + x1).to(tl.uint64)))
-        s += _col(v, C_LF) * ((z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy)
+        s += _col(v, C_LF) * _normal_grid(normal_ptr, _key(keys_ptr, K_LOWFREQ), b.to(tl.int64) * gh, y, x, H, W, gh, gw)
     if FLAGS & 1152921504606846976:  # measured fixed field: the sensor's normal grid, bilinear
         fgh = _col(v, C_FF_GH).to(tl.int64)
         fgw = _col(v, C_FF_GW).to(tl.int64)
-        y0, x0, y1, x1, fy, fx = _bilinear(y, x, H, W, fgh, fgw)
-        kf = _key(keys_ptr, K_FFIELD)
-        base = sensor.to(tl.int64) * fgh
-        z00 = symmetric_table(normal_ptr, draw(kf, ((base + y0) * fgw + x0).to(tl.uint64)))
-        z01 = symmetric_table(normal_ptr, draw(kf, ((base + y0) * fgw + x1).to(tl.uint64)))
-        z10 = symmetric_table(normal_ptr, draw(kf, ((base + y1) * fgw + x0).to(tl.uint64)))
-        z11 = symmetric_table(normal_ptr, draw(kf, ((base + y1) * fgw + x1).to(tl.uint64)))
-        s += _col(v, C_FF) * ((z00 * (1.0 - fx) + z01 * fx) * (1.0 - fy) + (z10 * (1.0 - fx) + z11 * fx) * fy)
+        s += _col(v, C_FF) * _normal_grid(normal_ptr, _key(keys_ptr, K_FFIELD), sensor.to(tl.int64) * fgh, y, x, H, W, fgh, fgw)
     line = 0.0
     if FLAGS & 128:  # R: one offset per sensor row
         z_row = _normal(draw(_key(keys_ptr, K_ROW), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
