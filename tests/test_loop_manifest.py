@@ -302,7 +302,8 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 # by its round trip in tests/test_effects_loop.py, on a manifest at two exposures by the slow tests below)
 SLOW_CASES = {"Col", "crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
               "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
-              "skewed dark current", "raised floor", "frame-locked tone", "glow", "toe"}
+              "skewed dark current", "raised floor", "frame-locked tone", "glow", "toe",
+              "settling clamp", "nonlin", "PRNU"}  # (the last three since the twenty-second session, to keep the default run near 5 minutes)
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])
