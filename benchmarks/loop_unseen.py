@@ -643,6 +643,58 @@ def laplace_rows(dn, rng, **_):
     r = rng.laplace(0.0, 1.0 / np.sqrt(2.0), 2 * dn.shape[1])
     return dn + np.stack([r[0::2], r[0::2], r[1::2], r[1::2]])[:, :, None]
 
+
+# 2026-11-29 (twenty-third session): a fifth fresh batch, written and committed before the loop ran
+# on any of them.
+
+def pixel_wander(dn, rng, k=1.0, **_):
+    """1/f-like pixel noise: each pixel's offset wanders from frame to frame as an AR(1) process (0.9 of the previous frame's plus a new draw, 1 DN rms stationary), in the order the frames were taken at each ISO, in every kind of frame."""
+    key = ("wander", id(rng), k)
+    prev = _WALK.get(key)
+    w = rng.standard_normal(dn.shape) if prev is None else 0.9 * prev + np.sqrt(1.0 - 0.81) * rng.standard_normal(dn.shape)
+    _WALK[key] = w
+    return dn + w
+
+
+def dropouts(dn, rng, **_):
+    """Readout dropouts: 0.05 % of the pixels of every frame, at new places each frame, read 60 to 200 DN below what they should (a lost charge packet), in every kind of frame."""
+    hit = rng.random(dn.shape) < 5e-4
+    return dn - hit * rng.uniform(60.0, 200.0, dn.shape)
+
+
+def triple_adc_columns(dn, rng, **_):
+    """Three interleaved column ADCs with offsets of their own: sensor column c reads +1, 0 and -1 DN for c mod 3 = 0, 1, 2, the same in every frame."""
+    c = np.array([1.0, 0.0, -1.0])[np.arange(2 * dn.shape[2]) % 3]
+    return dn + np.stack([c[0::2], c[1::2], c[1::2], c[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
+def column_flicker_1f(dn, rng, **_):
+    """Column noise with a 1/f spectrum across the sensor columns (a drifting column reference): 1 DN rms, new in every frame."""
+    n = 2 * dn.shape[2]
+    f = np.fft.rfftfreq(n)
+    amp = np.where(f > 0, 1.0 / np.sqrt(np.maximum(f, 1e-9)), 0.0)
+    c = np.fft.irfft(amp * (rng.standard_normal(f.size) + 1j * rng.standard_normal(f.size)), n)
+    c = c / c.std()
+    return dn + np.stack([c[0::2], c[1::2], c[1::2], c[0::2]])[:, None, :]
+
+
+def repeated_rows(dn, rng, **_):
+    """A readout glitch: in every frame, 0.5 % of the sensor rows (new places each frame) repeat the sensor row above them (the same colour's row two lines up in the mosaic)."""
+    raw = np.zeros((2 * dn.shape[1], 2 * dn.shape[2]))
+    raw[0::2, 0::2], raw[0::2, 1::2], raw[1::2, 1::2], raw[1::2, 0::2] = dn
+    for y in np.flatnonzero(rng.random(raw.shape[0]) < 0.005):
+        if y >= 2:
+            raw[y] = raw[y - 2]
+    return _raw_to_packed(raw)
+
+
+def quadrant_offsets(dn, rng, **_):
+    """Four readout quadrants with a black offset each: +0.9, -0.6, +0.3 and -0.6 DN (top left, top right, bottom left, bottom right), the same in every frame."""
+    _, h, w = dn.shape
+    q = np.zeros((h, w))
+    q[: h // 2, : w // 2], q[: h // 2, w // 2 :], q[h // 2 :, : w // 2], q[h // 2 :, w // 2 :] = 0.9, -0.6, 0.3, -0.6
+    return dn + q
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -657,7 +709,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  stuck_pixels, charge_transfer, dark_read_noise, read_noise_gradient, parity_row_gain,
                                  channel_dark, image_lag, black_by_iso, cosmic_rays, row_gain_noise, column_telegraph,
                                  low_light_toe, pixel_gain_noise, stuck_bit, alternating_black, blotchy_fpn, dim_pixels,
-                                 laplace_rows)}
+                                 laplace_rows, pixel_wander, dropouts, triple_adc_columns, column_flicker_1f,
+                                 repeated_rows, quadrant_offsets)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
