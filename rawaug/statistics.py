@@ -393,8 +393,7 @@ MAX_CELLS = 1 << 22  # a wider range of grid cells is read as continuous values
 def cell_cdf(values, step: float):
     """(knots, cdf) of 1-D ``values`` on a grid of ``step``, each value spread evenly over its
     cell, piecewise linear: the values plus a uniform dither of one cell. A code next to
-    missing ones (a gap ``written_codes`` counts: at most ``MAX_GAP`` empty codes between two
-    of >= ``MIN_COUNT`` values) stands for the inputs the ADC writes it for: its cell reaches
+    missing ones (a gap ``written_codes`` counts: ``comb_gaps``) stands for the inputs the ADC writes it for: its cell reaches
     halfway to the next written code. None off the grid or over ``MAX_CELLS`` cells."""
     idx = np.rint(np.asarray(values, dtype=np.float64) / step)
     if not np.all(np.abs(idx * step - values) <= 1e-6 * step):
@@ -406,8 +405,7 @@ def cell_cdf(values, step: float):
     occupied = np.flatnonzero(counts)
     c = counts[occupied]
     gaps = np.diff(occupied)
-    comb = (gaps <= MAX_GAP + 1) & (np.minimum(c[:-1], c[1:]) >= MIN_COUNT)
-    half = np.where(comb, gaps / 2.0, 0.5)
+    half = np.where(comb_gaps(occupied, c), gaps / 2.0, 0.5)
     left, right = occupied - np.r_[0.5, half], occupied + np.r_[half, 0.5]
     knots = (lo + np.stack([left, right], axis=1).ravel()) * step
     cum = np.cumsum(c)
@@ -480,12 +478,37 @@ def ppcc_r2(frames, level_dn=None):
 
 MIN_COUNT = 10  # pixels on each side of a gap: P(no pixel at a code expecting 10) = 4.5e-5
 MAX_GAP = 7  # longest run of missing codes (digital gain up to 8); a longer empty run separates populations
+MAX_COMB_GAP = 63  # ... unless it repeats as a comb: equal runs at equal spacing (a stuck ADC bit, a digital gain up to 64)
+COMB_REPEATS = 3  # runs a comb of long gaps needs
+
+
+def comb_gaps(occupied, counts) -> np.ndarray:
+    """Per gap between consecutive ``occupied`` codes (their ``counts``): True where its empty
+    codes are missing ones, i.e. codes the camera does not write: both bounding codes hold >=
+    ``MIN_COUNT`` pixels and the gap is at most ``MAX_GAP`` codes long, or at most
+    ``MAX_COMB_GAP`` long and one of ``COMB_REPEATS`` or more gaps of its length at equal
+    spacing (a comb; one long empty run is two populations, a stuck column above the noise)."""
+    occupied, counts = np.asarray(occupied), np.asarray(counts)
+    gaps = np.diff(occupied)
+    bounded = np.minimum(counts[:-1], counts[1:]) >= MIN_COUNT
+    out = (gaps > 1) & (gaps <= MAX_GAP + 1) & bounded
+    long = np.flatnonzero((gaps > MAX_GAP + 1) & (gaps <= MAX_COMB_GAP + 1) & bounded)
+    for length in np.unique(gaps[long]):
+        at = long[gaps[long] == length]
+        if at.size < COMB_REPEATS:
+            continue
+        steps = np.diff(occupied[at])
+        run = 0
+        for i in range(steps.size):  # runs of equal spacing, COMB_REPEATS gaps or more
+            run = run + 1 if i > 0 and steps[i] == steps[i - 1] else 1
+            if run >= COMB_REPEATS - 1:
+                out[at[i - run + 1 : i + 2]] = True
+    return out
 
 
 def written_codes(values: np.ndarray) -> np.ndarray:
     """Boolean mask over ``[min, max]`` of whole-DN ``values``: the codes the camera writes,
-    i.e. all but those in a gap (no pixel, at most ``MAX_GAP`` codes long) whose two bounding
-    codes hold >= ``MIN_COUNT`` pixels each. In a sparse tail an empty code is chance, and a
+    i.e. all but those in a gap of missing codes (``comb_gaps``). In a sparse tail an empty code is chance, and a
     long empty run separates two populations (a stuck column far above the noise): neither
     is a missing code."""
     v = np.asarray(values).astype(np.int64).ravel()
@@ -496,9 +519,9 @@ def _written(counts):
     """``written_codes`` from the counts of the codes from the lowest up."""
     occupied = np.flatnonzero(counts)
     written = np.ones(counts.size, dtype=bool)
-    for a, b in zip(occupied[:-1], occupied[1:]):
-        if 1 < b - a <= MAX_GAP + 1 and min(counts[a], counts[b]) >= MIN_COUNT:
-            written[a + 1 : b] = False
+    missing = comb_gaps(occupied, counts[occupied])
+    for a, b in zip(occupied[:-1][missing], occupied[1:][missing]):
+        written[a + 1 : b] = False
     return written
 
 

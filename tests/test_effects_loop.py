@@ -386,6 +386,25 @@ def test_spikes_estimate_round_trip_and_none_in_white_or_heavy_tailed_stacks():
         impulses.estimate(meas, base, K, kind="flat")
 
 
+def test_dark_events_take_their_share_and_are_estimated_as_dark():
+    """Lost charge packets: ``negative`` 0.3 of the events read low. The stage's dark events are
+    within 5 binomial sd of 0.3 of all; a stack of dark events only (``negative`` 1) gives them
+    back: share 1, the density within 5 Poisson sd, the median within 5 sd of its log."""
+    from rawaug.statistics import spikes
+
+    n_px = 4 * 128 * 128
+    frames = synth({"Spikes": {**SPIKES, "density_per_s": 0.0, "negative": 0.3}}, batch=12, size=128, model="G")
+    bright, dark = int(spikes(frames).sum()), int(spikes(-frames).sum())
+    n = bright + dark
+    assert abs(dark - 0.3 * n) < 5 * math.sqrt(0.3 * 0.7 * n), (bright, dark)
+    base = [synth({}, batch=6, size=128, seed=s) for s in range(1, 5)]
+    meas = synth({"Spikes": {**SPIKES, "density_per_s": 0.0, "negative": 1.0}}, batch=6, size=128, seed=11)
+    est = impulses.combine([impulses.estimate(meas, base, K, exposure_s=0.0, kind="bias")])
+    assert est["negative"] == 1.0, est
+    assert abs(est["density"] - 1e-3) < 5 * math.sqrt(1e-3 / (6 * n_px)), est
+    assert abs(math.log(est["median_dn"][0] / 60.0)) < 5 * 0.4 / math.sqrt(1e-3 * 6 * n_px), est
+
+
 COLRTS = {"seed": 79, "density": 0.05, "high": 0.3, "log_std": 0.2, "k": [K], "median_dn": [6.0]}
 
 

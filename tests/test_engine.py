@@ -27,7 +27,7 @@ LOOP_EFFECTS = {
     "FrameNoise": {"k": [1.0, 3.0], "log_std": [0.3, 0.1]},
     "ColRTS": {"seed": 79, "density": 0.1, "high": 0.4, "log_std": 0.3, "k": [1.0, 3.0], "median_dn": [5.0, 9.0]},
     "RowRTS": {"seed": 109, "density": 0.1, "high": 0.6, "log_std": 0.3, "k": [1.0, 3.0], "median_dn": [4.0, 7.0]},
-    "Spikes": {"density": 0.01, "density_per_s": 0.005, "log_std": 0.5, "k": [1.0, 3.0], "median_dn": [40.0, 90.0]},
+    "Spikes": {"density": 0.01, "density_per_s": 0.005, "log_std": 0.5, "negative": 0.25, "k": [1.0, 3.0], "median_dn": [40.0, 90.0]},
     "Clip": {"floor_dn": -3.0},
     "BLE": {"k": [1.0], "sigma_dn": [0.5], "channel_sigma_dn": [0.2]},
     "TapBlack": {"col_edges": [21, 60, 95], "row_edges": [30], "frame_h": 40, "frame_w": 64, "k": [1.0, 3.0],
@@ -49,6 +49,7 @@ LOOP_EFFECTS = {
     "NonLin": {"k": [1.0, 3.0], "compression_per_dn": [3e-6, -2e-6]},  # compression at one gain, expansion at the other
     "Trap": {"k": [1.0, 3.0], "trap_e": [12.0, 4.0]},  # traps of 12 and 4 electrons: a toe at low light
     "GainNoise": {"k": [1.0, 3.0], "sigma_rel": [0.03, 0.01]},  # a relative draw per pixel and frame on the signal
+    "StuckBit": {"zero_code": [512, 509, 513, 510], "low_mask": 8, "high_mask": 2},  # bit 3 at 0, bit 1 at 1, blacks of their own
     "PixelGain": {"seed": 43, "density": 0.05, "median": 0.3, "log_std": 0.5, "negative": 0.6},  # dim and bright pixels
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "FixedField": {"seed": 29, "grid": [5, 7], "k": [1.0, 3.0], "sigma_dn": [0.6, 1.1], "frame_h": 12, "frame_w": 20},  # a sensor's own grid

@@ -104,7 +104,7 @@ _RG = L.COLUMN["read_gain"]
 _FG = L.COLUMN["frame_gain"]
 _LMR, _LMOY, _LMOX, _LMLH, _LMLW = (L.COLUMN[n] for n in ("lmap_record", "lmap_oy", "lmap_ox", "lmap_lh", "lmap_lw"))
 _GGR, _GGPY, _GGPX, _GGOY, _GGOX = (L.COLUMN[n] for n in ("ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox"))
-_SPD, _SPM, _SPL = L.COLUMN["spike_density"], L.COLUMN["spike_median"], L.COLUMN["spike_log_std"]
+_SPD, _SPM, _SPL, _SPN = (L.COLUMN[n] for n in ("spike_density", "spike_median", "spike_log_std", "spike_negative"))
 _SPIKE_WHERE, _SPIKE_SIZE = L.STREAM["spike_where"], L.STREAM["spike_size"]
 _CRD, _CRM, _CRL, _CRH = L.COLUMN["crts_density"], L.COLUMN["crts_median"], L.COLUMN["crts_log_std"], L.COLUMN["crts_high"]
 _CRTS_WHERE, _CRTS_SIZE, _CRTS_STATE = L.STREAM["crts_where"], L.STREAM["crts_size"], L.STREAM["crts_state"]
@@ -122,6 +122,7 @@ _SH, _SHARED = L.COLUMN["shared_sigma"], L.STREAM["shared"]
 _RTD, _RTM, _RTL, _RTH = L.COLUMN["rts_density"], L.COLUMN["rts_median"], L.COLUMN["rts_log_std"], L.COLUMN["rts_high"]
 _RTS_WHERE, _RTS_SIZE, _RTS_STATE = L.STREAM["rts_where"], L.STREAM["rts_size"], L.STREAM["rts_state"]
 _DD, _DL0, _NDL = L.COLUMN["dead_density"], L.COLUMN["dead_l0"], L.DEAD_LEVELS
+_SBZ0, _SBLO, _SBHI = L.COLUMN["stuck_z0"], L.COLUMN["stuck_low"], L.COLUMN["stuck_high"]
 _DEAD_WHERE, _DEAD_LEVEL = L.STREAM["dead_where"], L.STREAM["dead_level"]
 _DR0, _OCT = L.COLUMN["drift_a0"], L.DRIFT_OCTAVES
 _ROW_DRIFT, _ROW_DRIFT_PHASE = L.STREAM["row_drift"], L.STREAM["row_drift_phase"]
@@ -613,8 +614,10 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
             for x in range(w):
                 g = g0 + x
                 s = sig[x]
-                if unit(draw(keys[_SPIKE_WHERE], g)) < v[_SPD]:
-                    s += v[_SPM] * math.exp(v[_SPL] * symmetric(normal, draw(keys[_SPIKE_SIZE], g)))
+                u = unit(draw(keys[_SPIKE_WHERE], g))
+                if u < v[_SPD]:  # the lowest share ``negative`` of the events' uniforms: a dark event
+                    size = v[_SPM] * math.exp(v[_SPL] * symmetric(normal, draw(keys[_SPIKE_SIZE], g)))
+                    s += -size if u < v[_SPD] * v[_SPN] else size
                 sig[x] = s
         if stages & L.COL_RTS:  # a telegraph column's step, in the frames where it is high
             for x in range(w):
@@ -732,6 +735,15 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
                 s = sig[x]
                 if unit(draw(keys[_DEAD_WHERE], p)) < v[_DD]:
                     s = v[_DL0 + min(int(unit(draw(keys[_DEAD_LEVEL], p)) * _NDL), _NDL - 1)]
+                sig[x] = s
+        if stages & L.STUCK_BIT:  # the raw code the converter writes, its stuck bits cleared or set
+            zero = v[_SBZ0 + c]
+            low, high = int(v[_SBLO]), int(v[_SBHI])
+            for x in range(w):
+                s = sig[x]
+                if math.isfinite(s):
+                    code = int(math.floor(s + 0.5) + zero)
+                    s = float((code - (code & low)) | high) - zero
                 sig[x] = s
         if stages & L.CLIP:
             for x in range(w):

@@ -23,7 +23,7 @@ that repeats beyond the mapped range).
 Estimated by ``estimate`` as the ADC's transfer, not the noise's shape: every code the
 camera writes maps to itself, so a signal keeps its DN (the map is measured on dark frames
 but applied at every signal level); each missing code (none written, while the written codes
-on both sides of its gap, at most ``MAX_GAP`` long, hold >= ``MIN_COUNT`` pixels each) goes
+on both sides of its gap hold >= ``MIN_COUNT`` pixels each: ``statistics.comb_gaps``) goes
 to those two neighbours, split at the input level where the current model's rounded values,
 spread evenly over their cells, hold the share the lower neighbour has of the frames' pixels
 of the gap (histogram matching: a differential non-linearity splits a missing code's inputs
@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import MAX_GAP, written_codes  # the rule for a missing code (MIN_COUNT, MAX_GAP there)
+from ..statistics import MAX_COMB_GAP, written_codes  # the rule for a missing code (comb_gaps there)
 from .base import CLIP, NoiseEffect, register
 from .k_records import record_index, validate_records, value_at_k
 
@@ -173,7 +173,7 @@ PERIODIC = 0.98  # ... at this share of its codes or more (a sparse tail's gaps 
 def periodic_comb(r, codes, split=None):
     """(period, shifts of one period, splits of one period) of a code map ``codes`` (with its
     ``split``) over codes ``r``: where the moved (missing) codes repeat with a period p up to
-    MAX_GAP + 1 over PERIODIC of the range, which spans MIN_PERIODS periods or more, p and each
+    2 (MAX_COMB_GAP + 1) over PERIODIC of the range, which spans MIN_PERIODS periods or more, p and each
     phase's most common shift and median split (phase j: the codes r[0] + j + n p); else (0,
     None, None). A digital gain or an ADC's differential non-linearity makes such a comb over
     the whole code range, not only where the frames had pixels."""
@@ -183,7 +183,7 @@ def periodic_comb(r, codes, split=None):
     moved = shift != 0
     if not moved.any():
         return 0, None, None
-    for p in range(2, MAX_GAP + 2):
+    for p in range(2, 2 * (MAX_COMB_GAP + 1) + 1):
         if moved.size >= MIN_PERIODS * p and np.mean(moved[p:] == moved[:-p]) >= PERIODIC:
             template, splits = [], []
             for j in range(p):

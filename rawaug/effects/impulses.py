@@ -1,24 +1,27 @@
-"""Impulsive noise (Spikes): single-frame events at random pixels, far above the noise.
+"""Impulsive noise (Spikes): single-frame events at random pixels, far above (or below) the noise.
 
 Physics: a cosmic-ray muon or a radioactive decay in the package deposits hundreds of
 electrons in one pixel during an exposure (their rate grows with exposure time); a charge
-burst in the readout does the same once per frame. Either hits a pixel in one frame only,
-at a new place in the next: unlike ``Hot`` (a fixed pixel), ``RTS`` (a fixed pixel with two
-states) or a heavy-tailed read noise (every pixel, symmetric).
+burst in the readout does the same once per frame. A lost charge packet or a readout
+glitch does the opposite: a pixel reads far low in one frame (a dark event). Either hits a
+pixel in one frame only, at a new place in the next: unlike ``Hot`` (a fixed pixel), ``RTS``
+(a fixed pixel with two states) or a heavy-tailed read noise (every pixel, symmetric).
 
 Stage (DN, after read noise): ``s -> s + median_dn(K) * exp(log_std * z)`` where a U(0, 1) of
-the frame and pixel falls below ``density + density_per_s * t`` (``t``: the synthesis setting
-``fixed={"exposure_s": t}``, default 0), ``z`` a standard normal of the frame and pixel.
+the frame and pixel falls below ``d = density + density_per_s * t`` (``t``: the synthesis
+setting ``fixed={"exposure_s": t}``, default 0), ``z`` a standard normal of the frame and
+pixel; subtracted instead where the U(0, 1) falls below ``negative * d``.
 
-Profile entry (per-K amplitude records)::
+Profile entry (per-K amplitude records; ``negative``, the share of dark events, default 0)::
 
-    Spikes: {density: 5.0e-4, density_per_s: 0.0, log_std: 0.6, k: [K, ...], median_dn: [...]}
+    Spikes: {density: 5.0e-4, density_per_s: 0.0, log_std: 0.6, negative: 0.0, k: [K, ...], median_dn: [...]}
 
 Detected on bias and dark stacks of >= 3 frames by ``spike_fraction`` (values 8 robust sigmas
 above the pixel's other frames, in one frame only, beyond as many below: heavy-tailed read
-noise makes both) and ``tail_mass``. Estimated by ``estimate``: the bright events' excess in
-DN by a log-normal truncated at the detection threshold (``truncated_log_normal``), the
-density as that excess over the model's over the share the threshold lets through;
+noise makes both; negative where dark events outnumber bright ones) and ``tail_mass``.
+Estimated by ``estimate``: the events of the side in excess, their size in DN by a
+log-normal truncated at the detection threshold (``truncated_log_normal``), the density as
+that excess over the model's over the share the threshold lets through;
 ``combine`` fits the density against exposure (two or more exposures: a per-frame part and a
 per-second part).
 """
@@ -36,6 +39,7 @@ from .base import READ, NoiseEffect, register
 from .k_records import _number, validate_records, value_at_k
 
 STATISTICS = ("spike_fraction", "tail_mass")
+SIGNED = True  # dark events lower spike_fraction: a negative residual calls for them too
 RAW_FRAMES = True  # a spike in a line's pixel is a spike: estimated on the frames as measured
 MAX_DENSITY = 0.01
 
@@ -45,7 +49,7 @@ class Impulses(NoiseEffect):
     token = "Spikes"
     order = READ + 5
     flag = L.SPIKES
-    columns = ("spike_density", "spike_median", "spike_log_std")
+    columns = ("spike_density", "spike_median", "spike_log_std", "spike_negative")
     exposure = True
 
     def draw(self, ctx):
@@ -53,7 +57,8 @@ class Impulses(NoiseEffect):
         exposure = torch.as_tensor(ctx.fixed.get("exposure_s", 0.0), dtype=torch.float64, device=ctx.device).expand(ctx.batch)
         n = ctx.k.shape[0]
         return {"spike_density": float(p["density"]) + float(p.get("density_per_s", 0.0)) * exposure,
-                "spike_median": value_at_k(p, "median_dn", ctx.k), "spike_log_std": ctx.k.new_full((n,), float(p["log_std"]))}
+                "spike_median": value_at_k(p, "median_dn", ctx.k), "spike_log_std": ctx.k.new_full((n,), float(p["log_std"])),
+                "spike_negative": ctx.k.new_full((n,), float(p.get("negative", 0.0)))}
 
     @classmethod
     def validate_params(cls, params):
@@ -64,30 +69,36 @@ class Impulses(NoiseEffect):
                 raise ValueError(f"effect {cls.token!r}: {key} ({unit}) must be in [0, {MAX_DENSITY:g}], got {value}")
         if _number(params.get("log_std"), f"{cls.token}.log_std") < 0:
             raise ValueError(f"effect {cls.token!r}: log_std must be >= 0, got {params.get('log_std')}")
+        if not 0.0 <= _number(params.get("negative", 0.0), f"{cls.token}.negative") <= 1.0:
+            raise ValueError(f"effect {cls.token!r}: negative (the share of dark events) must be in [0, 1], got {params.get('negative')}")
 
 
 def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, **_) -> dict:
     """One record from a bias or dark stack (N >= 3, 4, h, w) in DN at gain ``k``, against
     stacks of the same shape synthesized by the model: the spike density per pixel and frame
-    beyond the model's, and the spikes' excess over their pixel's other frames (DN)."""
+    beyond the model's and the events' size over their pixel's other frames (DN), of the side
+    whose single-frame events outnumber the other's beyond the model's (``spike_fraction``:
+    bright ones, or dark ones, ``negative`` 1)."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind not in ("bias", "dark") or frames.shape[0] < 3:
         raise ValueError("Spikes are measured on bias or dark stacks of >= 3 frames")
-    mask = spikes(frames)
     base = float(np.mean([spike_fraction(s) for s in synthesized])) if synthesized else 0.0
-    detected = max(spike_fraction(frames) - base, 0.0)  # bright events beyond the dark ones heavy tails make too
-    others = np.sort(frames, axis=0)[:-1]
-    excess = (frames - np.median(others, axis=0))[mask]
+    net = spike_fraction(frames) - base  # events of one side beyond the other's (heavy tails make both alike)
+    sign = 1.0 if net >= 0 else -1.0
+    mask = spikes(sign * frames)
+    others = np.sort(sign * frames, axis=0)[:-1]
+    excess = (sign * frames - np.median(others, axis=0))[mask]
     floor = np.broadcast_to((SPIKE_Z * spike_scale(frames))[None, :, None, None], frames.shape)[mask]
     keep = excess > 0
     excess, floor = excess[keep], floor[keep]
     t = float(exposure_s or 0.0)
-    if detected == 0.0 or excess.size == 0:
-        return {"density": 0.0, "density_per_s": 0.0, "log_std": 0.0, "k": [float(k)], "median_dn": [0.0], "exposure_s": [t]}
+    record = {"density": 0.0, "density_per_s": 0.0, "log_std": 0.0, "negative": 0.0 if sign > 0 else 1.0,
+              "k": [float(k)], "median_dn": [0.0], "exposure_s": [t]}
+    if net == 0.0 or excess.size == 0:
+        return record
     mu, s = truncated_log_normal(np.log(excess), np.log(floor))
     seen = float(np.mean(stats.norm.sf((np.log(SPIKE_Z * spike_scale(frames)) - mu) / max(s, 1e-6))))
-    return {"density": min(detected / max(seen, 0.1), MAX_DENSITY), "density_per_s": 0.0, "log_std": s,
-            "k": [float(k)], "median_dn": [float(math.exp(mu))], "exposure_s": [t]}
+    return record | {"density": min(abs(net) / max(seen, 0.1), MAX_DENSITY), "log_std": s, "median_dn": [float(math.exp(mu))]}
 
 
 def truncated_log_normal(logs, log_floor) -> tuple[float, float]:
@@ -111,7 +122,8 @@ def truncated_log_normal(logs, log_floor) -> tuple[float, float]:
 def combine(records: list[dict]) -> dict:
     """One population: the density as a per-frame part plus a per-second part (least squares
     over the stacks' exposures, both >= 0; one exposure: per frame only); the median per gain
-    (log-mean over its stacks); the log spreads pooled. Stacks that found none count for the
+    (log-mean over its stacks); the log spreads pooled; the share of dark events weighted by
+    the stacks' densities. Stacks that found none count for the
     density only."""
     t = np.array([r["exposure_s"][0] for r in records])
     d = np.array([r["density"] for r in records])
@@ -123,13 +135,14 @@ def combine(records: list[dict]) -> dict:
             per_frame, per_s = (float(d.mean()), 0.0) if per_s < 0 else (0.0, float(d @ t / (t @ t)))
     found = [r for r in records if r["density"] > 0]
     if not found:
-        return {"density": 0.0, "density_per_s": 0.0, "log_std": 0.0, "k": [records[0]["k"][0]], "median_dn": [0.0]}
+        return {"density": 0.0, "density_per_s": 0.0, "log_std": 0.0, "negative": 0.0, "k": [records[0]["k"][0]], "median_dn": [0.0]}
     by_k: dict = {}
     for r in found:
         by_k.setdefault(r["k"][0], []).append(math.log(r["median_dn"][0]))
     ks = sorted(by_k)
     return {"density": min(float(per_frame), MAX_DENSITY), "density_per_s": min(float(per_s), MAX_DENSITY),
             "log_std": float(math.sqrt(np.mean([r["log_std"] ** 2 for r in found]))),
+            "negative": float(np.average([r.get("negative", 0.0) for r in found], weights=[r["density"] for r in found])),
             "k": ks, "median_dn": [float(math.exp(np.mean(by_k[k]))) for k in ks]}
 
 

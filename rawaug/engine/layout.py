@@ -68,6 +68,7 @@ FIXED_FIELD = 1 << 60  # measured fallback: a fixed smooth field, a sensor's bil
 ROW_TAIL = 1 << 59  # heavy-tailed row noise: R's standard normal draw through Tukey's h transform
 PIXEL_GAIN = 1 << 58  # gain defect pixels: sparse pixels whose gain on the photo signal is far off, fixed
 GAIN_NOISE = 1 << 57  # pixel gain noise: each pixel's gain on its signal moves by a relative normal draw, new at every pixel and frame
+STUCK_BIT = 1 << 61  # stuck ADC bits: the raw code's bits of a mask read 0, of another 1
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
@@ -146,6 +147,8 @@ COLUMNS = (
     "pgain_density", "pgain_median", "pgain_log_std", "pgain_negative",  # gain defect pixels: share, median gain offset (fraction), spread, share dim
     "row_h",  # heavy-tailed row noise: Tukey h of the row draws at this K
     "ffield_sigma", "ffield_gh", "ffield_gw",  # measured fixed field: std (DN), grid rows and columns
+    "stuck_z0", "stuck_z1", "stuck_z2", "stuck_z3", "stuck_low", "stuck_high",  # stuck bits: raw code of 0 DN per channel, masks
+    "spike_negative",  # impulsive noise: share of the events that are dark (a lost charge packet)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

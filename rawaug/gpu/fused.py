@@ -68,7 +68,7 @@ C_DRIFT = _column("black_drift")
 C_RG = _column("read_gain")
 C_FG = _column("frame_gain")
 C_LMR, C_LMOY, C_LMOX, C_LMLH, C_LMLW = (_column(n) for n in ("lmap_record", "lmap_oy", "lmap_ox", "lmap_lh", "lmap_lw"))
-C_SPD, C_SPM, C_SPL = _column("spike_density"), _column("spike_median"), _column("spike_log_std")
+C_SPD, C_SPM, C_SPL, C_SPN = _column("spike_density"), _column("spike_median"), _column("spike_log_std"), _column("spike_negative")
 C_CRD, C_CRM, C_CRL, C_CRH = _column("crts_density"), _column("crts_median"), _column("crts_log_std"), _column("crts_high")
 C_DBX0, C_DBY0, C_DBA0, C_DBF0 = _column("dband_fx0"), _column("dband_fy0"), _column("dband_a0"), _column("dband_f0")
 C_RF, C_RC = _column("rowfix_sigma"), _column("rowch_sigma")
@@ -80,6 +80,7 @@ NB = tl.constexpr(L.READ_MAP_BLOCKS)
 C_SH = _column("shared_sigma")
 C_RTD, C_RTM, C_RTL, C_RTH = _column("rts_density"), _column("rts_median"), _column("rts_log_std"), _column("rts_high")
 C_DD, C_DL0 = _column("dead_density"), _column("dead_l0")
+C_SBZ0, C_SBLO, C_SBHI = _column("stuck_z0"), _column("stuck_low"), _column("stuck_high")
 NDL = tl.constexpr(L.DEAD_LEVELS)
 C_DR0 = _column("drift_a0")
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
@@ -459,8 +460,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         sx = tl.load(v + C_RMX0 + bx, mask=live, other=0.0)
         s += tl.sqrt(sc * sc + sy * sy + sx * sx) * _normal(draw(_key(keys_ptr, K_READ_MAP), g))
     if FLAGS & 68719476736:  # impulsive noise: a single-frame event at this pixel of this frame
-        hit = unit(draw(_key(keys_ptr, K_SPIKE_WHERE), g)) < _col(v, C_SPD)
+        u = unit(draw(_key(keys_ptr, K_SPIKE_WHERE), g))
+        hit = u < _col(v, C_SPD)
         size = _col(v, C_SPM) * tl.exp(_col(v, C_SPL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_SPIKE_SIZE), g)))
+        size = tl.where(u < _col(v, C_SPD) * _col(v, C_SPN), -size, size)  # the lowest share of the events: dark ones
         s += tl.where(hit, size, 0.0)
     if FLAGS & 137438953472:  # column telegraph noise: a telegraph column's step, in the frames where it is high
         q = ((sensor * 2 + col_set) * W + x).to(tl.uint64)
@@ -585,6 +588,13 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         dead = unit(draw(_key(keys_ptr, K_DEAD_WHERE), p)) < _col(v, C_DD)
         which = tl.minimum((unit(draw(_key(keys_ptr, K_DEAD_LEVEL), p)) * NDL).to(tl.int64), NDL - 1)
         s = tl.where(dead, tl.load(v + C_DL0 + which, mask=live, other=0.0), s)
+    if FLAGS & 2305843009213693952:  # stuck ADC bits: the raw code the converter writes, its stuck bits cleared or set
+        zero = tl.load(v + C_SBZ0 + c)
+        finite = live & (s == s) & (tl.abs(s) < float("inf"))
+        code = tl.where(finite, tl.floor(s + 0.5) + zero, 0.0).to(tl.int64)
+        low = _col(v, C_SBLO).to(tl.int64)
+        code = (code - (code & low)) | _col(v, C_SBHI).to(tl.int64)
+        s = tl.where(finite, code.to(tl.float64) - zero, s)
     if FLAGS & 4096:  # black clip
         s = tl.maximum(s, _col(v, C_CL))
     if FLAGS & 8192:  # white clip

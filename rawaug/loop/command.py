@@ -216,12 +216,21 @@ class _Collected:
         self.flats: dict = {}  # (ISO, exposure s, light) -> (crop, headroom DN per channel)
         self.bias_exposure: dict = {}  # ISO -> shortest exposure of its bias frames (s)
         self.shapes = None  # (whole, diagnosed) packed shape
+        self.black: dict = {}  # ISO -> raw code of 0 DN per channel, None where the ISO's frames differ
+
+    def black_code(self, iso) -> list | None:
+        codes = self.black.get(iso)
+        return None if codes is None else [float(c) for c in codes]
 
     def add(self, entry, frame) -> None:
         kind = getattr(entry, "kind", "bias")
         whole = (frame.shape[0] // 2, frame.shape[1] // 2)
         packed = frame.packed_dn(central_window(*whole, self.size))  # packs the crop only
         self.shapes = (whole, packed.shape[1:])
+        black = frame.black_packed()
+        known = self.black.setdefault(frame.iso, black)
+        if known is not None and not np.array_equal(known, black):
+            self.black[frame.iso] = None  # black levels of their own per frame: no one raw code per DN
         if kind == "flat":
             self.flats.setdefault((frame.iso, float(frame.exposure_s or 0.0), getattr(entry, "light", None)), []).append(
                 (packed, frame.white_level - frame.black_packed()))
@@ -251,6 +260,7 @@ def _run_manifest(args, path):
         calibration = calibrate(path, options_from(args), on_frame=frames.add)
         profile = calibration.profile
     bias, darks, flats, bias_exposure, shapes = frames.bias, frames.darks, frames.flats, frames.bias_exposure, frames.shapes
+    black_code = frames.black_code
     if not bias:
         raise ValueError(f"{path}: no bias frames (kind 'bias') among the frames")
     stacks, measured, settings = [], {}, {}  # settings: label -> what the report's curves need
@@ -265,7 +275,8 @@ def _run_manifest(args, path):
         k = profile.k_at_iso(iso) if iso else 1.0
         settings[f"ISO {iso:g}"] = {"kind": "bias", "iso": iso, "k": k, "exposure_s": bias_exposure[iso], "level_dn": None}
         stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}", base={"sigma_tl": read.sigma_tl, "lambda": read.lam,
-                                                                        "sigma_g": read.sigma_g, "sigma_r": sigma_r}))
+                                                                        "sigma_g": read.sigma_g, "sigma_r": sigma_r},
+                                 black_code=black_code(iso)))
         measured[iso] = (stacks[-1].base, channel_offsets(frames), k, stacks[-1])
     for (iso, exposure), frames in sorted(darks.items()):
         if iso not in measured or len(frames) < 2:
@@ -276,7 +287,8 @@ def _run_manifest(args, path):
         # synthesized with the bias frames' read noise and offsets: what the dark adds shows
         settings[f"ISO {iso:g} dark {exposure:g} s"] = {"kind": "dark", "iso": iso, "k": k, "exposure_s": exposure, "level_dn": None}
         stacks.append(FrameStack(np.stack(frames).astype(np.float64), k, kind="dark", exposure_s=exposure,
-                                 label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_of=bias_stack))
+                                 label=f"ISO {iso:g} dark {exposure:g} s", base=base, offsets_of=bias_stack,
+                                 black_code=black_code(iso)))
     flats = _split_levels(flats)
     flat_stacks: dict = {}  # ISO -> its usable flat stacks
     for (iso, exposure, light, _), frames in sorted(flats.items(), key=lambda item: (item[0][0], item[0][1], item[0][2] or 0.0, item[0][3])):
@@ -303,7 +315,7 @@ def _run_manifest(args, path):
         for f in items:
             stacks.append(FrameStack(f.stack, f.k, kind="flat", level_dn=[float(v) for v in (series.nominal(f.dose) if series else f.level)],
                                      base=f.base, offsets_of=f.bias_stack, label=f.label, exposure_s=f.exposure or None,
-                                     series=series, dose=f.dose if series else None))
+                                     series=series, dose=f.dose if series else None, black_code=black_code(iso)))
     sensor_taps = consensus_edges([s.gain_edges for s in stacks if s.kind == "flat"])  # the same at every ISO and level
     for s in stacks:
         if s.kind == "flat":

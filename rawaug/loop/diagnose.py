@@ -93,7 +93,8 @@ class FrameStack:
     means would be too high); ``offsets_dn`` fixes them instead. A flat stack of a
     ``series`` (``FlatSeries``, with its ``dose``: ``exposure_s`` unless the light was
     varied) has the series' nominal level as ``level_dn`` and is also checked for linearity
-    (``flat_linearity``)."""
+    (``flat_linearity``). ``black_code``, where known, are the raw codes the DN were measured
+    from (what a stuck ADC bit acts on)."""
 
     frames_dn: np.ndarray
     k: float
@@ -107,6 +108,7 @@ class FrameStack:
     series: FlatSeries | None = None
     dose: float | None = None  # a series flat's exposure x relative light (default exposure_s)
     tap_edges: dict | None = None  # a flat's sensor's readout-tap edges (tap_gain.consensus_edges); None: its own (gain_edges)
+    black_code: list | None = None  # the raw code of 0 DN per channel (R, G1, B, G2): the black level the DN were taken from
 
     def __post_init__(self):
         self.frames_dn = np.asarray(self.frames_dn, dtype=np.float64)
@@ -120,6 +122,8 @@ class FrameStack:
             raise ValueError("a flat stack needs its clean level level_dn (DN)")
         if self.kind == "dark" and not (isinstance(self.exposure_s, (int, float)) and self.exposure_s > 0):
             raise ValueError(f"a dark stack needs its exposure_s (seconds, > 0), got {self.exposure_s!r}")
+        if self.black_code is not None and (len(self.black_code) != 4 or not all(math.isfinite(float(z)) for z in self.black_code)):
+            raise ValueError(f"black_code must hold 4 raw codes (R, G1, B, G2), got {self.black_code!r}")
         if self.offsets_dn is not None and len(self.offsets_dn) != 4:
             raise ValueError(f"offsets_dn must hold 4 values (R, G1, B, G2), got {self.offsets_dn!r}")
         if self.offsets_of is not None and not (isinstance(self.offsets_of, FrameStack) and self.offsets_of.kind == "bias"):

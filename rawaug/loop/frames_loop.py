@@ -279,7 +279,8 @@ def _estimate(token, stacks, diags, seed, profile=None, model=None):
             frames = stack.frames_dn if getattr(cand.module, "RAW_FRAMES", False) else repaired(stack.frames_dn)
             return cand.estimate(frames, list(diags[stack.label][1]), stack.k, level_dn=stack.level_dn,
                                  exposure_s=stack.exposure_s, seed=seed, series=stack.series, kind=stack.kind,
-                                 black_dn=black_level(stack) if cand.wants("black_dn") else None)
+                                 black_dn=black_level(stack) if cand.wants("black_dn") else None,
+                                 black_code=stack.black_code)
         except ValueError:
             return None  # this stack cannot show the effect (too few frames, not a flat)
 
