@@ -50,6 +50,8 @@ LOOP_EFFECTS = {
     "Trap": {"k": [1.0, 3.0], "trap_e": [12.0, 4.0]},  # traps of 12 and 4 electrons: a toe at low light
     "GainNoise": {"k": [1.0, 3.0], "sigma_rel": [0.03, 0.01]},  # a relative draw per pixel and frame on the signal
     "StuckBit": {"zero_code": [512, 509, 513, 510], "low_mask": 8, "high_mask": 2},  # bit 3 at 0, bit 1 at 1, blacks of their own
+    "BankOffset": {"k": [1.0, 3.0], "col_period": 3, "col_dn": [[1.0, 0.0, -1.0], [0.5, 0.2, -0.7]], "row_period": 4,
+                   "row_dn": [[0.3, -0.3, 0.1, -0.1], [0.0, 0.2, 0.0, -0.2]]},  # three column banks, four row banks
     "PixelGain": {"seed": 43, "density": 0.05, "median": 0.3, "log_std": 0.5, "negative": 0.6},  # dim and bright pixels
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "FixedField": {"seed": 29, "grid": [5, 7], "k": [1.0, 3.0], "sigma_dn": [0.6, 1.1], "frame_h": 12, "frame_w": 20},  # a sensor's own grid

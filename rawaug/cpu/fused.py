@@ -123,6 +123,7 @@ _RTD, _RTM, _RTL, _RTH = L.COLUMN["rts_density"], L.COLUMN["rts_median"], L.COLU
 _RTS_WHERE, _RTS_SIZE, _RTS_STATE = L.STREAM["rts_where"], L.STREAM["rts_size"], L.STREAM["rts_state"]
 _DD, _DL0, _NDL = L.COLUMN["dead_density"], L.COLUMN["dead_l0"], L.DEAD_LEVELS
 _SBZ0, _SBLO, _SBHI = L.COLUMN["stuck_z0"], L.COLUMN["stuck_low"], L.COLUMN["stuck_high"]
+_BKCP, _BKRP, _BKC0, _BKR0 = L.COLUMN["bank_cp"], L.COLUMN["bank_rp"], L.COLUMN["bank_c0"], L.COLUMN["bank_r0"]
 _DEAD_WHERE, _DEAD_LEVEL = L.STREAM["dead_where"], L.STREAM["dead_level"]
 _DR0, _OCT = L.COLUMN["drift_a0"], L.DRIFT_OCTAVES
 _ROW_DRIFT, _ROW_DRIFT_PHASE = L.STREAM["row_drift"], L.STREAM["row_drift_phase"]
@@ -332,6 +333,8 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
             line += v[_RF] * symmetric(normal, draw(keys[_ROW_PATTERN], (sensor * 2 + row_set) * h + y))
         if stages & L.LINES:
             line += defect_line_at(normal, keys[_LINES_ROW], (sensor * 2 + row_set) * h + y, v[_LRD], v[_LM], v[_LLS], v[_LNEG])
+        if stages & L.BANK_OFFSET:  # the sensor row's bank offset
+            line += v[_BKR0 + (2 * y + row_set) % int(v[_BKRP])]
         lmrec, lmox, lmlw = 0, 0, 1
         if stages & L.LINE_MAP:  # measured line profiles: the row's offset here, the column's below (a larger input repeats them)
             lmrec, lmox, lmlw = int(v[_LMR]), int(v[_LMOX]), int(v[_LMLW])
@@ -663,6 +666,12 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
             for x in range(w):
                 s = sig[x]
                 s += grids[lmrec, 4 + c, (x + lmox) % lmlw]
+                sig[x] = s
+        if stages & L.BANK_OFFSET:  # the sensor column's bank offset
+            bank_p = int(v[_BKCP])
+            for x in range(w):
+                s = sig[x]
+                s += v[_BKC0 + (2 * x + col_set) % bank_p]
                 sig[x] = s
         if stages & L.QUANT:
             for x in range(w):

@@ -35,6 +35,7 @@ from .base import CLIP, NoiseEffect, register
 
 STATISTICS = ("code_dnl", "missing_codes")
 RAW_FRAMES = True  # the codes as written: repairs (defect lines) would write values of their own
+SHARES_READ_NOISE = True  # a stuck bit moves half the codes: calibration counted that spread as read noise
 BITS = 24  # bits a raw code is checked in
 MIN_EXPECTED = 20  # syntheses' codes that set (or clear) a bit, per stack, for its absence to count
 
@@ -85,8 +86,12 @@ def stuck_codes(dn, zero_code, low_mask: int, high_mask: int = 0) -> np.ndarray:
 
 
 def _bit_counts(codes: np.ndarray) -> np.ndarray:
-    """(BITS,) counts of the codes that set each bit."""
-    return np.array([np.count_nonzero(codes & (1 << b)) for b in range(BITS)], dtype=np.int64)
+    """(BITS,) counts of the codes that set each bit (over the histogram of the codes)."""
+    lo = int(codes.min())
+    counts = np.bincount((codes - lo).ravel())
+    values = lo + np.flatnonzero(counts)
+    n = counts[counts > 0]
+    return np.array([int(n[(values & (1 << b)) != 0].sum()) for b in range(BITS)], dtype=np.int64)
 
 
 def _raw_codes(frames, black_code) -> np.ndarray:

@@ -69,6 +69,9 @@ ROW_TAIL = 1 << 59  # heavy-tailed row noise: R's standard normal draw through T
 PIXEL_GAIN = 1 << 58  # gain defect pixels: sparse pixels whose gain on the photo signal is far off, fixed
 GAIN_NOISE = 1 << 57  # pixel gain noise: each pixel's gain on its signal moves by a relative normal draw, new at every pixel and frame
 STUCK_BIT = 1 << 61  # stuck ADC bits: the raw code's bits of a mask read 0, of another 1
+BANK_OFFSET = 1 << 62  # readout bank offsets: fixed offsets repeating with the interleaved column / row banks' period
+# (the 64-bit flag word is full with BANK_OFFSET: a further stage needs a second word)
+BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
@@ -149,6 +152,8 @@ COLUMNS = (
     "ffield_sigma", "ffield_gh", "ffield_gw",  # measured fixed field: std (DN), grid rows and columns
     "stuck_z0", "stuck_z1", "stuck_z2", "stuck_z3", "stuck_low", "stuck_high",  # stuck bits: raw code of 0 DN per channel, masks
     "spike_negative",  # impulsive noise: share of the events that are dark (a lost charge packet)
+    "bank_cp", "bank_rp",  # readout bank offsets: column and row periods (sensor lines)
+    *(f"bank_c{i}" for i in range(BANK_PERIOD_MAX)), *(f"bank_r{i}" for i in range(BANK_PERIOD_MAX)),  # ... offsets per bank (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

@@ -81,6 +81,7 @@ C_SH = _column("shared_sigma")
 C_RTD, C_RTM, C_RTL, C_RTH = _column("rts_density"), _column("rts_median"), _column("rts_log_std"), _column("rts_high")
 C_DD, C_DL0 = _column("dead_density"), _column("dead_l0")
 C_SBZ0, C_SBLO, C_SBHI = _column("stuck_z0"), _column("stuck_low"), _column("stuck_high")
+C_BKCP, C_BKRP, C_BKC0, C_BKR0 = _column("bank_cp"), _column("bank_rp"), _column("bank_c0"), _column("bank_r0")
 NDL = tl.constexpr(L.DEAD_LEVELS)
 C_DR0 = _column("drift_a0")
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
@@ -496,6 +497,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         lm = grids_ptr + _col(v, C_LMR).to(tl.int64) * GH.to(tl.int64) * GW.to(tl.int64)
         lx = (x + _col(v, C_LMOX).to(tl.int64)) % _col(v, C_LMLW).to(tl.int64)
         s += tl.load(lm + (4 + c).to(tl.int64) * GW.to(tl.int64) + lx, mask=live, other=0.0)
+    if FLAGS & 4611686018427387904:  # readout bank offsets: the sensor column's bank, the row's below
+        s += tl.load(v + C_BKC0 + (2 * x + col_set) % _col(v, C_BKCP).to(tl.int64), mask=live, other=0.0)
     if FLAGS & 512:  # U
         s += (unit(draw(_key(keys_ptr, K_QUANT), g)) - 0.5) * _col(v, C_Q)
     if FLAGS & 32768:  # measured low-frequency field: a per-frame normal grid, bilinear
@@ -534,6 +537,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         lm = grids_ptr + _col(v, C_LMR).to(tl.int64) * GH.to(tl.int64) * GW.to(tl.int64)
         ly = (y + _col(v, C_LMOY).to(tl.int64)) % _col(v, C_LMLH).to(tl.int64)
         line += tl.load(lm + c.to(tl.int64) * GW.to(tl.int64) + ly, mask=live, other=0.0)
+    if FLAGS & 4611686018427387904:  # readout bank offsets: the sensor row's bank
+        line += tl.load(v + C_BKR0 + (2 * y + row_set) % _col(v, C_BKRP).to(tl.int64), mask=live, other=0.0)
     if FLAGS & 1024:  # C
         line += tl.load(v + C_B0 + c)
     if FLAGS & 2048:  # BLE
