@@ -271,7 +271,7 @@ def without_stuck(frames):
 
 def without_impulses(frames):
     """The frames (N >= 3) with each impulse (``spike_outliers``: a bright single-frame event
-    beyond the read noise's own tail, as a cosmic ray makes) replaced by its pixel's median
+    beyond the read noise's own tail, as a cosmic ray makes, or a dark one) replaced by its pixel's median
     over the stack, DN: an impulse is counted once, as an impulse, and not also as a defect
     line, a flickering line, a hot pixel or a heavy tail. Fewer frames, or no significant
     excess of bright events: the frames themselves."""
@@ -1214,7 +1214,9 @@ def spike_fraction(frames, level_dn=None):
 def spike_outliers(frames):
     """(N, 4, h, w) mask of a stack's impulses: where bright single-frame events (``spikes``)
     outnumber the dark ones significantly (``significant_spikes``), the brightest of them,
-    all but as many as there are dark ones (those are the read noise's own tail); else none."""
+    all but as many as there are dark ones (those are the read noise's own tail); where dark
+    ones outnumber the bright ones so (lost charge packets, dropouts), the darkest of them
+    likewise; else none."""
     f = np.asarray(frames, dtype=np.float64)
     out = np.zeros(f.shape, dtype=bool)
     if f.shape[0] < 3:
@@ -1223,11 +1225,12 @@ def spike_outliers(frames):
     scale = spike_scale(f, var)
     lo, hi = temporal_range(f)
     bright = _spike_hits(f, hi - mean, scale, 1.0)
-    n_dark = _spike_hits(f, mean - lo, scale, -1.0)[0].size
-    if not significant_spikes(bright[0].size, n_dark):
-        return out
-    _, ch, y, x = bright
-    out[bright] = beyond_dark(f[bright] - median(f[:, ch, y, x], axis=0), n_dark)
+    dark = _spike_hits(f, mean - lo, scale, -1.0)
+    for hits, others, sign in ((bright, dark, 1.0), (dark, bright, -1.0)):
+        if significant_spikes(hits[0].size, others[0].size):
+            _, ch, y, x = hits
+            out[hits] = beyond_dark(sign * (f[hits] - median(f[:, ch, y, x], axis=0)), others[0].size)
+            break
     return out
 
 

@@ -527,14 +527,19 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
     n_spikes = None
     if extremes:  # single-frame events (cosmic rays, charge bursts) are not read noise
         scale = 1.482602218505602 * float(np.median(np.abs(residual - np.median(residual))))
-        (top, second, frame), (low, second_low, _) = extremes  # the lows as the highs of -r
-        gap = top - second
-        bright = gap > SPIKE_Z * max(scale, 1e-9)
-        n_dark = int((low - second_low > SPIKE_Z * max(scale, 1e-9)).sum())
+        (top, second, frame), (low, second_low, low_frame) = extremes  # the lows as the highs of -r
+        gap, low_gap = top - second, low - second_low
+        bright, dark = gap > SPIKE_Z * max(scale, 1e-9), low_gap > SPIKE_Z * max(scale, 1e-9)
         n_spikes = 0
-        if significant_spikes(int(bright.sum()), n_dark):  # impulses: the bright events beyond the dark ones leave
-            spike = np.zeros_like(bright)
-            spike[bright] = beyond_dark(gap[bright], n_dark)
+        spike = None
+        for hits, size, others, at in ((bright, gap, dark, frame), (dark, low_gap, bright, low_frame)):
+            # impulses: the bright events beyond the dark ones leave (or the dark ones beyond the bright: dropouts)
+            if significant_spikes(int(hits.sum()), int(others.sum())):
+                spike = np.zeros_like(hits)
+                spike[hits] = beyond_dark(size[hits], int(others.sum()))
+                frame = at
+                break
+        if spike is not None:
             n_spikes = int(spike.sum())
             keep = lambda i, w: ~((spike[w] & (frame[w] == i)) | (dead[w] if dead is not None else False))  # noqa: E731
             residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])
