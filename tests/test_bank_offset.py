@@ -7,6 +7,8 @@ import torch
 from rawaug import NoiseProfile, RawNoiseAugment
 from rawaug.effects import bank_offset
 
+from base_camera import base_fixed
+
 BASE = NoiseProfile.load("SonyA7S2")
 
 
@@ -15,8 +17,7 @@ def frames(k, seed, n=4, size=96, entry=None, col=None):
     with bank offsets ``entry``, plus a fixed random offset per sensor column of ``col`` DN rms
     (a sensor's own column pattern) where given."""
     profile = BASE.with_effect("BankOffset", entry) if entry else BASE
-    fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_g": BASE.gaussian_scale.median(k),
-             "sigma_r": BASE.row_scale.median(k), "sensor": 0}
+    fixed = base_fixed(BASE, k)
     aug = RawNoiseAugment(profile, model="G+R" + ("+BankOffset" if entry else ""), ratio=1.0, fixed=fixed,
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     with torch.no_grad():

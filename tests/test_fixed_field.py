@@ -7,6 +7,8 @@ import torch
 from rawaug import NoiseProfile, RawNoiseAugment
 from rawaug.effects import fixed_field
 
+from base_camera import base_fixed
+
 BASE = NoiseProfile.load("SonyA7S2")
 SHAPE = (96, 128)
 
@@ -19,7 +21,7 @@ def field(cell, sigma=1.0, k=1.0):
 def bias(params, seed, n=4, k=1.0, sensor=0, shape=SHAPE):
     """(n, 4, h, w) bias frames in DN: the base camera's read noise, a fixed field ``params``."""
     profile = BASE.with_effect("FixedField", params) if params else BASE
-    fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_g": BASE.gaussian_scale.median(k), "sigma_r": BASE.row_scale.median(k), "sensor": sensor}
+    fixed = base_fixed(BASE, k, sensor)
     aug = RawNoiseAugment(profile, model="G+P+R" + ("+FixedField" if params else ""), ratio=1.0, fixed=fixed,
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     with torch.no_grad():

@@ -7,6 +7,8 @@ import torch
 from rawaug import NoiseProfile, RawNoiseAugment
 from rawaug.effects import gain_defects
 
+from base_camera import base_fixed
+
 BASE = NoiseProfile.load("SonyA7S2")
 DIM = {"seed": 5, "density": 0.003, "median": 0.5, "log_std": 0.0, "negative": 1.0}
 MIXED = {"seed": 7, "density": 0.01, "median": 0.2, "log_std": 0.3, "negative": 0.7}
@@ -16,7 +18,7 @@ def flats(level_dn, params, k, seed, n=2, size=96):
     """(n, 4, size, size) flats in DN at gain ``k``: Poisson shot noise, the base camera's read and
     row noise, gain defect pixels ``params`` (None: none)."""
     profile = BASE.with_effect("PixelGain", params) if params else BASE
-    fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_g": BASE.gaussian_scale.median(k), "sigma_r": BASE.row_scale.median(k), "sensor": 0}
+    fixed = base_fixed(BASE, k)
     aug = RawNoiseAugment(profile, model="G+P+R" + ("+PixelGain" if params else ""), ratio=1.0, fixed=fixed,
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     with torch.no_grad():

@@ -7,6 +7,8 @@ import torch
 from rawaug import NoiseProfile, RawNoiseAugment
 from rawaug.effects import gain_noise
 
+from base_camera import base_fixed
+
 BASE = NoiseProfile.load("SonyA7S2")
 
 
@@ -14,7 +16,7 @@ def flats(level_dn, sigma_rel, k, seed, n=2, size=96):
     """(n, 4, size, size) flats in DN at gain ``k``: Poisson shot noise, the base camera's read and
     row noise, pixel gain noise of ``sigma_rel``."""
     profile = BASE.with_effect("GainNoise", {"k": [k], "sigma_rel": [sigma_rel]}) if sigma_rel else BASE
-    fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_g": BASE.gaussian_scale.median(k), "sigma_r": BASE.row_scale.median(k), "sensor": 0}
+    fixed = base_fixed(BASE, k)
     aug = RawNoiseAugment(profile, model="G+P+R" + ("+GainNoise" if sigma_rel else ""), ratio=1.0, fixed=fixed,
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     with torch.no_grad():

@@ -7,6 +7,8 @@ import torch
 from rawaug import NoiseProfile, RawNoiseAugment
 from rawaug.effects import stuck_bit
 
+from base_camera import base_fixed
+
 BASE = NoiseProfile.load("SonyA7S2")
 ZERO = [512, 509, 513, 510]  # raw code of 0 DN per channel: blacks of their own, not multiples of the masks
 
@@ -15,8 +17,7 @@ def frames(level_dn, k, seed, n=2, size=64, stuck=None):
     """(n, 4, size, size) frames in whole DN at gain ``k`` (the base camera's read, row and shot
     noise, quantization) with the raw code's bits ``stuck`` (a StuckBit entry) or none."""
     profile = BASE.with_effect("StuckBit", stuck) if stuck else BASE
-    fixed = {"k": k, "sigma_tl": BASE.tukey_scale.median(k), "lambda": 0.05, "sigma_g": BASE.gaussian_scale.median(k),
-             "sigma_r": BASE.row_scale.median(k), "sensor": 0}
+    fixed = base_fixed(BASE, k)
     aug = RawNoiseAugment(profile, model="G+P+R+U" + ("+StuckBit" if stuck else ""), ratio=1.0, fixed=fixed,
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     with torch.no_grad():
