@@ -1226,11 +1226,11 @@ def spike_outliers(frames):
     lo, hi = temporal_range(f)
     bright = _spike_hits(f, hi - mean, scale, 1.0)
     dark = _spike_hits(f, mean - lo, scale, -1.0)
-    for hits, others, sign in ((bright, dark, 1.0), (dark, bright, -1.0)):
-        if significant_spikes(hits[0].size, others[0].size):
-            _, ch, y, x = hits
-            out[hits] = beyond_dark(sign * (f[hits] - median(f[:, ch, y, x], axis=0)), others[0].size)
-            break
+    side = spike_side(bright[0].size, dark[0].size)
+    if side:
+        hits, others = (bright, dark) if side > 0 else (dark, bright)
+        _, ch, y, x = hits
+        out[hits] = beyond_dark(side * (f[hits] - median(f[:, ch, y, x], axis=0)), others[0].size)
     return out
 
 
@@ -1241,6 +1241,13 @@ def beyond_dark(excess, n_dark: int):
     excess = np.asarray(excess)
     cut = np.sort(excess)[n_dark] if n_dark < excess.size else np.inf
     return excess >= cut
+
+
+def spike_side(n_bright: int, n_dark: int) -> int:
+    """1 where bright single-frame events outnumber the dark ones significantly
+    (``significant_spikes``), -1 where the dark ones outnumber the bright ones so (dropouts),
+    else 0: the side whose events are impulses, the other's being the read noise's own tail."""
+    return 1 if significant_spikes(n_bright, n_dark) else -1 if significant_spikes(n_dark, n_bright) else 0
 
 
 def significant_spikes(n_bright: int, n_dark: int) -> bool:

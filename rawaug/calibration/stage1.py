@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from ..statistics import SPIKE_Z, beyond_dark, significant_spikes, stuck_outliers, written_codes
+from ..statistics import SPIKE_Z, beyond_dark, spike_side, stuck_outliers, written_codes
 from .censored import black_floor, censored_read_noise, clipped_share, hot_under_clip
 from .joint import IsoParameters
 from .kernels import pair_tile_stats, pixel_extremes
@@ -531,17 +531,13 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         gap, low_gap = top - second, low - second_low
         bright, dark = gap > SPIKE_Z * max(scale, 1e-9), low_gap > SPIKE_Z * max(scale, 1e-9)
         n_spikes = 0
-        spike = None
-        for hits, size, others, at in ((bright, gap, dark, frame), (dark, low_gap, bright, low_frame)):
-            # impulses: the bright events beyond the dark ones leave (or the dark ones beyond the bright: dropouts)
-            if significant_spikes(int(hits.sum()), int(others.sum())):
-                spike = np.zeros_like(hits)
-                spike[hits] = beyond_dark(size[hits], int(others.sum()))
-                frame = at
-                break
-        if spike is not None:
+        side = spike_side(int(bright.sum()), int(dark.sum()))
+        if side:  # impulses: the events of the side in excess leave (bright ones, or dark ones: dropouts)
+            hits, size, others, at = (bright, gap, dark, frame) if side > 0 else (dark, low_gap, bright, low_frame)
+            spike = np.zeros_like(hits)
+            spike[hits] = beyond_dark(size[hits], int(others.sum()))
             n_spikes = int(spike.sum())
-            keep = lambda i, w: ~((spike[w] & (frame[w] == i)) | (dead[w] if dead is not None else False))  # noqa: E731
+            keep = lambda i, w: ~((spike[w] & (at[w] == i)) | (dead[w] if dead is not None else False))  # noqa: E731
             residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])
     read_var = float(np.median([r.read_variance_dn2 for r in rows]))
     sigma_r = float(np.median([r.sigma_r for r in rows]))

@@ -102,6 +102,12 @@ def estimate(frames, synthesized, k: float, kind: str = "bias", **_) -> dict:
             "row_excess": (row - np.mean([m[1] for m in model], axis=0)).tolist()}
 
 
+def _phase_means(x, period: int) -> np.ndarray:
+    """(period,) means of ``x`` over its lines of each phase (index mod ``period``)."""
+    phase = np.arange(x.size) % period
+    return np.bincount(phase, weights=x, minlength=period) / np.bincount(phase, minlength=period)
+
+
 def _parity_free(x) -> np.ndarray:
     x = np.asarray(x, dtype=np.float64).copy()
     x[0::2] -= x[0::2].mean()
@@ -121,9 +127,8 @@ def bank_period(profile) -> tuple[int, list[float]]:
     best = (n * math.log(rss0 / n), 1, [0.0])
     tried = [p for p in range(3, PERIOD_MAX + 1) if n >= 3 * p]
     for p in tried:
-        phase = np.arange(n) % p
-        means = np.bincount(phase, weights=x, minlength=p) / np.bincount(phase, minlength=p)
-        rss = float(np.sum((x - means[phase]) ** 2))
+        means = _phase_means(x, p)
+        rss = float(np.sum((x - means[np.arange(n) % p]) ** 2))
         dof = p - 2 if p % 2 == 0 else p - 1  # free phase means: an even period's phases hold one parity each
         if rss <= 0 or n - dof - 2 <= 0:
             continue
@@ -161,9 +166,7 @@ def combine(records: list[dict]) -> dict:
 def _fold(profile, period: int) -> list[float]:
     if period == 1:
         return [0.0]
-    x = _parity_free(profile)
-    phase = np.arange(x.size) % period
-    return [round(float(v), 4) for v in np.bincount(phase, weights=x, minlength=period) / np.bincount(phase, minlength=period)]
+    return [round(float(v), 4) for v in _phase_means(_parity_free(profile), period)]
 
 
 def empty(params) -> bool:

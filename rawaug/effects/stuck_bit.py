@@ -110,7 +110,7 @@ def estimate(frames, synthesized, k: float, black_code=None, **_) -> dict:
     codes = _raw_codes(frames, black_code)
     n = codes.size
     measured = _bit_counts(codes)
-    model = np.mean([_bit_counts(_raw_codes(np.rint(s), black_code)) for s in synthesized], axis=0)
+    model = np.mean([_bit_counts(_raw_codes(s, black_code)) for s in synthesized], axis=0)
     masks = {"low": (measured == 0) & (model >= MIN_EXPECTED), "high": (measured == n) & (n - model >= MIN_EXPECTED),
              "set": measured > 0, "clear": measured < n}
     out = {key: sum(1 << int(b) for b in np.flatnonzero(m)) for key, m in masks.items()}
