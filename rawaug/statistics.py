@@ -1304,6 +1304,20 @@ def stuck_fraction(frames, level_dn=None):
     return float(stuck_pixels(frames)[0].mean())
 
 
+def repeated_row_mask(frames) -> np.ndarray:
+    """(N, 2, h - 1) True where sensor row 2y + row_set (y >= 1) of a frame reads exactly as the
+    same colour's row above it, in both of its packed channels: a line read out twice."""
+    frames = np.asarray(frames)
+    same = np.all(frames[:, :, 1:] == frames[:, :, :-1], axis=3)  # (N, 4, h - 1)
+    return np.stack([same[:, [c for c in range(4) if ROW_SET[c] == rs]].all(axis=1) for rs in (0, 1)], axis=1)
+
+
+def repeated_rows(frames, level_dn=None):
+    """Fraction of the sensor rows (below the first of each colour) that read exactly as the same
+    colour's row above them (``repeated_row_mask``): 0 where every row has its own noise."""
+    return float(repeated_row_mask(frames).mean())
+
+
 def read_noise_profile(frames):
     """(20,) white temporal variance (``temporal_variance_cells``, DN^2) averaged per channel
     (4), per row block and per column block (READ_MAP_BLOCKS each): what ``read_noise_spread``
@@ -1845,6 +1859,7 @@ class Statistic:
     mad_of_mean: bool = False  # a robust (MAD) scale of the N-frame mean map: a grid of 1/(2N) DN on whole codes
     line_fraction: bool = False  # resolution: one line of the stack
     column_fraction: bool = False  # resolution: one sensor column
+    row_fraction: bool = False  # resolution: one sensor row of the stack
     base: str = ""  # the base-model parameter it checks ("" when only effects explain it)
     floor: float = 0.0  # resolution of the measurement itself (e.g. the light's stability)
     fixed_variance: bool = False  # a fixed pattern's variance over pixels: its realization spread is a floor
@@ -1872,6 +1887,9 @@ class Statistic:
             return 3.0 * abs(value) / math.sqrt(frames[0].size) + 1e-9
         if self.line_fraction:  # counts lines, as a pixel fraction counts pixels
             n = frames.shape[0] * frames.shape[1] * (frames.shape[2] + frames.shape[3])
+            return float(np.sqrt(max(value * n, 1.0)) / n)
+        if self.row_fraction:  # counts the stack's sensor rows
+            n = frames.shape[0] * 2 * frames.shape[2]
             return float(np.sqrt(max(value * n, 1.0)) / n)
         if self.column_fraction:  # counts sensor columns
             n = 2 * frames.shape[3]
@@ -1916,6 +1934,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("noisy_col_fraction", noisy_col_fraction, min_frames=4, kind="bias", column_fraction=True),
         Statistic("tap_step_ratio", tap_step_ratio, min_frames=3, kind="bias"),
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
+        Statistic("repeated_rows", repeated_rows, row_fraction=True, view="raw"),
         Statistic("row_tail_mass", row_tail_mass, min_frames=2, kind="bias", view="lines", line_fraction=True,
                   base="row noise shape (Gaussian)"),
         Statistic("row_tone", row_tone, kind="bias"),

@@ -54,7 +54,8 @@ def main(targets):
     result = {}
     for target in targets:
         branch, arch = target.split("@")
-        consts = {"FLAGS": BRANCHES[branch], "P": n_params, "BLOCK": 128}  # the GPU default
+        low, high = L.flag_words(BRANCHES[branch])
+        consts = {"FLAGS": low, "FLAGS_HIGH": high, "P": n_params, "BLOCK": 128}  # the GPU default
         src = ASTSource(fused.fused_kernel, {**sig, **{n: "constexpr" for n in consts}},
                         constexprs={(names.index(k),): v for k, v in consts.items()})
         try:

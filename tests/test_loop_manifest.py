@@ -542,6 +542,7 @@ def test_a_component_that_spoils_the_battery_is_not_added(tmp_path, monkeypatch)
     assert "Unexplained" in (report / "report.md").read_text()
 
 
+@pytest.mark.slow  # 14 s: moved out of the default run to keep it under 5 minutes
 def test_loop_diagnoses_the_central_view_of_large_frames(tmp_path):
     manifest = write_frames(tmp_path, "Col", COLUMN)  # 64 x 64 per packed channel
     out, report = tmp_path / "loop.yaml", tmp_path / "report"
@@ -570,6 +571,7 @@ def test_a_chance_residual_is_confirmed_before_it_is_acted_on(tmp_path):
     assert "Not confirmed on a larger sample of syntheses" in (report / "report.md").read_text()
 
 
+@pytest.mark.slow  # 16 s: moved out of the default run to keep it under 5 minutes
 def test_flats_under_known_lights_form_a_series(tmp_path, capsys):
     # the soft-knee camera's flat series taken at one exposure time under five lights: with
     # the manifest's light column the loop checks the response and names the non-linearity;

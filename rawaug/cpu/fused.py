@@ -127,6 +127,10 @@ _BKCP, _BKRP, _BKC0, _BKR0 = L.COLUMN["bank_cp"], L.COLUMN["bank_rp"], L.COLUMN[
 _DEAD_WHERE, _DEAD_LEVEL = L.STREAM["dead_where"], L.STREAM["dead_level"]
 _DR0, _OCT = L.COLUMN["drift_a0"], L.DRIFT_OCTAVES
 _ROW_DRIFT, _ROW_DRIFT_PHASE = L.STREAM["row_drift"], L.STREAM["row_drift_phase"]
+_CDR0, _COL_DRIFT, _COL_DRIFT_PHASE = L.COLUMN["cdrift_a0"], L.STREAM["col_drift"], L.STREAM["col_drift_phase"]
+_COL_DRIFT_HIGH = L.COL_DRIFT >> L.WORD_BITS  # its bit in stage-flag word 1
+_RPD, _ROW_REPEAT, _CHAIN = L.COLUMN["repeat_density"], L.STREAM["row_repeat"], L.REPEAT_CHAIN
+_ROW_REPEAT_HIGH = L.ROW_REPEAT >> L.WORD_BITS
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([tap[0] for tap in L.XTALK_TAPS], dtype=np.int64)
 _XT_DX = np.array([tap[1] for tap in L.XTALK_TAPS], dtype=np.int64)
@@ -202,22 +206,35 @@ def diagonal_banding_at(key, v, b, sensor, ry, rx):
 
 
 @njit(inline="always")
-def row_drift_at(normal, key, key_phase, v, b, ry):
-    """Row drift (DN) on sensor row ``ry`` of sample b: over octaves j, a_j times the linear
-    interpolation of standard normals on nodes every s = 2^(j + 1) sensor rows (counter
-    ((b * OCTAVES + j) << 24) + node), the grid shifted by a whole number of rows
-    floor(s U(0, 1)) drawn per frame and octave (counter b * OCTAVES + j)."""
+def drift_at(normal, key, key_phase, v, a0, first, b, t):
+    """Line drift (DN) on sensor line ``t`` (a row for RowDrift, a column for ColDrift) of
+    sample b: over octaves j, a_j (column ``a0 + j``) times the linear interpolation of
+    standard normals on nodes every s = 2^(j + first) sensor lines (counter ((b * OCTAVES + j) << 24)
+    + node), the grid shifted by a whole number of lines floor(s U(0, 1)) drawn per frame and
+    octave (counter b * OCTAVES + j)."""
     out = 0.0
     for j in range(_OCT):
-        a = v[_DR0 + j]
+        a = v[a0 + j]
         if a != 0.0:
-            s = 2 << j
-            t = ry + int(unit(draw(key_phase, b * _OCT + j)) * s)
-            i = t // s
-            f = (t - i * s) / s
+            s = 1 << (j + first)
+            u = t + int(unit(draw(key_phase, b * _OCT + j)) * s)
+            i = u // s
+            f = (u - i * s) / s
             base = (b * _OCT + j) << 24
             out += a * (symmetric(normal, draw(key, base + i)) * (1.0 - f) + symmetric(normal, draw(key, base + i + 1)) * f)
     return out
+
+
+@njit(inline="always")
+def repeated_row_source(key, density, b, y, row_set, h):
+    """The packed row whose whole chain packed row ``y`` of sample b reads out: while its sensor
+    row 2y + row_set is a repeat in this frame (U < density, counter b * 2h + sensor row), the
+    same colour's row above, back over at most REPEAT_CHAIN rows."""
+    for _ in range(_CHAIN):
+        if y < 1 or unit(draw(key, b * 2 * h + 2 * y + row_set)) >= density:
+            break
+        y -= 1
+    return y
 
 
 @njit(inline="always")
@@ -287,17 +304,18 @@ def neighbour_at(c32, c64, n, b, ry, rx, h, w, scale_in, gain, dark, wx, wy):
 
 
 @njit(nogil=True, cache=True)
-def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tables, read_index, normal, fine, coarse,
+def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r1, read_tables, read_index, normal, fine, coarse,
           grids, code_lut, read_lut):
     """Rows ``r0 .. r1`` of the (B * 4 * H) rows of a (B, 4, H, W) batch, flattened, from
     ``c64`` (float64) or, when that is empty, ``c32`` (float32) into ``o64`` or ``o32`` alike;
     returns the count of non-finite clean values met (their outputs are NaN)."""
     bad = 0
-    stages = flags
+    stages, stages_high = flags, flags_high  # stage-flag words 0 and 1 (``layout.flag_words``)
     sig = np.empty(w)  # the row's signal, DN, through the stages
     photo = np.empty(w)  # ... before the pixel's gains
     pixel = np.empty(w)  # ... after them, before the dark signal
     col_frame, col_fixed, col_of = np.empty(w), np.empty(w), -1  # column noise of (sample, channel) col_of: b * 4 + c
+    col_drift, col_drift_of = np.empty(w), -1  # column drift of (sample, channel) col_drift_of
     for r in range(r0, r1):
         b = r // (4 * h)
         c = (r // h) % 4
@@ -307,6 +325,10 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
         scale_in = span / v[_RATIO]
         scale_out = v[_RATIO] / span
         row_set, col_set = _ROW_SET[c], _COL_SET[c]
+        out0 = r * w  # where the row is written
+        if stages_high & _ROW_REPEAT_HIGH:  # a repeated row: the whole chain of the row it repeats, from here on
+            y = repeated_row_source(keys[_ROW_REPEAT], v[_RPD], b, y, row_set, h)
+            r = (b * 4 + c) * h + y
         sensor = int(v[_SENSOR])  # fixed patterns of this sample's sensor instance: planes of their own
         line = 0.0  # offsets shared by the whole row
         if stages & L.ROW:
@@ -328,7 +350,7 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
         if stages & L.ROW_CHANNEL:
             line += v[_RC] * symmetric(normal, draw(keys[_ROW_CHANNEL], (b * 4 + c) * h + y))
         if stages & L.ROW_DRIFT:
-            line += row_drift_at(normal, keys[_ROW_DRIFT], keys[_ROW_DRIFT_PHASE], v, b, 2 * y + row_set)
+            line += drift_at(normal, keys[_ROW_DRIFT], keys[_ROW_DRIFT_PHASE], v, _DR0, 1, b, 2 * y + row_set)
         if stages & L.ROW_FIX:
             line += v[_RF] * symmetric(normal, draw(keys[_ROW_PATTERN], (sensor * 2 + row_set) * h + y))
         if stages & L.LINES:
@@ -647,6 +669,15 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
                 s += col_frame[x]
                 s += col_fixed[x]
                 sig[x] = s
+        if stages_high & _COL_DRIFT_HIGH:  # column drift: octaves of interpolated per-frame column offsets
+            if col_drift_of != r // h:  # the same in every row of a channel: made once for them
+                col_drift_of = r // h
+                for x in range(w):
+                    col_drift[x] = drift_at(normal, keys[_COL_DRIFT], keys[_COL_DRIFT_PHASE], v, _CDR0, 0, b, 2 * x + col_set)
+            for x in range(w):
+                s = sig[x]
+                s += col_drift[x]
+                sig[x] = s
         if stages & L.COL_BAND:  # tones along the sensor columns, a phase per frame and tone
             for x in range(w):
                 s = sig[x]
@@ -766,14 +797,14 @@ def _rows(c32, c64, o32, o64, values, flags, keys, span, h, w, r0, r1, read_tabl
                 sig[x] = s
         if o64.size:
             for x in range(w):
-                o64[g0 + x] = sig[x] * scale_out
+                o64[out0 + x] = sig[x] * scale_out
         else:
             for x in range(w):
-                o32[g0 + x] = sig[x] * scale_out
+                o32[out0 + x] = sig[x] * scale_out
     return bad
 
 
-def synthesize(clean, out, values, flags, keys, span, read_tables, read_index, normal, fine, coarse, grids, code_lut,
+def synthesize(clean, out, values, flags, flags_high, keys, span, read_tables, read_index, normal, fine, coarse, grids, code_lut,
                read_lut, threads=1):
     """Run the fused chain over a (B, 4, H, W) NumPy batch into ``out`` (may be ``clean``);
     returns the count of non-finite clean values. ``clean`` and ``out`` are float32 or float64
@@ -784,7 +815,7 @@ def synthesize(clean, out, values, flags, keys, span, read_tables, read_index, n
     c32, c64 = _as_float32_or_64(clean.reshape(-1), "clean")
     o32, o64 = _as_float32_or_64(out.reshape(-1), "out")
     keys = np.asarray(keys, dtype=np.uint64)
-    return run_ranges(lambda r0, r1: _rows(c32, c64, o32, o64, values, np.int64(flags), keys, float(span), h, w, r0, r1,
+    return run_ranges(lambda r0, r1: _rows(c32, c64, o32, o64, values, np.int64(flags), np.int64(flags_high), keys, float(span), h, w, r0, r1,
                                            read_tables, read_index, normal, fine, coarse, grids, code_lut, read_lut),
                       b * 4 * h, w, threads)
 

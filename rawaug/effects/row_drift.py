@@ -31,7 +31,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from ..engine import layout as L
-from ..statistics import sensor_row_means
+from ..statistics import sensor_col_means, sensor_row_means
 from .base import BANDING, NoiseEffect, register
 from .k_records import record_index, validate_records
 
@@ -54,24 +54,24 @@ class RowDrift(NoiseEffect):
         p = self.profile.effects[self.token]
         table = ctx.k.new_tensor(np.asarray(p["octave_dn"], dtype=np.float64).reshape(len(p["k"]), OCT))
         idx = record_index(p, ctx.k)
-        return {f"drift_a{j}": table[idx, j] for j in range(OCT)}
+        return {name: table[idx, j] for j, name in enumerate(self.columns)}
 
     @classmethod
     def validate_params(cls, params):
         validate_records(cls.token, params, ("octave_dn",))
         for r, values in enumerate(params["octave_dn"]):
             if not isinstance(values, (list, tuple)) or len(values) != OCT:
-                raise ValueError(f"effect 'RowDrift': octave_dn record {r} must list {OCT} values (DN), got {values!r:.80}")
+                raise ValueError(f"effect {cls.token!r}: octave_dn record {r} must list {OCT} values (DN), got {values!r:.80}")
             for v in values:
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
-                    raise ValueError(f"effect 'RowDrift': octave_dn values must be finite and >= 0 (DN), got {v!r}")
+                    raise ValueError(f"effect {cls.token!r}: octave_dn values must be finite and >= 0 (DN), got {v!r}")
 
 
-def octave_field(n: int, j: int, rng, count: int = 1) -> np.ndarray:
-    """(count, n) realizations of octave ``j`` with unit node std over ``n`` sensor rows, as
-    the kernels make it (nodes every 2^(j + 1) rows, linear between, the grid shifted by a
-    whole number of rows)."""
-    s = 2 << j
+def octave_field(n: int, j: int, rng, count: int = 1, first: int = 1) -> np.ndarray:
+    """(count, n) realizations of octave ``j`` with unit node std over ``n`` sensor lines, as
+    the kernels make it (nodes every 2^(j + first) lines, linear between, the grid shifted by a
+    whole number of lines)."""
+    s = 1 << (j + first)
     t = np.arange(n)[None, :] + rng.integers(0, s, size=(count, 1))
     i = t // s
     f = (t - i * s) / s
@@ -87,67 +87,97 @@ def _periodogram(m) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=16)
-def octave_spectra(n: int) -> np.ndarray:
-    """(OCT, n // 2) mean periodogram of each octave (unit node std) over ``n`` sensor rows."""
+def octave_spectra(n: int, first: int = 1) -> np.ndarray:
+    """(OCT, n // 2) mean periodogram of each octave (unit node std) over ``n`` sensor lines."""
     rng = np.random.default_rng(0)
-    return np.stack([_periodogram(octave_field(n, j, rng, SIMULATED)) for j in range(OCT)])
+    return np.stack([_periodogram(octave_field(n, j, rng, SIMULATED, first)) for j in range(OCT)])
 
 
-def _half_row_means(frames):
-    """(left, right): (N, 2h) sensor-row means of the left and right halves of the columns about
-    the stack mean (times sqrt(N / (N - 1)): the temporal part at full variance), DN."""
+def _half_line_means(frames, axis="row"):
+    """(first, second): (N, 2n) temporal sensor-line means about the stack mean (times
+    sqrt(N / (N - 1)): the temporal part at full variance), DN: for ``axis`` "row" the sensor
+    rows' means over the left and the right half of the columns, for "col" the sensor columns'
+    over the top and the bottom half of the rows."""
     frames = np.asarray(frames, dtype=np.float64)
-    n, w = frames.shape[0], frames.shape[3]
+    n = frames.shape[0]
+    if axis == "row":
+        w = frames.shape[3]
+        halves, means = (frames[..., : w // 2], frames[..., w // 2 :]), sensor_row_means
+    else:
+        h = frames.shape[2]
+        halves, means = (frames[:, :, : h // 2], frames[:, :, h // 2 :]), sensor_col_means
     out = []
-    for half in (frames[..., : w // 2], frames[..., w // 2 :]):
-        m = sensor_row_means(half)
+    for half in halves:
+        m = means(half)
         out.append((m - m.mean(axis=0, keepdims=True)) * np.sqrt(n / (n - 1)))
     return out
 
 
-def temporal_row_spectrum(frames) -> np.ndarray:
-    """Cross-periodogram (bins 1 .. n // 2, DN^2) of the temporal sensor-row means of the left and
-    right halves of each frame (``_half_row_means``, each less its frame mean), mean over
-    frames: the power of what a whole row shares (row offsets, a drift); pixel noise and a 2-D
+def temporal_line_spectrum(frames, axis="row") -> np.ndarray:
+    """Cross-periodogram (bins 1 .. n // 2, DN^2) of the temporal sensor-line means of the two
+    halves of each frame (``_half_line_means``, each less its frame mean), mean over frames:
+    the power of what a whole line shares (line offsets, a drift); pixel noise and a 2-D
     field whose phase changes across the frame average out of it."""
-    left, right = (m - m.mean(axis=1, keepdims=True) for m in _half_row_means(frames))
-    cross = np.real(np.fft.rfft(left, axis=1) * np.conj(np.fft.rfft(right, axis=1))) / left.shape[1]
+    first, second = (m - m.mean(axis=1, keepdims=True) for m in _half_line_means(frames, axis))
+    cross = np.real(np.fft.rfft(first, axis=1) * np.conj(np.fft.rfft(second, axis=1))) / first.shape[1]
     return cross.mean(axis=0)[1:]
 
 
-def half_row_spectrum(frames) -> np.ndarray:
-    """Mean periodogram of the two halves' temporal sensor-row means (bins 1 .. n // 2, DN^2):
+def temporal_row_spectrum(frames) -> np.ndarray:
+    """``temporal_line_spectrum`` along the sensor rows."""
+    return temporal_line_spectrum(frames, "row")
+
+
+def half_line_spectrum(frames, axis="row") -> np.ndarray:
+    """Mean periodogram of the two halves' temporal sensor-line means (bins 1 .. n // 2, DN^2):
     the scale of the cross-periodogram's spread."""
-    return np.mean([_periodogram(m) for m in _half_row_means(frames)], axis=0)
+    return np.mean([_periodogram(m) for m in _half_line_means(frames, axis)], axis=0)
+
+
+def octave_fit(frames, synthesized, axis="row", first=1) -> np.ndarray:
+    """(OCT,) octave amplitudes (DN) of the temporal line spectrum's excess over the model's
+    along ``axis`` ("row" or "col"), nodes every 2^(j + first) lines, in log-spaced bands,
+    fitted by non-negative octave powers; ValueError where the fit beats a white line term
+    alone only by chance (p >= P_VALUE). With ``first`` 1 (RowDrift) that white term joins
+    the fit with either sign (calibration's sigma_r holds part of the drift's variance); with
+    ``first`` 0 (ColDrift) it is octave 0 itself (a node every line)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    measured = temporal_line_spectrum(frames, axis)
+    model = np.mean([temporal_line_spectrum(s, axis) for s in synthesized], axis=0)
+    spread = np.mean([half_line_spectrum(s, axis) for s in synthesized], axis=0)
+    n_lines = 2 * frames.shape[2 if axis == "row" else 3]
+    shapes = octave_spectra(n_lines, first)
+    edges = np.unique(np.geomspace(1, measured.size + 1, BANDS + 1).astype(int)) - 1
+    band = lambda x: np.add.reduceat(x, edges[:-1], axis=-1) / np.diff(edges)  # noqa: E731
+    count = np.diff(edges)
+    excess = band(measured - model)
+    usable = [j for j in range(OCT) if (1 << (j + first)) <= n_lines // 4]  # an octave spans a few nodes of the frame
+    signed = first > 0  # a white term of either sign beside the octaves
+    shape = np.column_stack([band(shapes[j]) for j in usable] + ([np.ones(excess.size)] if signed else []))
+    lower = [0.0] * len(usable) + ([-np.inf] if signed else [])
+    power = np.zeros(excess.size)  # the excess the fit finds: it spreads the cross power too
+    for _ in range(2):  # fitted, then fitted again with the found excess's own scatter (a strong white line term's)
+        # a band's cross power: N frames x count bins, each spreading by about the halves' power; the model's mean adds a little
+        se = (band(spread) + power) * np.sqrt(1.0 / (frames.shape[0] * count) + 1.0 / (len(synthesized) * frames.shape[0] * count))
+        design, target = shape / se[:, None], excess / se
+        fit = optimize.lsq_linear(design, target, bounds=(lower, [np.inf] * len(lower)))
+        power = np.maximum(shape @ fit.x, 0.0)
+    white = design[:, -1:] if signed else design[:, :1]  # the white line term alone
+    white_only = optimize.lsq_linear(white, target, bounds=(lower[-1:] if signed else [0.0], [np.inf]))
+    drop = float(np.sum((white @ white_only.x - target) ** 2) - np.sum((design @ fit.x - target) ** 2))
+    if drop <= stats.chi2.isf(P_VALUE, max(len(usable) - (0 if signed else 1), 1)):
+        raise ValueError(f"the {axis} spectrum's excess is within chance: this stack shows no {axis} drift")
+    octave = np.zeros(OCT)
+    octave[usable] = np.sqrt(np.maximum(fit.x[: len(usable)], 0.0))
+    return octave
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     """RowDrift record at gain ``k`` from a bias or dark stack (N >= 2, 4, h, w) in DN; ValueError
     where the excess is within chance (the stack shows no drift)."""
-    frames = np.asarray(frames, dtype=np.float64)
-    if level_dn is not None or not len(synthesized) or frames.shape[0] < 2:
+    if level_dn is not None or not len(synthesized) or np.shape(frames)[0] < 2:
         raise ValueError("RowDrift is measured on bias and dark stacks of >= 2 frames, against syntheses")
-    measured = temporal_row_spectrum(frames)
-    model = np.mean([temporal_row_spectrum(s) for s in synthesized], axis=0)
-    spread = np.mean([half_row_spectrum(s) for s in synthesized], axis=0)
-    n_rows = 2 * frames.shape[2]
-    shapes = octave_spectra(n_rows)
-    edges = np.unique(np.geomspace(1, measured.size + 1, BANDS + 1).astype(int)) - 1
-    band = lambda x: np.add.reduceat(x, edges[:-1], axis=-1) / np.diff(edges)  # noqa: E731
-    count = np.diff(edges)
-    excess = band(measured - model)
-    # a band's cross power: N frames x count bins, each with a spread of about the halves' power; the model's mean adds a little
-    se = band(spread) * np.sqrt(1.0 / (frames.shape[0] * count) + 1.0 / (len(synthesized) * frames.shape[0] * count))
-    usable = [j for j in range(OCT) if (2 << j) <= n_rows // 4]  # an octave spans a few nodes of the frame
-    design = np.column_stack([band(shapes[j]) for j in usable] + [np.ones(excess.size)]) / se[:, None]
-    target = excess / se
-    fit = optimize.lsq_linear(design, target, bounds=([0.0] * len(usable) + [-np.inf], [np.inf] * (len(usable) + 1)))
-    white_only = optimize.lsq_linear(design[:, -1:], target)  # the white row term alone
-    drop = float(np.sum((design[:, -1:] @ white_only.x - target) ** 2) - np.sum((design @ fit.x - target) ** 2))
-    if drop <= stats.chi2.isf(P_VALUE, max(len(usable), 1)):
-        raise ValueError("the row spectrum's excess is within chance: this stack shows no row drift")
-    octave = np.zeros(OCT)
-    octave[usable] = np.sqrt(np.maximum(fit.x[:-1], 0.0))
+    octave = octave_fit(frames, synthesized, "row")
     return {"k": [float(k)], "octave_dn": [[float(a) for a in octave]]}
 
 

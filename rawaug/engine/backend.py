@@ -68,7 +68,7 @@ def _numba(clean, out, values, keys, span, flags, grids, code_lut, read_lut, che
         read_tables = normal_table()[None]
         read_index = np.zeros(max(1, v.shape[0]), dtype=np.int64)
     fine, coarse = tables()
-    bad = synthesize(clean.numpy(), out.numpy(), v, flags, keys.cpu().numpy().astype(np.uint64), span, read_tables, read_index,
+    bad = synthesize(clean.numpy(), out.numpy(), v, *L.flag_words(flags), keys.cpu().numpy().astype(np.uint64), span, read_tables, read_index,
                normal_table(), fine, coarse, grids.cpu().numpy().astype(np.float64),
                      code_lut.cpu().numpy().astype(np.float64), read_lut.cpu().numpy().astype(np.float64),
                      threads=torch.get_num_threads())
@@ -104,11 +104,18 @@ def run(clean: torch.Tensor, values: torch.Tensor, keys: torch.Tensor, span: flo
 
 
 @torch.library.custom_op("rawaug::synthesize", mutates_args=())
+def _synthesize(clean: torch.Tensor, values: torch.Tensor, keys: torch.Tensor, span: float, flags: int, flags_high: int,
+                grids: torch.Tensor, code_lut: torch.Tensor, read_lut: torch.Tensor, check_finite: bool = False) -> torch.Tensor:
+    return run(clean.contiguous(), values, keys, span, flags | flags_high << L.WORD_BITS, grids, code_lut, read_lut, check_finite)
+
+
+@_synthesize.register_fake
+def _(clean, values, keys, span, flags, flags_high, grids, code_lut, read_lut, check_finite=False):
+    return torch.empty_like(clean)
+
+
 def synthesize_op(clean: torch.Tensor, values: torch.Tensor, keys: torch.Tensor, span: float, flags: int,
                   grids: torch.Tensor, code_lut: torch.Tensor, read_lut: torch.Tensor, check_finite: bool = False) -> torch.Tensor:
-    return run(clean.contiguous(), values, keys, span, flags, grids, code_lut, read_lut, check_finite)
-
-
-@synthesize_op.register_fake
-def _(clean, values, keys, span, flags, grids, code_lut, read_lut, check_finite=False):
-    return torch.empty_like(clean)
+    """The fused chain as one operator; ``flags`` (any stage set) reach it as two int64 words."""
+    low, high = L.flag_words(flags)
+    return _synthesize(clean, values, keys, span, low, high, grids, code_lut, read_lut, check_finite)

@@ -70,13 +70,27 @@ PIXEL_GAIN = 1 << 58  # gain defect pixels: sparse pixels whose gain on the phot
 GAIN_NOISE = 1 << 57  # pixel gain noise: each pixel's gain on its signal moves by a relative normal draw, new at every pixel and frame
 STUCK_BIT = 1 << 61  # stuck ADC bits: the raw code's bits of a mask read 0, of another 1
 BANK_OFFSET = 1 << 62  # readout bank offsets: fixed offsets repeating with the interleaved column / row banks' period
-# (the 64-bit flag word is full with BANK_OFFSET: a further stage needs a second word)
+# The kernels take the flags as words of WORD_BITS bits (each a non-negative int64): the stages
+# above are word 0, those below word 1 (``flag_words``).
+WORD_BITS = 63
+COL_DRIFT = 1 << 63  # column drift: column noise with a low-frequency spectrum, octaves of interpolated random column offsets per frame
+ROW_REPEAT = 1 << 64  # repeated rows: sensor rows that read out as the same colour's row above (a line buffer read twice), new in every frame
+REPEAT_CHAIN = 4  # repeated rows: the longest run of rows one repeat reaches back over
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
 DEAD_LEVELS = 8  # stuck levels of the dead pixels: equally likely, one per pixel
 DNL_PERIOD_MAX = 64  # ADC differential non-linearity: the longest period of its decision levels (codes)
 DRIFT_OCTAVES = 8  # row drift: octave j has nodes every 2^(j + 1) sensor rows
+
+
+
+def flag_words(flags: int) -> tuple[int, int]:
+    """(word 0, word 1) of a stage-flag set: bits 0 .. 62 and bits 63 .. 125, shifted down."""
+    if not 0 <= flags < 1 << (2 * WORD_BITS):
+        raise ValueError(f"stage flags must be in [0, 2^{2 * WORD_BITS}), got {flags}")
+    return flags & ((1 << WORD_BITS) - 1), flags >> WORD_BITS
+
 
 COLUMNS = (
     "k", "ratio",
@@ -154,6 +168,8 @@ COLUMNS = (
     "spike_negative",  # impulsive noise: share of the events that are dark (a lost charge packet)
     "bank_cp", "bank_rp",  # readout bank offsets: column and row periods (sensor lines)
     *(f"bank_c{i}" for i in range(BANK_PERIOD_MAX)), *(f"bank_r{i}" for i in range(BANK_PERIOD_MAX)),  # ... offsets per bank (DN)
+    *(f"cdrift_a{j}" for j in range(DRIFT_OCTAVES)),  # column drift: std of each octave's nodes (DN)
+    "repeat_density",  # repeated rows: share of the sensor rows of a frame that repeat the same colour's row above
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -172,6 +188,7 @@ STREAMS = (
     "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
     "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
+    "col_drift", "col_drift_phase", "row_repeat",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -2,7 +2,8 @@
 noisy value written once; the stages are the CPU kernel's (``rawaug.cpu.fused``), in the
 same order, from the same counter streams. Draws after the shot noise evaluate their
 quantiles in float32 registers; the fixed patterns that feed the Poisson draw (PRNU, DSNU)
-use the CPU's normal table, so that both backends count the same electrons. ``FLAGS`` is a compile-time constant, so the
+use the CPU's normal table, so that both backends count the same electrons. ``FLAGS`` and ``FLAGS_HIGH``
+(stage-flag words 0 and 1) are compile-time constants, so the
 stages a model does not use are not in its kernel."""
 from __future__ import annotations
 
@@ -83,7 +84,8 @@ C_DD, C_DL0 = _column("dead_density"), _column("dead_l0")
 C_SBZ0, C_SBLO, C_SBHI = _column("stuck_z0"), _column("stuck_low"), _column("stuck_high")
 C_BKCP, C_BKRP, C_BKC0, C_BKR0 = _column("bank_cp"), _column("bank_rp"), _column("bank_c0"), _column("bank_r0")
 NDL = tl.constexpr(L.DEAD_LEVELS)
-C_DR0 = _column("drift_a0")
+C_DR0, C_CDR0 = _column("drift_a0"), _column("cdrift_a0")
+C_RPD, CHAIN = _column("repeat_density"), tl.constexpr(L.REPEAT_CHAIN)
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5, XT_DY6, XT_DX6 = (
@@ -104,6 +106,8 @@ K_READ_MAP, K_SHARED = S["read_map"], S["shared"]
 K_RTS_WHERE, K_RTS_SIZE, K_RTS_STATE = S["rts_where"], S["rts_size"], S["rts_state"]
 K_DEAD_WHERE, K_DEAD_LEVEL = S["dead_where"], S["dead_level"]
 K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
+K_COL_DRIFT, K_COL_DRIFT_PHASE = S["col_drift"], S["col_drift_phase"]
+K_ROW_REPEAT = S["row_repeat"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
@@ -195,9 +199,9 @@ def _diag_tone(key, v, j: tl.constexpr, b, sensor, ry, rx):
 
 
 @triton.jit
-def _drift_octave(key, key_phase, normal_ptr, v, j: tl.constexpr, b, ry):
-    """As one octave of ``rawaug.cpu.fused.row_drift_at``."""
-    s: tl.constexpr = 2 << j
+def _drift_octave(key, key_phase, normal_ptr, v, a0: tl.constexpr, first: tl.constexpr, j: tl.constexpr, b, ry):
+    """As one octave of ``rawaug.cpu.fused.drift_at`` (amplitudes from column ``a0``, nodes every 2^(j + first) lines)."""
+    s: tl.constexpr = 1 << (j + first)
     bj = b.to(tl.int64) * OCT + j
     t = ry.to(tl.int64) + (unit(draw(key_phase, bj.to(tl.uint64) + tl.zeros_like(ry).to(tl.uint64))) * s).to(tl.int64)
     i = t // s
@@ -205,7 +209,7 @@ def _drift_octave(key, key_phase, normal_ptr, v, j: tl.constexpr, b, ry):
     base = (bj << 24) + i
     z0 = _normal(draw(key, base.to(tl.uint64)))
     z1 = _normal(draw(key, (base + 1).to(tl.uint64)))
-    return _col(v, C_DR0 + j) * (z0 * (1.0 - f) + z1 * f)
+    return _col(v, a0 + j) * (z0 * (1.0 - f) + z1 * f)
 
 
 @triton.jit
@@ -283,7 +287,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
                  f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
                  c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin,
                  grids_ptr, GH, GW, normal_ptr, code_ptr, CODE_N, read_ptr, READ_N,
-                 FLAGS: tl.constexpr, P: tl.constexpr, BLOCK: tl.constexpr):
+                 FLAGS: tl.constexpr, FLAGS_HIGH: tl.constexpr, P: tl.constexpr, BLOCK: tl.constexpr):
     plane = tl.program_id(1)  # b * 4 + c
     b = plane // 4
     c = plane % 4
@@ -292,16 +296,25 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     live = idx < hw
     y = idx // W
     x = idx % W
-    g = (plane.to(tl.int64) * hw + idx).to(tl.uint64)
     row_set = c // 2
     col_set = tl.where((c == 0) | (c == 3), 0, 1)
     v = values_ptr + b.to(tl.int64) * P
+    if FLAGS_HIGH & 2:  # (word 1) repeated rows: as rawaug.cpu.fused.repeated_row_source, the whole chain of the row repeated
+        kr = _key(keys_ptr, K_ROW_REPEAT)
+        density = _col(v, C_RPD)
+        going = live
+        for _ in tl.static_range(CHAIN):
+            repeat = going & (y >= 1) & (unit(draw(kr, ((b.to(tl.int64) * 2 * H + 2 * y + row_set)).to(tl.uint64))) < density)
+            y = tl.where(repeat, y - 1, y)
+            going = repeat
+    src = y * W + x  # the element whose chain this one runs (itself, or its column in the row it repeats)
+    g = (plane.to(tl.int64) * hw + src).to(tl.uint64)
     sensor = _col(v, C_SENSOR).to(tl.int64)  # fixed patterns of this sample's sensor instance: planes of their own
-    p = ((sensor * 4 + c) * hw + idx).to(tl.uint64)
+    p = ((sensor * 4 + c) * hw + src).to(tl.uint64)
     k = _col(v, C_K)
     ratio = _col(v, C_RATIO)
     scale_in = span / ratio
-    s = tl.load(clean_ptr + plane.to(tl.int64) * hw + idx, mask=live, other=0.0).to(tl.float64) * scale_in
+    s = tl.load(clean_ptr + plane.to(tl.int64) * hw + src, mask=live, other=0.0).to(tl.float64) * scale_in
     s_photo = s  # the photo signal before the pixel's gains (charge sharing takes its neighbours' through them)
     if FLAGS & 1:  # PRNU
         s *= 1.0 + _col(v, C_PRNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_PRNU), p))
@@ -481,6 +494,14 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 256:  # column noise: per frame and fixed
         s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
+    if FLAGS_HIGH & 1:  # (word 1) column drift: octaves of interpolated per-frame column offsets
+        rx = 2 * x + col_set
+        kd = _key(keys_ptr, K_COL_DRIFT)
+        kp = _key(keys_ptr, K_COL_DRIFT_PHASE)
+        cd = tl.zeros_like(s)
+        for j in tl.static_range(OCT):
+            cd += _drift_octave(kd, kp, normal_ptr, v, C_CDR0, 0, j, b, rx)
+        s += cd
     if FLAGS & 1073741824:  # column banding: tones along the sensor columns, a phase per frame and tone
         rx = 2 * x + col_set
         kc = _key(keys_ptr, K_COL_BAND)
@@ -527,7 +548,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         kd = _key(keys_ptr, K_ROW_DRIFT)
         kp = _key(keys_ptr, K_ROW_DRIFT_PHASE)
         for j in tl.static_range(OCT):
-            line += _drift_octave(kd, kp, normal_ptr, v, j, b, ry)
+            line += _drift_octave(kd, kp, normal_ptr, v, C_DR0, 1, j, b, ry)
     if FLAGS & 8388608:  # fixed row pattern: the sensor row's offset, the same in every frame
         line += _col(v, C_RF) * _normal(draw(_key(keys_ptr, K_ROW_PATTERN), ((sensor * 2 + row_set) * H + y).to(tl.uint64)))
     if FLAGS & 262144:  # defect lines: the sensor row's offset
@@ -622,5 +643,5 @@ def launch(clean, out, values, keys, span, flags, fine, coarse, grids, normal, c
     grid = (triton.cdiv(h * w, block), b * 4)
     fused_kernel[grid](clean, out, values, keys, float(span), h, w, *fine, *coarse, grids, grids.shape[1], grids.shape[2], normal, code_lut, code_lut.shape[-1],
                        read_lut, read_lut.shape[1],
-                       FLAGS=int(flags), P=values.shape[1], BLOCK=block, num_warps=num_warps)
+                       FLAGS=L.flag_words(int(flags))[0], FLAGS_HIGH=L.flag_words(int(flags))[1], P=values.shape[1], BLOCK=block, num_warps=num_warps)
     return out
