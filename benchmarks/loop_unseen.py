@@ -695,6 +695,58 @@ def quadrant_offsets(dn, rng, **_):
     q[: h // 2, : w // 2], q[: h // 2, w // 2 :], q[h // 2 :, : w // 2], q[h // 2 :, w // 2 :] = 0.9, -0.6, 0.3, -0.6
     return dn + q
 
+
+# 2026-11-29 (twenty-fourth session): a sixth fresh batch, written and committed before the loop ran
+# on any of them.
+
+def noisy_third_columns(dn, rng, **_):
+    """A noisier shared ADC: every third sensor column (c mod 3 = 0) reads with 1.5 DN of extra white noise, new at every pixel and frame."""
+    extra = np.where(np.arange(2 * dn.shape[2]) % 3 == 0, 1.5, 0.0)
+    e = np.stack([extra[0::2], extra[1::2], extra[1::2], extra[0::2]])[:, None, :]  # R, G2 on even sensor columns
+    return dn + e * rng.standard_normal(dn.shape)
+
+
+def hot_clusters(dn, rng, exposure=0.0, k=1.0, **_):
+    """Damaged regions: 20 clusters of 3 x 3 raw pixels (fixed places) with a dark current of 40 e-/s each, with its shot noise."""
+    raw = np.zeros((2 * dn.shape[1], 2 * dn.shape[2]))
+    where = np.random.default_rng(123)
+    for _ in range(20):
+        y, x = where.integers(0, raw.shape[0] - 3), where.integers(0, raw.shape[1] - 3)
+        raw[y : y + 3, x : x + 3] = 1.0
+    mask = _raw_to_packed(raw) > 0
+    return dn + mask * k * rng.poisson(40.0 * exposure, dn.shape)
+
+
+def bit_flips(dn, rng, **_):
+    """Single-bit errors on the data link: 0.01 % of the codes of every frame have bit 9 (512) flipped (raw code = DN + 512, the SonyA7S2 black)."""
+    code = np.rint(dn).astype(np.int64) + 512
+    hit = rng.random(dn.shape) < 1e-4
+    return np.where(hit, (code ^ 512) - 512.0, dn)
+
+
+def black_ramp(dn, rng, **_):
+    """Clamp droop during readout: a black level ramp from the top to the bottom sensor row, its size new in every frame (normal, 1.5 DN sd from top to bottom)."""
+    h = dn.shape[1]
+    ramp = rng.normal(0.0, 1.5) * (np.arange(2 * h) / (2 * h - 1) - 0.5)
+    return dn + np.stack([ramp[0::2], ramp[0::2], ramp[1::2], ramp[1::2]])[:, :, None]
+
+
+def intermittent_tone(dn, rng, **_):
+    """Interference from a device that is on in about half the frames: 1.0 DN at 0.137 cycles per sensor row, a phase per frame, in the frames where it is on."""
+    if rng.random() >= 0.5:
+        return dn
+    t = 1.0 * np.cos(2 * np.pi * 0.137 * np.arange(2 * dn.shape[1]) + rng.uniform(0, 2 * np.pi))
+    return dn + np.stack([t[0::2], t[0::2], t[1::2], t[1::2]])[:, :, None]
+
+
+def pixel_ringing(dn, rng, **_):
+    """A slow readout amplifier: each raw pixel carries 0.25 of the previous pixel's output along its row (an IIR in readout order), signal and noise alike."""
+    raw = np.zeros((2 * dn.shape[1], 2 * dn.shape[2]))
+    raw[0::2, 0::2], raw[0::2, 1::2], raw[1::2, 1::2], raw[1::2, 0::2] = dn
+    for x in range(1, raw.shape[1]):
+        raw[:, x] += 0.25 * raw[:, x - 1]
+    return _raw_to_packed(raw)
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -710,7 +762,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  channel_dark, image_lag, black_by_iso, cosmic_rays, row_gain_noise, column_telegraph,
                                  low_light_toe, pixel_gain_noise, stuck_bit, alternating_black, blotchy_fpn, dim_pixels,
                                  laplace_rows, pixel_wander, dropouts, triple_adc_columns, column_flicker_1f,
-                                 repeated_rows, quadrant_offsets)}
+                                 repeated_rows, quadrant_offsets, noisy_third_columns, hot_clusters, bit_flips, black_ramp,
+                                 intermittent_tone, pixel_ringing)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
