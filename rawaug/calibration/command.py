@@ -321,7 +321,8 @@ def _calibrate_frames(source: Path, args: CalibrationOptions, on_frame=None) -> 
         def one(item):
             iso, (bias, pairs) = item
             p = calibrate_iso([frames.loader(e) for e in bias], [(frames.loader(a), frames.loader(b)) for a, b in pairs], iso,
-                              max_samples=max_samples, saturation_dn=saturation, black_clip_dn=black_clip, progress=None)
+                              max_samples=max_samples, saturation_dn=saturation, black_clip_dn=black_clip, progress=None,
+                              black_code=ref.black_packed())
             bar.set_postfix_str(f"ISO {iso:g}: K={p.k:.3g}")
             return p
 

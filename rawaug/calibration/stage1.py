@@ -11,6 +11,7 @@ numbers). Methods follow ELD (Wei et al., CVPR 2020), section 3.2:
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -22,6 +23,7 @@ from ..statistics import SPIKE_Z, beyond_dark, spike_side, stuck_outliers, writt
 from .censored import black_floor, censored_read_noise, clipped_share, hot_under_clip
 from .joint import IsoParameters
 from .kernels import pair_tile_stats, pixel_extremes
+from .stuck_bits import fit_through_bits, stuck_masks
 from .read_noise import (LAMBDA_GRID, ReadNoiseEstimate, estimate_read_noise, sample_indices,  # noqa: F401 (re-exported)
                          subsample)
 
@@ -458,7 +460,7 @@ def _load(item, what):
 
 def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | None = 200_000,
                   saturation_dn: float | None = None, black_clip_dn: float | None = None,
-                  tile: int = 32, seed: int = 0, progress=None) -> IsoParameters:
+                  tile: int = 32, seed: int = 0, progress=None, black_code=None) -> IsoParameters:
     """All stage-1 parameters at one ISO.
 
     Parameters
@@ -470,6 +472,9 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
     max_samples : values used by the PPCC read-noise fit, pooled over the bias frames.
     saturation_dn, black_clip_dn : clipping levels in DN (detected from the data if None).
     progress : optional callable(str) told about each step.
+    black_code : the raw code of 0 DN per packed channel (R, G1, B, G2): with it, bits of the
+        raw codes that never move (``stuck_bits.stuck_masks``) are found, and the read noise
+        is fitted through them (``stuck_bits.fit_through_bits``) rather than by PPCC.
 
     Returns an :class:`IsoParameters` with K, sigma_TL, sigma_r, lambda, sigma_G and the
     colour bias (medians over bias frames where per frame); ``extra`` holds diagnostics.
@@ -485,6 +490,7 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
     first_bias = lo = hi = extremes = None
     per_frame = max(1, (max_samples or 0) // len(bias_frames)) if max_samples else None
     floor, clipped, channel_values = None, [], [[] for _ in range(4)]  # a clip from below (``censored``)
+    raw_codes = [[] for _ in range(4)]  # each channel's raw codes (a sample), where the black codes are given
     for i, item in enumerate(bias_frames):
         bias = _packed(_load(item, "bias"), f"ISO {iso:g} bias frame {i}")
         shapes.append(bias.shape)
@@ -501,6 +507,11 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
                 idx = sample_indices(at.size, per_frame and max(1, per_frame // 4), seed + 10 * i + c)
                 at = at if idx is None else at[idx]
                 channel_values[c].append((at, flat[at]))
+        if black_code is not None:
+            for c in range(4):
+                values = without[c][np.isfinite(without[c])]
+                idx = sample_indices(values.size, per_frame and max(1, per_frame // 4), seed + 20 * i + c)
+                raw_codes[c].append(np.rint((values if idx is None else values[idx]) + float(black_code[c])).astype(np.int64))
         color = _mean(without, (1, 2), keepdims=True)  # estimate_color_bias
         centered = without - color
         row = _row_noise(centered)  # estimate_row_noise
@@ -542,8 +553,18 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
     read_var = float(np.median([r.read_variance_dn2 for r in rows]))
     sigma_r = float(np.median([r.sigma_r for r in rows]))
     censored = None
+    stuck = None
     if floor is None:
         read = estimate_read_noise(residual, max_samples=max_samples, seed=seed)
+        codes = [np.concatenate(c) for c in raw_codes] if black_code is not None else None
+        low, high = stuck_masks(np.concatenate(codes)) if codes else (0, 0)
+        if low or high:  # stuck bits: the fit through them (of the codes, row offsets and all), less the row noise
+            total, slope = fit_through_bits(codes, low, high, read)
+            sigma_r /= max(slope, 0.2)  # the row means moved by the bits, back to the row offsets under them
+            keep = float(np.sqrt(max(1.0 - sigma_r**2 / max(total.sigma_g**2, 1e-12), 0.25)))
+            read = dataclasses.replace(total, sigma_tl=total.sigma_tl * keep, sigma_g=total.sigma_g * keep)
+            stuck = {"low_mask": low, "high_mask": high}
+            tell(f"ISO {iso:g}: read noise fitted through stuck bits (low {low}, high {high})")
     else:  # clipped from below: row offsets move a row's mean by the unclipped share of them only
         sigma_r /= max(1.0 - float(np.median(clipped)), 0.05)
         read, location = _censored_channels(channel_values, floor, sigma_r, max_samples, seed)
@@ -563,6 +584,7 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
     color = np.median(np.stack(biases), axis=0) if censored is None else np.asarray(censored["location_dn"])
     extra = {
         "black_floor": censored,  # a clip from below (None: none): its level, the share of values on it
+        "stuck_bits": stuck,  # bits of every raw code that never move (None: none, or no black codes given)
         "r2_tukey": read.r2_tukey,
         "r2_gauss": read.r2_gauss,
         "ppcc_grid": [list(p) for p in read.ppcc_grid],
