@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
-from rawaug.calibration.stage1 import calibrate_iso
+from rawaug.calibration.stage1 import bias_frame_noise, calibrate_iso
 from rawaug.calibration.stuck_bits import stuck_masks
 from rawaug.effects import stuck_bit
 
@@ -141,3 +141,13 @@ def test_no_bit_is_found_stuck_in_codes_of_smooth_noise():
     for _ in range(200):
         sd, black = rng.uniform(0.6, 40.0), int(rng.integers(0, 4096))
         assert stuck_masks(np.rint(rng.normal(black, sd, 4 * 64 * 64)).astype(np.int64)) == (0, 0)
+
+
+def test_the_loops_bias_fit_goes_through_the_stuck_bits_too():
+    # the loop's base read noise of a bias stack (one frame: stage1.bias_frame_noise), as calibration's
+    stuck = {"zero_code": ZERO, "low_mask": 8, "high_mask": 0}
+    clean, _, _ = bias_frame_noise(frames(0.0, 3.0, 1, n=1, size=128)[0], black_code=ZERO)
+    through, sigma_r, _ = bias_frame_noise(frames(0.0, 3.0, 1, n=1, size=128, stuck=stuck)[0], black_code=ZERO)
+    clean_r = bias_frame_noise(frames(0.0, 3.0, 1, n=1, size=128)[0])[1]
+    assert abs(through.sigma_tl / clean.sigma_tl - 1) < 0.03 and abs(through.lam - clean.lam) < 0.02, (through, clean)
+    assert abs(sigma_r / clean_r - 1) < 0.1  # 256 sensor rows of one frame

@@ -11,7 +11,6 @@ numbers). Methods follow ELD (Wei et al., CVPR 2020), section 3.2:
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -23,7 +22,7 @@ from ..statistics import SPIKE_Z, beyond_dark, spike_side, stuck_outliers, writt
 from .censored import black_floor, censored_read_noise, clipped_share, hot_under_clip
 from .joint import IsoParameters
 from .kernels import pair_tile_stats, pixel_extremes
-from .stuck_bits import fit_through_bits, stuck_masks
+from .stuck_bits import raw_codes_of, through_stuck_bits
 from .read_noise import (LAMBDA_GRID, ReadNoiseEstimate, estimate_read_noise, sample_indices,  # noqa: F401 (re-exported)
                          subsample)
 
@@ -154,20 +153,26 @@ def read_residual(bias_dn: np.ndarray, row_means: np.ndarray | None = None, excl
 
 
 def bias_frame_noise(bias_dn, exclude=None, *, lowest=None, max_samples: int | None = 200_000,
-                     seed: int = 0) -> tuple[ReadNoiseEstimate, float, tuple | None]:
+                     seed: int = 0, black_code=None) -> tuple[ReadNoiseEstimate, float, tuple | None]:
     """(read noise, row noise sigma_r in DN, channel locations in DN or None) of one packed
     bias frame, ``exclude`` (a (4, h, w) mask: dead pixels, impulses) left out: the
     row-corrected residual's PPCC fit (``estimate_read_noise``); or, for a frame clipped from
     below (``censored.black_floor``), the censored fit of each channel (``_censored_channels``),
     the row noise scaled up by the share the clip hides (``censored.clipped_share``), and the
     channel locations the clip moves the means away from; with ``lowest`` (each pixel's lowest
-    value over its stack) the hot pixels are left out of that fit (``censored.hot_under_clip``)."""
+    value over its stack) the hot pixels are left out of that fit (``censored.hot_under_clip``).
+    With ``black_code`` (the raw code of 0 DN per channel) an unclipped frame's stuck bits are
+    fitted through (``stuck_bits.through_stuck_bits``)."""
     bias = _packed(bias_dn, "bias_dn")
     row = estimate_row_noise(bias)
     floor = black_floor(bias)
     if floor is None:
-        return estimate_read_noise(read_residual(bias, row.row_means, exclude=exclude), max_samples=max_samples,
-                                   seed=seed), row.sigma_r, None
+        read = estimate_read_noise(read_residual(bias, row.row_means, exclude=exclude), max_samples=max_samples, seed=seed)
+        if black_code is None:
+            return read, row.sigma_r, None
+        codes = raw_codes_of(_without_defects(bias), black_code, exclude, max_samples and max(1, max_samples // 4), seed)
+        read, sigma_r, _ = through_stuck_bits(codes, read, row.sigma_r)
+        return read, sigma_r, None
     keep = ~defect_mask(bias)
     if exclude is not None:
         keep &= ~np.asarray(exclude, dtype=bool)
@@ -508,10 +513,8 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
                 at = at if idx is None else at[idx]
                 channel_values[c].append((at, flat[at]))
         if black_code is not None:
-            for c in range(4):
-                values = without[c][np.isfinite(without[c])]
-                idx = sample_indices(values.size, per_frame and max(1, per_frame // 4), seed + 20 * i + c)
-                raw_codes[c].append(np.rint((values if idx is None else values[idx]) + float(black_code[c])).astype(np.int64))
+            for c, codes in enumerate(raw_codes_of(without, black_code, None, per_frame and max(1, per_frame // 4), seed + 20 * i)):
+                raw_codes[c].append(codes)
         color = _mean(without, (1, 2), keepdims=True)  # estimate_color_bias
         centered = without - color
         row = _row_noise(centered)  # estimate_row_noise
@@ -556,15 +559,8 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
     stuck = None
     if floor is None:
         read = estimate_read_noise(residual, max_samples=max_samples, seed=seed)
-        codes = [np.concatenate(c) for c in raw_codes] if black_code is not None else None
-        low, high = stuck_masks(np.concatenate(codes)) if codes else (0, 0)
-        if low or high:  # stuck bits: the fit through them (of the codes, row offsets and all), less the row noise
-            total, slope = fit_through_bits(codes, low, high, read)
-            sigma_r /= max(slope, 0.2)  # the row means moved by the bits, back to the row offsets under them
-            keep = float(np.sqrt(max(1.0 - sigma_r**2 / max(total.sigma_g**2, 1e-12), 0.25)))
-            read = dataclasses.replace(total, sigma_tl=total.sigma_tl * keep, sigma_g=total.sigma_g * keep)
-            stuck = {"low_mask": low, "high_mask": high}
-            tell(f"ISO {iso:g}: read noise fitted through stuck bits (low {low}, high {high})")
+        if black_code is not None:  # stuck bits: the fit through them (of the codes, row offsets and all)
+            read, sigma_r, stuck = through_stuck_bits([np.concatenate(c) for c in raw_codes], read, sigma_r)
     else:  # clipped from below: row offsets move a row's mean by the unclipped share of them only
         sigma_r /= max(1.0 - float(np.median(clipped)), 0.05)
         read, location = _censored_channels(channel_values, floor, sigma_r, max_samples, seed)

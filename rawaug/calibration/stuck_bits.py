@@ -12,11 +12,13 @@ the camera wrote them. The loop then adds the bits themselves (``StuckBit``).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy import optimize, special
 
 from ..distributions import tukey_lambda_variance
-from .read_noise import ReadNoiseEstimate
+from .read_noise import ReadNoiseEstimate, sample_indices
 
 BITS = 24  # bits a raw code is checked in
 SPREAD = 2  # a bit counts as stuck where the codes' central 98 % spans 2^(b + 1) codes or more
@@ -43,6 +45,20 @@ def stuck_masks(codes) -> tuple[int, int]:
     return low, high
 
 
+def raw_codes_of(frame_dn, black_code, exclude=None, max_samples: int | None = None, seed: int = 0) -> list:
+    """Each channel's raw codes (whole DN plus its black code) of a packed (4, h, w) frame, its
+    non-finite values (defect lines) and ``exclude`` left out, up to ``max_samples`` a channel."""
+    out = []
+    for c in range(4):
+        keep = np.isfinite(frame_dn[c])
+        if exclude is not None:
+            keep &= ~np.asarray(exclude[c], dtype=bool)
+        values = frame_dn[c][keep]
+        idx = sample_indices(values.size, max_samples, seed + c)
+        out.append(np.rint((values if idx is None else values[idx]) + float(black_code[c])).astype(np.int64))
+    return out
+
+
 def _written(code, low: int, high: int):
     return (code & ~np.int64(low)) | np.int64(high)
 
@@ -63,7 +79,7 @@ def fit_through_bits(codes_by_channel, low: int, high: int, start: ReadNoiseEsti
     chans = [np.asarray(c, dtype=np.int64).ravel() for c in codes_by_channel]
     hists = []
     for c in chans:
-        lo, hi = int(c.min()), int(c.max())
+        lo = int(c.min())
         hists.append((lo, np.bincount(c - lo)))
     sd = max(float(np.mean([np.std(c) for c in chans])), 0.5)
     reach = int(np.ceil(12 * sd)) + (low | high) + 2  # true codes that can write into the histogram
@@ -105,3 +121,18 @@ def fit_through_bits(codes_by_channel, low: int, high: int, start: ReadNoiseEsti
                              r2_tukey=start.r2_tukey, r2_gauss=start.r2_gauss, ppcc_grid=start.ppcc_grid,
                              n_samples=int(sum(c.size for c in chans)), std_dn=start.std_dn)
     return read, float(np.mean(slopes))
+
+
+def through_stuck_bits(codes_by_channel, read: ReadNoiseEstimate, sigma_r: float):
+    """(read noise, sigma_r, masks): where the raw codes (4 arrays, one per channel) show stuck
+    bits, the read noise fitted through them (``fit_through_bits``), the row noise divided by
+    the written mean's slope and its variance taken off the fitted law, and ``{low_mask,
+    high_mask}``; else the estimates given and None."""
+    low, high = stuck_masks(np.concatenate([np.asarray(c).ravel() for c in codes_by_channel]))
+    if not (low or high):
+        return read, sigma_r, None
+    total, slope = fit_through_bits(codes_by_channel, low, high, read)
+    sigma_r = sigma_r / max(slope, 0.2)  # the row means moved by the bits, back to the row offsets under them
+    keep = float(np.sqrt(max(1.0 - sigma_r**2 / max(total.sigma_g**2, 1e-12), 0.25)))
+    read = dataclasses.replace(total, sigma_tl=total.sigma_tl * keep, sigma_g=total.sigma_g * keep)
+    return read, sigma_r, {"low_mask": low, "high_mask": high}

@@ -271,7 +271,7 @@ def _run_manifest(args, path):
         if dead is not None:  # impulses: bright single-frame events beyond the dark ones (``spike_outliers``)
             dead = dead | spike_outliers(frames)[0]
         # dead pixels and spikes left out; a clip's censoring too, and then its hot pixels
-        read, sigma_r, _ = bias_frame_noise(frames[0], exclude=dead, lowest=lowest)
+        read, sigma_r, _ = bias_frame_noise(frames[0], exclude=dead, lowest=lowest, black_code=black_code(iso))
         k = profile.k_at_iso(iso) if iso else 1.0
         settings[f"ISO {iso:g}"] = {"kind": "bias", "iso": iso, "k": k, "exposure_s": bias_exposure[iso], "level_dn": None}
         stacks.append(FrameStack(frames, k, label=f"ISO {iso:g}", base={"sigma_tl": read.sigma_tl, "lambda": read.lam,
