@@ -131,6 +131,8 @@ _CDR0, _COL_DRIFT, _COL_DRIFT_PHASE = L.COLUMN["cdrift_a0"], L.STREAM["col_drift
 _COL_DRIFT_HIGH = L.COL_DRIFT >> L.WORD_BITS  # its bit in stage-flag word 1
 _RPD, _ROW_REPEAT, _CHAIN = L.COLUMN["repeat_density"], L.STREAM["row_repeat"], L.REPEAT_CHAIN
 _ROW_REPEAT_HIGH = L.ROW_REPEAT >> L.WORD_BITS
+_BNCP, _BNC0, _BANK_NOISE = L.COLUMN["bnoise_cp"], L.COLUMN["bnoise_c0"], L.STREAM["bank_noise"]
+_BANK_NOISE_HIGH = L.BANK_NOISE >> L.WORD_BITS
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([tap[0] for tap in L.XTALK_TAPS], dtype=np.int64)
 _XT_DX = np.array([tap[1] for tap in L.XTALK_TAPS], dtype=np.int64)
@@ -603,6 +605,13 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 q = (sensor * 2 + col_set) * w + x
                 if unit(draw(keys[_NCOL_WHERE], q)) < v[_NCD]:
                     s += v[_NCM] * math.exp(v[_NCL] * symmetric(normal, draw(keys[_NCOL_SIZE], q))) * symmetric(normal, draw(keys[_NCOL_READ], g))
+                sig[x] = s
+        if stages_high & _BANK_NOISE_HIGH:  # a readout bank's extra white noise: its bank's std, new at every pixel and frame
+            bank_p = int(v[_BNCP])
+            for x in range(w):
+                g = g0 + x
+                s = sig[x]
+                s += v[_BNC0 + (2 * x + col_set) % bank_p] * symmetric(normal, draw(keys[_BANK_NOISE], g))
                 sig[x] = s
         if stages & L.DARK_NOISE:  # exposure noise: white, new at every pixel and frame
             for x in range(w):

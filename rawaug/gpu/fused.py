@@ -86,6 +86,7 @@ C_BKCP, C_BKRP, C_BKC0, C_BKR0 = _column("bank_cp"), _column("bank_rp"), _column
 NDL = tl.constexpr(L.DEAD_LEVELS)
 C_DR0, C_CDR0 = _column("drift_a0"), _column("cdrift_a0")
 C_RPD, CHAIN = _column("repeat_density"), tl.constexpr(L.REPEAT_CHAIN)
+C_BNCP, C_BNC0 = _column("bnoise_cp"), _column("bnoise_c0")
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5, XT_DY6, XT_DX6 = (
@@ -107,7 +108,7 @@ K_RTS_WHERE, K_RTS_SIZE, K_RTS_STATE = S["rts_where"], S["rts_size"], S["rts_sta
 K_DEAD_WHERE, K_DEAD_LEVEL = S["dead_where"], S["dead_level"]
 K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
 K_COL_DRIFT, K_COL_DRIFT_PHASE = S["col_drift"], S["col_drift_phase"]
-K_ROW_REPEAT = S["row_repeat"]
+K_ROW_REPEAT, K_BANK_NOISE = S["row_repeat"], S["bank_noise"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
@@ -433,6 +434,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         noisy_col = unit(draw(_key(keys_ptr, K_NCOL_WHERE), q)) < _col(v, C_NCD)
         size = _col(v, C_NCM) * tl.exp(_col(v, C_NCL) * _normal(draw(_key(keys_ptr, K_NCOL_SIZE), q)))
         s += tl.where(noisy_col, size * _normal(draw(_key(keys_ptr, K_NCOL_READ), g)), 0.0)
+    if FLAGS_HIGH & 4:  # (word 1) readout bank noise: the sensor column's bank's extra white noise, new at every pixel and frame
+        bank_sigma = tl.load(v + C_BNC0 + (2 * x + col_set) % _col(v, C_BNCP).to(tl.int64), mask=live, other=0.0)
+        s += bank_sigma * _normal(draw(_key(keys_ptr, K_BANK_NOISE), g))
     if FLAGS & 36028797018963968:  # exposure noise: white, new at every pixel and frame
         s += _col(v, C_DNS) * _normal(draw(_key(keys_ptr, K_DARK_NOISE), g))
     read_gain = 1.0
