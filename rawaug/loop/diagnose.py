@@ -215,7 +215,9 @@ class Residual:
         return asdict(self)
 
 
-PILOT_STEPS = 3  # offset fits per bias synthesis (Newton steps: a clip makes the mean move less than the offset)
+PILOT_STEPS = 3  # offset fits per bias synthesis (Newton steps, then secant steps: a clip or stuck bits move the mean less or more than the offset)
+PILOT_STEPS_MAX = 6  # ... and up to this many while the pilot's channel means miss the stack's by PILOT_TOLERANCE (DN)
+PILOT_TOLERANCE = 0.05  # or 3 times their own noise (a per-frame field moves them) or more
 
 
 def channel_offsets(frames) -> list[float]:
@@ -325,11 +327,21 @@ def fitted_offsets(profile: NoiseProfile, stack: FrameStack, seed: int = 0, mode
         return offsets  # given offsets are kept
     target = np.asarray(channel_offsets(stack.frames_dn))
     tokens = _tokens(profile, stack, model)
-    for step in range(PILOT_STEPS):
+    before = None  # (offsets, means, their noise) of the step before: the secant's slope
+    for step in range(PILOT_STEPS_MAX):
+        if step >= PILOT_STEPS and np.all(np.abs(before[1] - target) < np.maximum(PILOT_TOLERANCE, 3.0 * before[2])):
+            break
         fixed["color_bias_dn"] = offsets
         pilot = _one(profile, stack, tokens, fixed, torch.Generator().manual_seed(int(seed) + 7_777_777 + step))
-        delta = repaired(pilot.astype(np.float64)).mean(axis=(0, 2, 3)) - target
-        offsets = [float(o - d / mean_slope(pilot[:, c])) for c, (o, d) in enumerate(zip(offsets, delta))]
+        frame_means = repaired(pilot.astype(np.float64)).mean(axis=(2, 3))  # (N, 4)
+        means = frame_means.mean(axis=0)
+        noise = frame_means.std(axis=0, ddof=1) / np.sqrt(len(frame_means)) if len(frame_means) > 1 else np.zeros(4)
+        slopes = [mean_slope(pilot[:, c]) for c in range(4)]
+        if before is not None:  # the slope the steps measured (stuck bits: up to 2x), where they moved the mean beyond its noise
+            slopes = [float(np.clip((m - m0) / (o - o0), 0.1, 10.0)) if abs(o - o0) > 0.05 and abs(m - m0) > 5.0 * np.hypot(e, e0) else sl
+                      for sl, o, o0, m, m0, e, e0 in zip(slopes, offsets, before[0], means, before[1], noise, before[2])]
+        before = (offsets, means, noise)
+        offsets = [float(o - (m - t) / sl) for o, m, t, sl in zip(offsets, means, target, slopes)]
     return offsets
 
 
