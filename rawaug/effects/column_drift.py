@@ -27,11 +27,9 @@ kept where the octaves beat the white octave alone at p < 1e-3: white column noi
 """
 from __future__ import annotations
 
-import numpy as np
-
 from ..engine import layout as L
 from .base import register
-from .row_drift import OCT, RowDrift, combine, octave_fit  # noqa: F401  (combine: the same per-gain pooling)
+from .row_drift import OCT, RowDrift, combine, drift_record  # noqa: F401  (combine: the same per-gain pooling)
 
 STATISTICS = ("col_lowfreq", "col_excess")
 
@@ -44,9 +42,5 @@ class ColDrift(RowDrift):
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
-    """ColDrift record at gain ``k`` from a bias or dark stack (N >= 2, 4, h, w) in DN; ValueError
-    where the excess is within chance (the stack shows no drift)."""
-    if level_dn is not None or not len(synthesized) or np.shape(frames)[0] < 2:
-        raise ValueError("ColDrift is measured on bias and dark stacks of >= 2 frames, against syntheses")
-    octave = octave_fit(frames, synthesized, "col", first=0)
-    return {"k": [float(k)], "octave_dn": [[float(a) for a in octave]]}
+    """ColDrift record at gain ``k`` (``drift_record`` along the columns, octave 0 white)."""
+    return drift_record("ColDrift", "col", 0, frames, synthesized, k, level_dn)

@@ -172,13 +172,18 @@ def octave_fit(frames, synthesized, axis="row", first=1) -> np.ndarray:
     return octave
 
 
-def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
-    """RowDrift record at gain ``k`` from a bias or dark stack (N >= 2, 4, h, w) in DN; ValueError
-    where the excess is within chance (the stack shows no drift)."""
+def drift_record(token: str, axis: str, first: int, frames, synthesized, k: float, level_dn=None) -> dict:
+    """A line drift's record at gain ``k`` from a bias or dark stack (N >= 2, 4, h, w) in DN
+    (``octave_fit`` along ``axis``); ValueError where the excess is within chance."""
     if level_dn is not None or not len(synthesized) or np.shape(frames)[0] < 2:
-        raise ValueError("RowDrift is measured on bias and dark stacks of >= 2 frames, against syntheses")
-    octave = octave_fit(frames, synthesized, "row")
+        raise ValueError(f"{token} is measured on bias and dark stacks of >= 2 frames, against syntheses")
+    octave = octave_fit(frames, synthesized, axis, first)
     return {"k": [float(k)], "octave_dn": [[float(a) for a in octave]]}
+
+
+def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
+    """RowDrift record at gain ``k`` (``drift_record`` along the rows)."""
+    return drift_record("RowDrift", "row", 1, frames, synthesized, k, level_dn)
 
 
 def combine(records: list[dict]) -> dict:
