@@ -1196,19 +1196,24 @@ def _spike_hits(f, rise, scale, sign: float):
     return (frame,) + sel
 
 
+def spike_counts(frames) -> tuple[int, int]:
+    """(bright, dark) single-frame events (``spikes``' rule, on the stack and on its negative) of
+    a stack (N >= 3; DN); (0, 0) for fewer frames."""
+    f = np.asarray(frames, dtype=np.float64)
+    if f.shape[0] < 3:
+        return 0, 0
+    mean, var = temporal_moments(f)
+    scale = spike_scale(f, var)
+    lo, hi = temporal_range(f)
+    return _spike_hits(f, hi - mean, scale, 1.0)[0].size, _spike_hits(f, mean - lo, scale, -1.0)[0].size
+
+
 def spike_fraction(frames, level_dn=None):
     """Excess of bright single-frame events (``spikes``) over dark ones, as a fraction of a
     stack's pixel values: heavy-tailed read noise makes both alike (at Tukey lambda -0.14 each
     ~5e-4), an impulse only bright ones."""
-    f = np.asarray(frames, dtype=np.float64)
-    if f.shape[0] < 3:
-        return 0.0
-    mean, var = temporal_moments(f)
-    scale = spike_scale(f, var)
-    lo, hi = temporal_range(f)
-    bright = _spike_hits(f, hi - mean, scale, 1.0)[0].size
-    dark = _spike_hits(f, mean - lo, scale, -1.0)[0].size
-    return float((bright - dark) / f.size)
+    bright, dark = spike_counts(frames)
+    return float((bright - dark) / np.asarray(frames).size)
 
 
 def spike_outliers(frames):

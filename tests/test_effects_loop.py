@@ -405,6 +405,24 @@ def test_dark_events_take_their_share_and_are_estimated_as_dark():
     assert abs(math.log(est["median_dn"][0] / 60.0)) < 5 * 0.4 / math.sqrt(1e-3 * 6 * n_px), est
 
 
+def test_events_of_both_signs_are_estimated_as_both():
+    """Bit errors on a data link: events of one size (+-512 DN, log spread 0.05) in both
+    directions, half of each. Over 10 bias stacks the estimate takes both sides: the dark
+    share within 5 binomial sd of 0.5 and the density within 5 Poisson sd, in every stack;
+    10 white stacks give none (the one-sided test, as before, and each side's at 5 sd)."""
+    n_px = 4 * 64 * 64
+    flips = {"density": 1e-3, "density_per_s": 0.0, "log_std": 0.05, "negative": 0.5, "k": [K], "median_dn": [512.0]}
+    base = [synth({}, batch=6, size=64, seed=s) for s in range(1, 5)]
+    n = 1e-3 * 6 * n_px
+    for seed in range(50, 60):
+        est = impulses.estimate(synth({"Spikes": flips}, batch=6, size=64, seed=seed), base, K, exposure_s=0.0, kind="bias")
+        assert abs(est["negative"] - 0.5) < 5 * math.sqrt(0.25 / n), est
+        assert abs(est["density"] - 1e-3) < 5 * math.sqrt(1e-3 / (6 * n_px)), est
+        assert abs(math.log(est["median_dn"][0] / 512.0)) < 0.02, est
+    white = [impulses.estimate(synth({}, batch=6, size=64, seed=s), base, K, exposure_s=0.0, kind="bias") for s in range(60, 70)]
+    assert all(impulses.empty(w) for w in white), white
+
+
 COLRTS = {"seed": 79, "density": 0.05, "high": 0.3, "log_std": 0.2, "k": [K], "median_dn": [6.0]}
 
 
@@ -796,6 +814,36 @@ def test_banding_estimate_finds_the_tones_and_nothing_in_white_line_noise(axis):
     assert sum(bool(t) for t in found) <= 1, found
     with pytest.raises(ValueError, match="bias and dark"):
         module.estimate(meas, base, K, level_dn=100.0)
+
+
+@pytest.mark.parametrize("axis", list(TONE_AXES))
+def test_a_tone_switched_on_in_a_share_of_the_frames_is_drawn_and_estimated(axis):
+    token, record, key, line_means, _, module = TONE_AXES[axis]
+    record = {**record, "on_share": [[0.5, 1.0]]}  # the first tone on in half the frames, the second in all
+    m = line_means(synth({token: record}, batch=64, size=32, sigma_g=0.01))
+    y = np.arange(m.shape[1])
+    amps = []
+    for freq in record[key][0]:
+        basis = np.stack([np.cos(2 * np.pi * freq * y), np.sin(2 * np.pi * freq * y)], axis=1)
+        coef, *_ = np.linalg.lstsq(basis, (m - m.mean(axis=1, keepdims=True)).T, rcond=None)
+        amps.append(np.hypot(*coef))
+    on = amps[0] > 0.6  # 1.2 DN or (off) its leakage from the other tone, < 0.05
+    assert np.all((np.abs(amps[0] - 1.2) < 0.05) | (amps[0] < 0.05)), amps[0]
+    assert abs(on.sum() - 32) <= 13, on.sum()  # binomial(64, 0.5): sd 4; 3.3 sd
+    assert np.allclose(amps[1], 0.6, atol=0.05), amps[1]  # on in every frame
+    # estimated: 6 stacks of 8 frames, the share pooled within 3.3 binomial sd of 0.5 over 48 frames
+    row = {"sigma_g": 2.0, "model": "G+R", "sigma_r": 0.5}
+    base = [synth({}, batch=8, size=64, seed=s, **row) for s in range(1, 5)]
+    est = [module.estimate(synth({token: record}, batch=8, size=64, seed=40 + s, **row), base, K) for s in range(6)]
+    shares = [dict(zip(np.round(e[key][0], 2), e["on_share"][0])) for e in est]
+    first = [sh.get(round(record[key][0][0], 2)) for sh in shares]
+    assert all(v is not None for v in first), est
+    assert abs(np.mean(first) - 0.5) < 3.3 * math.sqrt(0.25 / 48), first
+    # the tone on in every frame: the mixture is kept at p 1e-3 per stack: in none of 6, or 1 by chance
+    assert sum(sh.get(round(record[key][0][1], 2), 1.0) < 1.0 for sh in shares) <= 1, shares
+    out = module.combine(est)
+    assert abs(out["on_share"][0][0] - 0.5) < 3.3 * math.sqrt(0.25 / 48) and out["on_share"][0][1] > 0.8, out
+    assert abs(out["amplitude_dn"][0][0] - 1.2) < 0.15 * 1.2, out
 
 
 DIAGBAND = {"k": [K], "freq_per_col": [[0.11, 0.3]], "freq_per_row": [[0.23, -0.17]], "amplitude_dn": [[1.2, 0.6]]}

@@ -133,6 +133,9 @@ _RPD, _ROW_REPEAT, _CHAIN = L.COLUMN["repeat_density"], L.STREAM["row_repeat"], 
 _ROW_REPEAT_HIGH = L.ROW_REPEAT >> L.WORD_BITS
 _BNCP, _BNC0, _BANK_NOISE = L.COLUMN["bnoise_cp"], L.COLUMN["bnoise_c0"], L.STREAM["bank_noise"]
 _BANK_NOISE_HIGH = L.BANK_NOISE >> L.WORD_BITS
+_DCD, _DCE, _DCL, _DCS = L.COLUMN["dclus_density"], L.COLUMN["dclus_e"], L.COLUMN["dclus_log_std"], L.COLUMN["dclus_size"]
+_DCLUS_WHERE, _DCLUS_SIZE = L.STREAM["dclus_where"], L.STREAM["dclus_size"]
+_DARK_CLUSTER_HIGH = L.DARK_CLUSTER >> L.WORD_BITS
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([tap[0] for tap in L.XTALK_TAPS], dtype=np.int64)
 _XT_DX = np.array([tap[1] for tap in L.XTALK_TAPS], dtype=np.int64)
@@ -449,6 +452,24 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 s = sig[x]
                 if unit(draw(keys[_DHOT_WHERE], p)) < v[_DHD]:
                     s += k * v[_DHE] * math.exp(v[_DHL] * symmetric(normal, draw(keys[_DHOT_SIZE], p)))
+                sig[x] = s
+        if stages_high & _DARK_CLUSTER_HIGH:  # hot clusters: the electrons of every patch seeded up to size - 1 sensor pixels above and left
+            size = int(v[_DCS])
+            sy0 = sensor * 2 * h
+            for x in range(w):
+                s = sig[x]
+                sx = 2 * x + col_set
+                for dy in range(size):
+                    yy = 2 * y + row_set - dy
+                    if yy < 0:
+                        break
+                    for dx in range(size):
+                        xx = sx - dx
+                        if xx < 0:
+                            break
+                        q = (sy0 + yy) * 2 * w + xx
+                        if unit(draw(keys[_DCLUS_WHERE], q)) < v[_DCD]:
+                            s += k * v[_DCE] * math.exp(v[_DCL] * symmetric(normal, draw(keys[_DCLUS_SIZE], q)))
                 sig[x] = s
         if stages & L.DARK_RTS:  # a dark-current telegraph pixel's step of electrons, in the frames where it is high
             for x in range(w):

@@ -11,7 +11,10 @@ row), ``phi_j`` uniform per frame and tone; at most ``rawaug.engine.layout.BAND_
 
 Profile entry (per-K records)::
 
-    Band: {k: [K, ...], freq_per_row: [[f1, f2], ...], amplitude_dn: [[a1, a2], ...]}
+    Band: {k: [K, ...], freq_per_row: [[f1, f2], ...], amplitude_dn: [[a1, a2], ...], on_share: [[p1, p2], ...]}
+
+(``on_share``, optional, default 1: the share of frames in which each tone is on, for a source
+that is switched on and off between frames; its amplitude is that of the frames where it is on.)
 
 Detected by ``row_tone`` (power of the largest bin of the frames' sensor-row-mean periodogram
 above its median bin, above the low band). Estimated by ``estimate``: bins of that periodogram
@@ -19,13 +22,15 @@ above the model's and above the running median of their 9 neighbours (a tone is 
 smooth field's leakage is not) by more than chance allows (F-tests, family-wise p 1e-3), each
 refined (above the low band) to the
 frequency that maximizes the frames' power (grid of 1/40 bin), its amplitude from a circle
-fitted to the frames' Fourier coefficients there (radius: the tone; centre: a fixed part).
+fitted to the frames' Fourier coefficients there (radius: the tone; centre: a fixed part); a
+tone that is off in some frames (their coefficients at the centre) is a mixture of the circle
+and its centre, kept where it beats the circle at p 1e-3 (``tone_presence``).
 Judged with the row noise re-fitted (the tone's power had gone into it).
 """
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage, stats
+from scipy import ndimage, optimize, special, stats
 
 from ..engine import layout as L
 from ..statistics import frame_row_means, line_tone_spectrum
@@ -38,6 +43,8 @@ SHARES_ROW_NOISE = True  # the tone's power is row noise calibration counted as 
 FAMILY_P = 1e-3  # a bin counts as a tone when its power above the model's has this chance over all bins
 SMOOTH = 9  # bins of the model's spectrum in its running median
 LOCAL = 9  # bins of the measured spectrum's running median a tone must stand out of
+PRESENCE_P = 1e-3  # a tone is on in a share of the frames only where the mixture beats the circle at this p
+MIN_PRESENCE_FRAMES = 4  # frames a stack needs for its tone's share of frames to be fitted
 
 
 @register
@@ -68,6 +75,13 @@ def draw_tones(p, ctx, fields: dict, prefix: str) -> dict:
             table[r, : len(values)] = values
         for j in range(L.BAND_TONES):
             out[f"{prefix}_{name}{j}"] = ctx.k.new_tensor(table[:, j])[idx]
+    if p.get("on_share") is not None and "a" in fields:  # a tone switched on in a share of the frames
+        share = np.ones((len(p["k"]), L.BAND_TONES))
+        for r, values in enumerate(p["on_share"]):
+            share[r, : len(values)] = values
+        for j in range(L.BAND_TONES):
+            on = ctx.uniform(f"{prefix}_on{j}").to(ctx.k.dtype) < ctx.k.new_tensor(share[:, j])[idx]
+            out[f"{prefix}_a{j}"] = out[f"{prefix}_a{j}"] * on
     return out
 
 
@@ -86,6 +100,17 @@ def validate_tones(token: str, params, freq_key: str, line: str) -> None:
         for a in amps:
             if _number(a, f"{token}.amplitude_dn[]") < 0:
                 raise ValueError(f"effect {token!r}: amplitude_dn must be >= 0, got {a}")
+    shares = params.get("on_share")
+    if shares is None:
+        return
+    if not isinstance(shares, (list, tuple)) or len(shares) != len(params["k"]):
+        raise ValueError(f"effect {token!r}: on_share needs one list per record ({len(params['k'])}), got {shares!r}")
+    for r, (share, amps) in enumerate(zip(shares, params["amplitude_dn"])):
+        if not isinstance(share, (list, tuple)) or len(share) != len(amps):
+            raise ValueError(f"effect {token!r}: record {r} needs on_share as long as amplitude_dn ({len(amps)}), got {share!r}")
+        for v in share:
+            if not 0.0 <= _number(v, f"{token}.on_share[]") <= 1.0:
+                raise ValueError(f"effect {token!r}: on_share (the share of frames a tone is on) must be in [0, 1], got {v}")
 
 
 def _power_at(m, f):
@@ -95,10 +120,64 @@ def _power_at(m, f):
     return (np.abs(m @ basis.T) ** 2).mean(axis=0) / m.shape[1]
 
 
-def _tone_amplitude(raw, f: float, noise: float) -> float:
-    """Amplitude (DN) of a tone at ``f`` in the frames' sensor-line means ``raw`` (N, n): the
-    circle (``circle_amplitude``) of each frame's Fourier coefficient there."""
-    return circle_amplitude(raw @ np.exp(-2j * np.pi * f * np.arange(raw.shape[1])), raw.shape[1], noise)
+def _tone_amplitude(raw, f: float, noise: float) -> tuple[float, float]:
+    """(amplitude in DN, share of frames on) of a tone at ``f`` in the frames' sensor-line means
+    ``raw`` (N, n): ``tone_presence`` of each frame's Fourier coefficient there."""
+    return tone_presence(raw @ np.exp(-2j * np.pi * f * np.arange(raw.shape[1])), raw.shape[1], noise)
+
+
+def _log_ring(x, centre, radius: float, sigma: float):
+    """Log density (per unit area of the complex plane) of each point ``x`` under a point of a
+    circle of ``radius`` about ``centre`` at a uniform angle plus complex Gaussian noise of
+    ``sigma`` per component (radius 0: the noise alone about the centre)."""
+    d = np.abs(x - centre)
+    z = d * radius / (sigma * sigma)
+    return -np.log(2 * np.pi * sigma * sigma) - (d * d + radius * radius) / (2 * sigma * sigma) + np.log(special.i0e(z)) + z
+
+
+def tone_presence(x, n: float, noise: float) -> tuple[float, float]:
+    """(amplitude in DN, share of frames on) of a tone from each frame's Fourier coefficient
+    ``x`` (N,) over ``n`` values, ``noise`` the model's periodogram there (DN^2): a source
+    switched off in some frames leaves their coefficients at the circle's centre. The mixture of
+    the circle and its centre (share ``p`` on) and the circle alone are fitted by maximum
+    likelihood (the noise per component at least the model's, fitted); the mixture is kept
+    where twice its log-likelihood gain passes chi2(1) at ``PRESENCE_P``, else the share is 1
+    and the amplitude ``circle_amplitude``'s."""
+    x = np.asarray(x, dtype=np.complex128)
+    circle = circle_amplitude(x, n, noise)
+    if x.shape[0] < MIN_PRESENCE_FRAMES or circle <= 0:
+        return circle, 1.0
+    sigma0 = max(float(np.sqrt(n * noise / 2.0)), 1e-12)
+    scale = max(float(np.abs(x - x.mean()).max()), sigma0)
+
+    def nll(q, mixture: bool):
+        centre, radius, sigma = (q[0] + 1j * q[1]) * scale, np.exp(q[2]) * scale, sigma0 * np.exp(abs(q[3]))
+        on = _log_ring(x, centre, radius, sigma)
+        if not mixture:
+            return -float(on.sum())
+        p = float(np.clip(special.expit(q[4]), 1e-12, 1.0 - 1e-12))
+        return -float(np.logaddexp(np.log(p) + on, np.log1p(-p) + _log_ring(x, centre, 0.0, sigma)).sum())
+
+    def fit(starts, mixture: bool):
+        best = None
+        for q0 in starts:
+            sol = optimize.minimize(nll, q0, args=(mixture,), method="Nelder-Mead",
+                                    options={"xatol": 1e-6, "fatol": 1e-9, "maxiter": 4000})
+            best = sol if best is None or sol.fun < best.fun else best
+        return best
+
+    log_r = np.log(max(circle * n / 2.0, 1e-12) / scale)
+    kasa = x.mean()
+    one = fit([np.array([kasa.real / scale, kasa.imag / scale, log_r, 0.5])], False)
+    starts = []
+    for c in x:  # each frame as the centre an off frame sits at
+        r = float(np.median(np.abs(x - c)[np.abs(x - c) > 0])) if np.any(np.abs(x - c) > 0) else scale
+        starts.append(np.array([c.real / scale, c.imag / scale, np.log(max(r, 1e-12) / scale), 0.5, 0.0]))
+    mix = fit(starts, True)
+    share = float(special.expit(mix.x[4]))
+    if 2.0 * (one.fun - mix.fun) <= stats.chi2.isf(PRESENCE_P, 1) or share >= 1.0:
+        return circle, 1.0
+    return float(2.0 * np.exp(mix.x[2]) * scale / n), share
 
 
 def circle_amplitude(x, n: float, noise: float, coherent: float | None = None) -> float:
@@ -127,8 +206,8 @@ def circle_amplitude(x, n: float, noise: float, coherent: float | None = None) -
     return 2.0 * np.sqrt(r2) / (n if coherent is None else coherent) if r2 > 0 else 0.0
 
 
-def line_tones(m, m_model) -> tuple[list[float], list[float]]:
-    """(frequencies in cycles per sensor line, amplitudes in DN) of the tones in each frame's
+def line_tones(m, m_model) -> tuple[list[float], list[float], list[float]]:
+    """(frequencies in cycles per sensor line, amplitudes in DN, shares of frames on) of the tones in each frame's
     sensor-line means ``m`` (N, n; rows or columns) that the model's (``m_model``: one such
     array per synthesis) lacks. Tones are taken one at a time, strongest first, each removed
     from every frame's line means (least squares) before the next is looked for, so a tone's
@@ -145,7 +224,7 @@ def line_tones(m, m_model) -> tuple[list[float], list[float]]:
     narrow = stats.f.isf(FAMILY_P / len(f), 2 * n_frames, n_frames * LOCAL)
     step = 1.0 / n
     y = np.arange(n)
-    tones, amps = [], []
+    tones, amps, shares = [], [], []
     while len(tones) < L.BAND_TONES:
         measured = _power_at(m, f)
         local = ndimage.median_filter(measured, size=LOCAL, mode="mirror")
@@ -156,15 +235,16 @@ def line_tones(m, m_model) -> tuple[list[float], list[float]]:
         grid = np.clip(f[i] + step * np.linspace(-1, 1, 81), f[0], 0.5)  # not into the low band
         best = float(grid[int(np.argmax(_power_at(m, grid)))])
         noise = float(np.mean([_power_at(mm, [best])[0] for mm in m_model]))  # the model's power there, DN^2
-        amplitude = _tone_amplitude(m, best, noise)
+        amplitude, share = _tone_amplitude(m, best, noise)
         if amplitude <= 0:
             break
         tones.append(best)
         amps.append(float(amplitude))
+        shares.append(share)
         basis = np.stack([np.cos(2 * np.pi * best * y), np.sin(2 * np.pi * best * y)], axis=1)
         coef, *_ = np.linalg.lstsq(basis, m.T, rcond=None)
         m = m - (basis @ coef).T
-    return tones, amps
+    return tones, amps, shares
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
@@ -173,8 +253,8 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     frames = np.asarray(frames, dtype=np.float64)
     if level_dn is not None or not synthesized:
         raise ValueError("Band is measured on bias and dark stacks, against syntheses")
-    tones, amps = line_tones(frame_row_means(frames), [frame_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
-    return {"k": [float(k)], "freq_per_row": [tones], "amplitude_dn": [amps], "frames": [int(frames.shape[0])]}
+    tones, amps, shares = line_tones(frame_row_means(frames), [frame_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
+    return {"k": [float(k)], "freq_per_row": [tones], "amplitude_dn": [amps], "on_share": [shares], "frames": [int(frames.shape[0])]}
 
 
 def combine(records: list[dict]) -> dict:
@@ -204,23 +284,33 @@ def empty(params) -> bool:
 
 def combine_tones(records: list[dict], freq_key: str) -> dict:
     """One record per gain: the tones of the first stack at that K (bias before dark), each
-    amplitude the rms over the stacks at that K that found it (within 1/200 cycle per line),
-    weighed by the degrees of freedom of each stack's circle fit (``frames`` - 3: a circle
-    through 4 frames' coefficients is far less certain than one through 8; equal weights
-    where none has more than 3 frames)."""
+    one's mean power (share on x amplitude^2) and share on averaged over the stacks at that K
+    that found it (within 1/200 cycle per line), weighed by the degrees of freedom of each
+    stack's circle fit (``frames`` - 3: a circle through 4 frames' coefficients is far less
+    certain than one through 8; equal weights where none has more than 3 frames); the
+    amplitude is that power over the share. ``on_share`` is kept where some tone is off in a
+    share of the frames."""
     by_k: dict = {}
     for r in records:
         by_k.setdefault(float(r["k"][0]), []).append(r)
     ks = sorted(by_k)
-    freqs, amps = [], []
+    freqs, amps, shares = [], [], []
     for k in ks:
         first = by_k[k][0]
         freqs.append(list(first[freq_key][0]))
-        row = []
+        row, row_share = [], []
         for f in first[freq_key][0]:
-            found = [(a, max(r.get("frames", [4])[0] - 3, 0)) for r in by_k[k]
-                     for g, a in zip(r[freq_key][0], r["amplitude_dn"][0]) if abs(g - f) < 0.005]
-            a2, w = np.square([a for a, _ in found]), np.array([w for _, w in found], dtype=np.float64)
-            row.append(float(np.sqrt(np.average(a2, weights=w) if w.sum() > 0 else a2.mean())))
+            found = [(a, p, max(r.get("frames", [4])[0] - 3, 0)) for r in by_k[k]
+                     for g, a, p in zip(r[freq_key][0], r["amplitude_dn"][0], (r.get("on_share") or [[]])[0] or [1.0] * len(r[freq_key][0]))
+                     if abs(g - f) < 0.005]
+            a, p, w = (np.array(v, dtype=np.float64) for v in zip(*found))
+            w = w if w.sum() > 0 else np.ones_like(w)
+            share = float(np.average(p, weights=w))
+            row.append(float(np.sqrt(np.average(p * a * a, weights=w) / share)) if share > 0 else 0.0)
+            row_share.append(share)
         amps.append(row)
-    return {"k": ks, freq_key: freqs, "amplitude_dn": amps}
+        shares.append(row_share)
+    out = {"k": ks, freq_key: freqs, "amplitude_dn": amps}
+    if any(v < 1.0 for row in shares for v in row):
+        out["on_share"] = shares
+    return out

@@ -14,7 +14,9 @@ column, every row), ``phi_j`` uniform per frame and tone; at most
 
 Profile entry (per-K records)::
 
-    ColBand: {k: [K, ...], freq_per_col: [[f1, f2], ...], amplitude_dn: [[a1, a2], ...]}
+    ColBand: {k: [K, ...], freq_per_col: [[f1, f2], ...], amplitude_dn: [[a1, a2], ...], on_share: [[p1, p2], ...]}
+
+(``on_share`` optional, default 1, as ``Band``'s.)
 
 Detected by ``col_tone`` (the largest bin of the frames' sensor-column-mean periodogram above
 its median bin). Estimated by ``estimate``: ``Band``'s tone search (``banding.line_tones``)
@@ -56,8 +58,8 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     frames = np.asarray(frames, dtype=np.float64)
     if level_dn is not None or not synthesized:
         raise ValueError("ColBand is measured on bias and dark stacks, against syntheses")
-    tones, amps = line_tones(frame_col_means(frames), [frame_col_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
-    return {"k": [float(k)], "freq_per_col": [tones], "amplitude_dn": [amps], "frames": [int(frames.shape[0])]}
+    tones, amps, shares = line_tones(frame_col_means(frames), [frame_col_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
+    return {"k": [float(k)], "freq_per_col": [tones], "amplitude_dn": [amps], "on_share": [shares], "frames": [int(frames.shape[0])]}
 
 
 def combine(records: list[dict]) -> dict:

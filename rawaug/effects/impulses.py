@@ -19,7 +19,9 @@ Profile entry (per-K amplitude records; ``negative``, the share of dark events, 
 Detected on bias and dark stacks of >= 3 frames by ``spike_fraction`` (values 8 robust sigmas
 above the pixel's other frames, in one frame only, beyond as many below: heavy-tailed read
 noise makes both; negative where dark events outnumber bright ones) and ``tail_mass``.
-Estimated by ``estimate``: the events of the side in excess, their size in DN by a
+Estimated by ``estimate``: the events of the side in excess (of both sides where each
+exceeds the model's own count of that side: a bit error on the data link moves a code by
++-2^b, depending on the bit's state), their size in DN by a
 log-normal truncated at the detection threshold (``truncated_log_normal``), the density as
 that excess over the model's over the share the threshold lets through;
 ``combine`` fits the density against exposure (two or more exposures: a per-frame part and a
@@ -34,7 +36,7 @@ import torch
 from scipy import optimize, stats
 
 from ..engine import layout as L
-from ..statistics import SPIKE_Z, spike_fraction, spike_scale, spikes
+from ..statistics import SPIKE_Z, spike_counts, spike_scale, spikes
 from .base import READ, NoiseEffect, register
 from .k_records import _number, validate_records, value_at_k
 
@@ -42,6 +44,7 @@ STATISTICS = ("spike_fraction", "tail_mass")
 SIGNED = True  # dark events lower spike_fraction: a negative residual calls for them too
 RAW_FRAMES = True  # a spike in a line's pixel is a spike: estimated on the frames as measured
 MAX_DENSITY = 0.01
+SIDE_Z = 5.0  # Poisson sd by which each side's events must exceed the model's for events of both signs
 
 
 @register
@@ -76,29 +79,40 @@ class Impulses(NoiseEffect):
 def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, **_) -> dict:
     """One record from a bias or dark stack (N >= 3, 4, h, w) in DN at gain ``k``, against
     stacks of the same shape synthesized by the model: the spike density per pixel and frame
-    beyond the model's and the events' size over their pixel's other frames (DN), of the side
-    whose single-frame events outnumber the other's beyond the model's (``spike_fraction``:
-    bright ones, or dark ones, ``negative`` 1)."""
+    beyond the model's and the events' size over their pixel's other frames (DN). The events
+    are those of the side whose single-frame events outnumber the other's beyond the model's
+    (``spike_fraction``: bright ones, or dark ones, ``negative`` 1); where each side's count
+    also exceeds the model's own count of that side by ``SIDE_Z`` Poisson sd (a bit error, a
+    glitch of either sign), both sides', ``negative`` the dark side's share."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind not in ("bias", "dark") or frames.shape[0] < 3:
         raise ValueError("Spikes are measured on bias or dark stacks of >= 3 frames")
-    base = float(np.mean([spike_fraction(s) for s in synthesized])) if synthesized else 0.0
-    net = spike_fraction(frames) - base  # events of one side beyond the other's (heavy tails make both alike)
-    sign = 1.0 if net >= 0 else -1.0
-    mask = spikes(sign * frames)
-    others = np.sort(sign * frames, axis=0)[:-1]
-    excess = (sign * frames - np.median(others, axis=0))[mask]
-    floor = np.broadcast_to((SPIKE_Z * spike_scale(frames))[None, :, None, None], frames.shape)[mask]
-    keep = excess > 0
-    excess, floor = excess[keep], floor[keep]
+    counts = np.array(spike_counts(frames), dtype=np.float64)
+    model = np.mean([spike_counts(s) for s in synthesized], axis=0) if synthesized else np.zeros(2)
+    net = float((counts[0] - counts[1]) - (model[0] - model[1])) / frames.size  # heavy tails make both sides alike
+    over = counts - model
+    both = bool(np.all(over > SIDE_Z * np.sqrt(model + 1.0)))
+    sides = (1.0, -1.0) if both else ((1.0,) if net >= 0 else (-1.0,))
+    scale = spike_scale(frames)
+    excess, floor = [], []
+    for sign in sides:
+        mask = spikes(sign * frames, scale)
+        others = np.sort(sign * frames, axis=0)[:-1]
+        e = (sign * frames - np.median(others, axis=0))[mask]
+        fl = np.broadcast_to((SPIKE_Z * scale)[None, :, None, None], frames.shape)[mask]
+        excess.append(e[e > 0])
+        floor.append(fl[e > 0])
+    excess, floor = np.concatenate(excess), np.concatenate(floor)
     t = float(exposure_s or 0.0)
-    record = {"density": 0.0, "density_per_s": 0.0, "log_std": 0.0, "negative": 0.0 if sign > 0 else 1.0,
+    negative = float(over[1] / over.sum()) if both else (0.0 if net >= 0 else 1.0)
+    record = {"density": 0.0, "density_per_s": 0.0, "log_std": 0.0, "negative": negative,
               "k": [float(k)], "median_dn": [0.0], "exposure_s": [t]}
-    if net == 0.0 or excess.size == 0:
+    if (net == 0.0 and not both) or excess.size == 0:
         return record
     mu, s = truncated_log_normal(np.log(excess), np.log(floor))
-    seen = float(np.mean(stats.norm.sf((np.log(SPIKE_Z * spike_scale(frames)) - mu) / max(s, 1e-6))))
-    return record | {"density": min(abs(net) / max(seen, 0.1), MAX_DENSITY), "log_std": s, "median_dn": [float(math.exp(mu))]}
+    seen = float(np.mean(stats.norm.sf((np.log(SPIKE_Z * scale) - mu) / max(s, 1e-6))))
+    found = float(over.sum()) / frames.size if both else abs(net)
+    return record | {"density": min(found / max(seen, 0.1), MAX_DENSITY), "log_std": s, "median_dn": [float(math.exp(mu))]}
 
 
 def truncated_log_normal(logs, log_floor) -> tuple[float, float]:

@@ -77,6 +77,8 @@ COL_DRIFT = 1 << 63  # column drift: column noise with a low-frequency spectrum,
 ROW_REPEAT = 1 << 64  # repeated rows: sensor rows that read out as the same colour's row above (a line buffer read twice), new in every frame
 REPEAT_CHAIN = 4  # repeated rows: the longest run of rows one repeat reaches back over
 BANK_NOISE = 1 << 65  # readout bank noise: extra white temporal noise of its own per interleaved column bank, new at every pixel and frame
+DARK_CLUSTER = 1 << 66  # clusters of hot pixels: square patches of sensor pixels sharing one dark-current rate (e-/s), before shot noise
+CLUSTER_MAX = 4  # clusters of hot pixels: the largest side of a patch (sensor pixels)
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
@@ -172,6 +174,7 @@ COLUMNS = (
     *(f"cdrift_a{j}" for j in range(DRIFT_OCTAVES)),  # column drift: std of each octave's nodes (DN)
     "repeat_density",  # repeated rows: share of the sensor rows of a frame that repeat the same colour's row above
     "bnoise_cp", *(f"bnoise_c{i}" for i in range(BANK_PERIOD_MAX)),  # readout bank noise: period (sensor columns), extra std per bank (DN)
+    "dclus_density", "dclus_e", "dclus_log_std", "dclus_size",  # hot clusters: seeds per sensor pixel, median electrons this exposure, log spread, side
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -190,7 +193,7 @@ STREAMS = (
     "drow_where", "drow_size", "noisy_where", "noisy_size", "noisy_read",
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
     "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
-    "col_drift", "col_drift_phase", "row_repeat", "bank_noise",
+    "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -87,6 +87,8 @@ NDL = tl.constexpr(L.DEAD_LEVELS)
 C_DR0, C_CDR0 = _column("drift_a0"), _column("cdrift_a0")
 C_RPD, CHAIN = _column("repeat_density"), tl.constexpr(L.REPEAT_CHAIN)
 C_BNCP, C_BNC0 = _column("bnoise_cp"), _column("bnoise_c0")
+C_DCD, C_DCE, C_DCL, C_DCS = _column("dclus_density"), _column("dclus_e"), _column("dclus_log_std"), _column("dclus_size")
+CLUSTER_MAX = tl.constexpr(L.CLUSTER_MAX)
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5, XT_DY6, XT_DX6 = (
@@ -109,6 +111,7 @@ K_DEAD_WHERE, K_DEAD_LEVEL = S["dead_where"], S["dead_level"]
 K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
 K_COL_DRIFT, K_COL_DRIFT_PHASE = S["col_drift"], S["col_drift_phase"]
 K_ROW_REPEAT, K_BANK_NOISE = S["row_repeat"], S["bank_noise"]
+K_DCLUS_WHERE, K_DCLUS_SIZE = S["dclus_where"], S["dclus_size"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
@@ -340,6 +343,19 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         dhot = unit(draw(_key(keys_ptr, K_DHOT_WHERE), p)) < _col(v, C_DHD)
         dark = k * _col(v, C_DHE) * tl.exp(_col(v, C_DHL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DHOT_SIZE), p)))
         s += tl.where(dhot, dark, 0.0)
+    if FLAGS_HIGH & 8:  # (word 1) hot clusters: the electrons of every patch seeded up to size - 1 sensor pixels above and left
+        csize = _col(v, C_DCS).to(tl.int64)
+        cdensity = _col(v, C_DCD)
+        celectrons = k * _col(v, C_DCE)
+        clog = _col(v, C_DCL)
+        kw, ks = _key(keys_ptr, K_DCLUS_WHERE), _key(keys_ptr, K_DCLUS_SIZE)
+        for dy in tl.static_range(CLUSTER_MAX):
+            yy = 2 * y + row_set - dy
+            for dx in tl.static_range(CLUSTER_MAX):
+                xx = 2 * x + col_set - dx
+                q = ((sensor * 2 * H + tl.maximum(yy, 0)) * 2 * W + tl.maximum(xx, 0)).to(tl.uint64)
+                seeded = (dy < csize) & (dx < csize) & (yy >= 0) & (xx >= 0) & (unit(draw(kw, q)) < cdensity)
+                s += tl.where(seeded, celectrons * tl.exp(clog * symmetric_table(normal_ptr, draw(ks, q))), 0.0)
     if FLAGS & 140737488355328:  # dark-current telegraph: a pixel's step of electrons in the frames where it is high, before shot noise
         high = (unit(draw(_key(keys_ptr, K_DRTS_WHERE), p)) < _col(v, C_TDD)) & (unit(draw(_key(keys_ptr, K_DRTS_STATE), g)) < _col(v, C_TDH))
         step = k * _col(v, C_TDE) * tl.exp(_col(v, C_TDL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DRTS_SIZE), p)))
