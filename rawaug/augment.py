@@ -65,7 +65,7 @@ FIXED_KEYS = {
     "sigma_r": "row-noise sigma, DN (>= 0)",
     "step_dn": "quantization step, DN (> 0)",
     "color_bias_dn": "per-channel black-level error, DN (4 values R, G1, B, G2)",
-    "exposure_s": "exposure time, seconds, for the dark signal of a profile's Dark, DarkHot, DarkRTS, DarkCol, DarkRow, Glow, DarkDrift and DarkOffset effects and the noise of DarkNoise (>= 0)",
+    "exposure_s": "exposure time, seconds, for the dark signal of a profile's Dark, DarkHot, DarkCluster, DarkRTS, DarkCol, DarkRow, Glow, DarkDrift and DarkOffset effects and the noise of DarkNoise (>= 0)",
     "sensor": f"sensor instance of the fixed patterns, an integer in [0, {L.SENSORS}); 0 is the profile's own",
     "sequence": "1: the batch's samples are consecutive frames of one sequence, in order (a profile's BlackDrift and DarkDrift "
                 "walk across them); 0 (default): independent shots",

@@ -1248,6 +1248,73 @@ def beyond_dark(excess, n_dark: int):
     return excess >= cut
 
 
+FAR_P = 1e-6  # chance under the tail's power law of as many events beyond a size: a far population
+FAR_MIN = 3  # events a far population needs
+FAR_FIT = 10  # events below a candidate size the tail's power law is fitted to
+FAR_RATIO = 3.0  # ... or a gap of this ratio between sorted sizes (a light tail: too few events to fit)
+
+
+def _truncated_rate(mean, top, ok) -> np.ndarray:
+    """Rate (maximum likelihood) of an exponential truncated to [0, ``top``) whose sample mean is
+    ``mean`` (each candidate's; 0 where not ``ok``): the root of 1/a - top/(e^(a top) - 1) =
+    mean, by bisection on log a."""
+    lo, hi = np.full(mean.shape, -20.0), np.full(mean.shape, 20.0)
+    t = np.where(ok, top, 1.0)
+    m = np.where(ok, mean, 0.25)
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        a = np.exp(mid)
+        with np.errstate(over="ignore"):
+            fitted = 1.0 / a - t / np.expm1(a * t)
+        lo, hi = np.where(fitted > m, mid, lo), np.where(fitted > m, hi, mid)  # the mean falls as the rate grows
+    return np.where(ok, np.exp(0.5 * (lo + hi)), 0.0)
+
+
+def far_cut(sizes, floor: float) -> float:
+    """Size from which single-frame events (``sizes``: each one's excess over its pixel, DN, of
+    either sign's events, all above the detection threshold ``floor``) form a population of
+    their own, beyond the read noise's tail; inf where none does. For each candidate size
+    (each event's, with ``FAR_FIT`` events or more below it), the events below it fit a
+    power law above ``floor`` truncated at the candidate (maximum likelihood; the index taken
+    3 of its sd, from Fisher's information, lower), which predicts how many reach that size; the
+    candidate whose count (at least ``FAR_MIN``) is least likely under that prediction
+    (binomial) is the cut, where that chance is under ``FAR_P``. A heavy read-noise tail is a power law (Tukey lambda < 0: index
+    1 / -lambda) and is predicted by its own lower part; a bit error on a data link moves codes
+    by 2^b: a cluster of equal sizes far above what that tail reaches. A light tail leaves too
+    few events to fit: there a gap of ``FAR_RATIO`` between consecutive sorted sizes (the floor
+    below the smallest) sets the far ones apart (the top two of a power law of index a are that
+    far apart with chance FAR_RATIO^-a: Tukey lambda -0.14, a = 7: 5e-4)."""
+    v = np.sort(np.asarray(sizes, dtype=np.float64).ravel())
+    floor = max(float(floor), 1e-12)
+    v = v[v > floor]
+    n = v.size
+    if n < FAR_MIN + 2:
+        return np.inf
+    logs = np.log(v / floor)
+    below = np.concatenate([[0.0], np.cumsum(logs)])[:-1]  # sum of the logs of the events below each one
+    k = np.arange(n)  # events below each candidate
+    far = n - k  # events at or beyond it
+    ok = (k >= FAR_FIT) & (far >= FAR_MIN)
+    mean = np.where(ok, below / np.maximum(k, 1), 0.0)  # mean log size of the events below each candidate
+    top = logs  # their log sizes lie in [0, top): a truncated exponential of rate alpha
+    ok &= mean < top / 2.0  # else no decreasing power law fits them
+    rate = _truncated_rate(mean, top, ok)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # Fisher's information of one event on the rate
+        e = np.exp(-np.where(ok, rate * top, 1.0))
+        info = 1.0 / np.where(ok, rate, 1.0) ** 2 - np.where(ok, top, 0.0) ** 2 * e / (1.0 - e) ** 2
+    alpha = rate - 3.0 / np.sqrt(np.maximum(k * np.where(ok & (info > 0), info, 1e-300), 1e-300))  # 3 sd lower: more beyond
+    ok &= alpha > 0
+    survive = np.exp(-np.where(ok, alpha, 0.0) * logs)  # the power law's share of events beyond each candidate
+    p = np.where(ok, sstats.binom.sf(far - 1, n, np.clip(survive, 0.0, 1.0)), 1.0)
+    i = int(np.argmin(p))
+    cut = float(v[i]) if p[i] < FAR_P else np.inf
+    # a light tail leaves few events to fit: a gap of FAR_RATIO between sorted sizes sets a far population apart
+    w = np.concatenate([[floor], v])
+    ratio = w[1:] / w[:-1]
+    j = int(np.argmax(ratio))
+    return min(cut, float(w[j + 1]) if ratio[j] >= FAR_RATIO and n - j >= FAR_MIN else np.inf)
+
+
 def spike_side(n_bright: int, n_dark: int) -> int:
     """1 where bright single-frame events outnumber the dark ones significantly
     (``significant_spikes``), -1 where the dark ones outnumber the bright ones so (dropouts),

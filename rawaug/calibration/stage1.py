@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from ..statistics import SPIKE_Z, beyond_dark, spike_side, stuck_outliers, written_codes
+from ..statistics import SPIKE_Z, beyond_dark, far_cut, spike_side, stuck_outliers, written_codes
 from .censored import black_floor, censored_read_noise, clipped_share, hot_under_clip
 from .joint import IsoParameters
 from .kernels import pair_tile_stats, pixel_extremes
@@ -553,6 +553,14 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
             n_spikes = int(spike.sum())
             keep = lambda i, w: ~((spike[w] & (at[w] == i)) | (dead[w] if dead is not None else False))  # noqa: E731
             residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])
+        else:  # events of both signs as many: the read noise's tails, but for a far population (bit errors) of both
+            cut = far_cut(np.concatenate([gap[bright], low_gap[dark]]), SPIKE_Z * max(scale, 1e-9))
+            far_bright, far_dark = bright & (gap >= cut), dark & (low_gap >= cut)
+            n_spikes = int(far_bright.sum() + far_dark.sum())
+            if n_spikes:
+                keep = lambda i, w: ~((far_bright[w] & (frame[w] == i)) | (far_dark[w] & (low_frame[w] == i))  # noqa: E731
+                                      | (dead[w] if dead is not None else False))
+                residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])
     read_var = float(np.median([r.read_variance_dn2 for r in rows]))
     sigma_r = float(np.median([r.sigma_r for r in rows]))
     censored = None

@@ -133,7 +133,7 @@ _RPD, _ROW_REPEAT, _CHAIN = L.COLUMN["repeat_density"], L.STREAM["row_repeat"], 
 _ROW_REPEAT_HIGH = L.ROW_REPEAT >> L.WORD_BITS
 _BNCP, _BNC0, _BANK_NOISE = L.COLUMN["bnoise_cp"], L.COLUMN["bnoise_c0"], L.STREAM["bank_noise"]
 _BANK_NOISE_HIGH = L.BANK_NOISE >> L.WORD_BITS
-_DCD, _DCE, _DCL, _DCS = L.COLUMN["dclus_density"], L.COLUMN["dclus_e"], L.COLUMN["dclus_log_std"], L.COLUMN["dclus_size"]
+_CLD, _CLE, _CLL, _CLS = L.COLUMN["dclus_density"], L.COLUMN["dclus_e"], L.COLUMN["dclus_log_std"], L.COLUMN["dclus_size"]
 _DCLUS_WHERE, _DCLUS_SIZE = L.STREAM["dclus_where"], L.STREAM["dclus_size"]
 _DARK_CLUSTER_HIGH = L.DARK_CLUSTER >> L.WORD_BITS
 _XTALK = L.STREAM["xtalk"]
@@ -454,7 +454,7 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                     s += k * v[_DHE] * math.exp(v[_DHL] * symmetric(normal, draw(keys[_DHOT_SIZE], p)))
                 sig[x] = s
         if stages_high & _DARK_CLUSTER_HIGH:  # hot clusters: the electrons of every patch seeded up to size - 1 sensor pixels above and left
-            size = int(v[_DCS])
+            size = int(v[_CLS])
             sy0 = sensor * 2 * h
             for x in range(w):
                 s = sig[x]
@@ -468,8 +468,8 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                         if xx < 0:
                             break
                         q = (sy0 + yy) * 2 * w + xx
-                        if unit(draw(keys[_DCLUS_WHERE], q)) < v[_DCD]:
-                            s += k * v[_DCE] * math.exp(v[_DCL] * symmetric(normal, draw(keys[_DCLUS_SIZE], q)))
+                        if unit(draw(keys[_DCLUS_WHERE], q)) < v[_CLD]:
+                            s += k * v[_CLE] * math.exp(v[_CLL] * symmetric(normal, draw(keys[_DCLUS_SIZE], q)))
                 sig[x] = s
         if stages & L.DARK_RTS:  # a dark-current telegraph pixel's step of electrons, in the frames where it is high
             for x in range(w):

@@ -87,7 +87,7 @@ NDL = tl.constexpr(L.DEAD_LEVELS)
 C_DR0, C_CDR0 = _column("drift_a0"), _column("cdrift_a0")
 C_RPD, CHAIN = _column("repeat_density"), tl.constexpr(L.REPEAT_CHAIN)
 C_BNCP, C_BNC0 = _column("bnoise_cp"), _column("bnoise_c0")
-C_DCD, C_DCE, C_DCL, C_DCS = _column("dclus_density"), _column("dclus_e"), _column("dclus_log_std"), _column("dclus_size")
+C_CLD, C_CLE, C_CLL, C_CLS = _column("dclus_density"), _column("dclus_e"), _column("dclus_log_std"), _column("dclus_size")
 CLUSTER_MAX = tl.constexpr(L.CLUSTER_MAX)
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
@@ -344,10 +344,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         dark = k * _col(v, C_DHE) * tl.exp(_col(v, C_DHL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DHOT_SIZE), p)))
         s += tl.where(dhot, dark, 0.0)
     if FLAGS_HIGH & 8:  # (word 1) hot clusters: the electrons of every patch seeded up to size - 1 sensor pixels above and left
-        csize = _col(v, C_DCS).to(tl.int64)
-        cdensity = _col(v, C_DCD)
-        celectrons = k * _col(v, C_DCE)
-        clog = _col(v, C_DCL)
+        csize = _col(v, C_CLS).to(tl.int64)
+        cdensity = _col(v, C_CLD)
+        celectrons = k * _col(v, C_CLE)
+        clog = _col(v, C_CLL)
         kw, ks = _key(keys_ptr, K_DCLUS_WHERE), _key(keys_ptr, K_DCLUS_SIZE)
         for dy in tl.static_range(CLUSTER_MAX):
             yy = 2 * y + row_set - dy
