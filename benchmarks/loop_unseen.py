@@ -747,6 +747,52 @@ def pixel_ringing(dn, rng, **_):
         raw[:, x] += 0.25 * raw[:, x - 1]
     return _raw_to_packed(raw)
 
+# the seventh fresh batch (twenty-fifth session), written and committed before the loop ran on it
+def bank_gain(dn, rng, **_):
+    """Column-parallel amplifiers in two banks: the odd sensor columns convert with a 3 % higher gain than the even ones (signal and noise alike), so flats show a two-column stripe in proportion to the signal."""
+    g = np.where(np.arange(2 * dn.shape[2]) % 2 == 1, 1.03, 1.0)
+    return dn * np.stack([g[0::2], g[1::2], g[1::2], g[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
+def burst_rows(dn, rng, **_):
+    """Readout bursts: in every frame 1 % of the sensor rows (new ones each frame) read with 3 DN of extra white noise, pixel by pixel."""
+    h = dn.shape[1]
+    hit = rng.random(2 * h) < 0.01
+    extra = np.stack([hit[0::2], hit[0::2], hit[1::2], hit[1::2]])[:, :, None] * 3.0  # R, G1 on even sensor rows
+    return dn + extra * rng.standard_normal(dn.shape)
+
+
+def excess_shot_noise(dn, rng, kind="", k=1.0, **_):
+    """An excess noise factor in the charge path: flats carry 1.2 x the Poisson variance of their signal (K x signal x 1.2), the mean unchanged."""
+    if kind != "flat":
+        return dn
+    return dn + np.sqrt(0.2 * k * np.clip(dn, 0.0, None)) * rng.standard_normal(dn.shape)
+
+
+def black_col_ramp(dn, rng, **_):
+    """A black level ramp from the left to the right sensor column, its size new in every frame (normal, 1.5 DN sd from left to right): a clamp droop along a serial readout."""
+    w = dn.shape[2]
+    ramp = rng.normal(0.0, 1.5) * (np.arange(2 * w) / (2 * w - 1) - 0.5)
+    return dn + np.stack([ramp[0::2], ramp[1::2], ramp[1::2], ramp[0::2]])[:, None, :]
+
+
+def partial_dead_columns(dn, rng, **_):
+    """Broken column lines: 4 sensor columns (fixed) read code 0 (512 DN below black) from a fixed row down to the bottom, in every kind of frame."""
+    raw = np.zeros((2 * dn.shape[1], 2 * dn.shape[2]), dtype=bool)
+    where = np.random.default_rng(131)
+    for _ in range(4):
+        x, y = where.integers(0, raw.shape[1]), where.integers(raw.shape[0] // 4, 3 * raw.shape[0] // 4)
+        raw[y:, x] = True
+    return np.where(_raw_to_packed(raw), -512.0, dn)
+
+
+def noisy_row_bank(dn, rng, **_):
+    """Row-bank readout: every 16th sensor row (r mod 16 = 5) reads with 2 DN of extra white noise, new at every pixel and frame."""
+    extra = np.where(np.arange(2 * dn.shape[1]) % 16 == 5, 2.0, 0.0)
+    e = np.stack([extra[0::2], extra[0::2], extra[1::2], extra[1::2]])[:, :, None]  # R, G1 on even sensor rows
+    return dn + e * rng.standard_normal(dn.shape)
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -763,7 +809,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  low_light_toe, pixel_gain_noise, stuck_bit, alternating_black, blotchy_fpn, dim_pixels,
                                  laplace_rows, pixel_wander, dropouts, triple_adc_columns, column_flicker_1f,
                                  repeated_rows, quadrant_offsets, noisy_third_columns, hot_clusters, bit_flips, black_ramp,
-                                 intermittent_tone, pixel_ringing)}
+                                 intermittent_tone, pixel_ringing, bank_gain, burst_rows, excess_shot_noise, black_col_ramp,
+                                 partial_dead_columns, noisy_row_bank)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
