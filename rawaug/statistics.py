@@ -1221,7 +1221,8 @@ def spike_outliers(frames):
     outnumber the dark ones significantly (``significant_spikes``), the brightest of them,
     all but as many as there are dark ones (those are the read noise's own tail); where dark
     ones outnumber the bright ones so (lost charge packets, dropouts), the darkest of them
-    likewise; else none."""
+    likewise; else those of either sign beyond the tail's reach (``far_cut``, in units of
+    their channel's scale: bit errors), or none."""
     f = np.asarray(frames, dtype=np.float64)
     out = np.zeros(f.shape, dtype=bool)
     if f.shape[0] < 3:
@@ -1236,6 +1237,12 @@ def spike_outliers(frames):
         hits, others = (bright, dark) if side > 0 else (dark, bright)
         _, ch, y, x = hits
         out[hits] = beyond_dark(side * (f[hits] - median(f[:, ch, y, x], axis=0)), others[0].size)
+    elif bright[0].size + dark[0].size:  # as many of each sign: the tails, but for a far population of both (``far_cut``)
+        sizes = [sign * (f[hits] - median(f[:, hits[1], hits[2], hits[3]], axis=0)) / scale[hits[1]]
+                 for hits, sign in ((bright, 1.0), (dark, -1.0))]
+        cut = far_cut(np.concatenate(sizes), SPIKE_Z)
+        for hits, size in zip((bright, dark), sizes):
+            out[tuple(c[size >= cut] for c in hits)] = True
     return out
 
 

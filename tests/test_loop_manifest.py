@@ -311,7 +311,9 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 SLOW_CASES = {"Col", "crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
               "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
               "skewed dark current", "raised floor", "frame-locked tone", "glow", "toe",
-              "settling clamp", "nonlin", "PRNU"}  # (the last three since the twenty-second session, to keep the default run near 5 minutes)
+              "settling clamp", "nonlin", "PRNU",  # (these three since the twenty-second session, to keep the default run near 5 minutes)
+              "Dark", "twelve-bit ADC"}  # (since the twenty-fifth session: Dark is found in dark frames by tests/test_loop.py,
+# the stuck bits by tests/test_stuck_bit.py through calibration and the estimate)
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])
