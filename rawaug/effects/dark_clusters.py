@@ -23,7 +23,7 @@ Profile entry (electrons do not depend on the gain: one population)::
 ``rawaug.engine.layout.CLUSTER_MAX``.)
 
 Detected on dark stacks by ``hot_fraction`` and ``tail_mass``. Estimated by ``estimate``: the
-pixels of a dark stack's mean ``THRESHOLD_SIGMA`` robust sigma above the median of their 5 x 5
+pixels of a dark stack's mean 8 robust sigma (``hot_pixels.THRESHOLD_SIGMA``) above the median of their 5 x 5
 neighbourhood (same channel), put back at their sensor positions and joined into 8-connected
 patches; the patches of two pixels or more in excess of the model's (Poisson, p ``P_VALUE``) are the clusters, the
 side the square root of their median area, the rate each patch's mean excess over (K t).
@@ -33,13 +33,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 from scipy import ndimage, stats
 
 from ..engine import layout as L
 from .base import PHOTON, NoiseEffect, pattern_key, register
-from .dark_hot_pixels import validate_population
-from .hot_pixels import THRESHOLD_SIGMA
+from . import dark_hot_pixels
+from .dark_hot_pixels import draw_population, validate_population
 
 STATISTICS = ("hot_fraction", "tail_mass")
 RAW_FRAMES = True  # as DarkHot: a column holding a bright patch can read as a defect line, whose repair would move it
@@ -58,10 +57,7 @@ class DarkClusters(NoiseEffect):
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        exposure = torch.as_tensor(ctx.fixed.get("exposure_s", 0.0), dtype=torch.float64, device=ctx.device).expand(ctx.batch)
-        n = ctx.k.shape[0]
-        return {"dclus_density": ctx.k.new_full((n,), float(p["density"])), "dclus_e": float(p["median_e_per_s"]) * exposure,
-                "dclus_log_std": ctx.k.new_full((n,), float(p["log_std"])), "dclus_size": ctx.k.new_full((n,), float(p["size"]))}
+        return draw_population(ctx, p, "dclus") | {"dclus_size": ctx.k.new_full((ctx.k.shape[0],), float(p["size"]))}
 
     def pattern_streams(self):
         seed = self.profile.effects[self.token]["seed"]
@@ -76,29 +72,22 @@ class DarkClusters(NoiseEffect):
                              f"[1, {L.CLUSTER_MAX}], got {size!r}")
 
 
-def local_excess(frames) -> tuple[np.ndarray, np.ndarray]:
-    """(excess map (2h, 2w) at the sensor positions, its mask of hot pixels) of a stack (N, 4, h,
-    w; DN): each pixel of the stack mean less the median of its 5 x 5 neighbourhood of its
-    channel; hot where that stands ``THRESHOLD_SIGMA`` robust sigma (its channel's) above the
-    channel's median excess."""
-    m = np.asarray(frames, dtype=np.float64).mean(axis=0)
-    r = m - ndimage.median_filter(m, size=(1, 5, 5), mode="mirror")
-    flat = r.reshape(4, -1)
-    med = np.median(flat, axis=1)[:, None, None]
-    mad = 1.482602218505602 * np.median(np.abs(flat - med[:, :, 0]), axis=1)[:, None, None]
-    high = (r - med) > THRESHOLD_SIGMA * np.where(mad > 0, mad, r.std(axis=(1, 2), keepdims=True) + 1e-12)
+def sensor_excess(frames) -> tuple[np.ndarray, np.ndarray]:
+    """(excess map (2h, 2w) in DN, its mask of hot pixels) of a stack (N, 4, h, w; DN) at the
+    sensor positions: ``dark_hot_pixels.local_excess`` of each channel put back in the mosaic."""
+    r, high = dark_hot_pixels.local_excess(frames)
     _, h, w = r.shape
     excess, hot = np.zeros((2 * h, 2 * w)), np.zeros((2 * h, 2 * w), dtype=bool)
     for c, (dy, dx) in enumerate(((0, 0), (0, 1), (1, 1), (1, 0))):  # R, G1, B, G2 at their sensor positions
-        excess[dy::2, dx::2] = (r - med)[c]
+        excess[dy::2, dx::2] = r[c]
         hot[dy::2, dx::2] = high[c]
     return excess, hot
 
 
 def patches(frames) -> tuple[np.ndarray, np.ndarray]:
     """(areas, mean excess in DN) of the 8-connected patches of two hot sensor pixels or more
-    (``local_excess``) of a stack."""
-    excess, hot = local_excess(frames)
+    (``sensor_excess``) of a stack."""
+    excess, hot = sensor_excess(frames)
     labels, n = ndimage.label(hot, structure=EIGHT)
     if n == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0)
@@ -130,15 +119,12 @@ def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, seed: in
 
 def combine(records: list[dict]) -> dict:
     """One population from the dark stacks (every ISO and exposure: the same patches in
-    electrons): density averaged, the side the median of the stacks that found any, the
-    median's log averaged, the log spreads averaged in variance."""
+    electrons): density, median and log spread as ``DarkHot``'s (``dark_hot_pixels.combine``),
+    the side the median of the stacks that found any."""
     found = [r for r in records if r["density"] > 0]
     if not found:
         return dict(records[0])
-    return {"seed": records[0]["seed"], "density": float(np.mean([r["density"] for r in records])),
-            "size": int(round(float(np.median([r["size"] for r in found])))),
-            "median_e_per_s": float(math.exp(np.mean([math.log(r["median_e_per_s"]) for r in found]))),
-            "log_std": float(math.sqrt(np.mean([r["log_std"] ** 2 for r in found])))}
+    return dark_hot_pixels.combine(records) | {"size": int(round(float(np.median([r["size"] for r in found]))))}
 
 
 def empty(params) -> bool:

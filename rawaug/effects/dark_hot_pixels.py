@@ -50,11 +50,7 @@ class DarkHotPixels(NoiseEffect):
     exposure = True
 
     def draw(self, ctx):
-        p = self.profile.effects[self.token]
-        exposure = torch.as_tensor(ctx.fixed.get("exposure_s", 0.0), dtype=torch.float64, device=ctx.device).expand(ctx.batch)
-        n = ctx.k.shape[0]
-        return {"dhot_density": ctx.k.new_full((n,), float(p["density"])), "dhot_e": float(p["median_e_per_s"]) * exposure,
-                "dhot_log_std": ctx.k.new_full((n,), float(p["log_std"]))}
+        return draw_population(ctx, self.profile.effects[self.token], "dhot")
 
     def pattern_streams(self):
         seed = self.profile.effects[self.token]["seed"]
@@ -63,6 +59,15 @@ class DarkHotPixels(NoiseEffect):
     @classmethod
     def validate_params(cls, params):
         validate_population(cls.token, params, "pixels")
+
+
+def draw_population(ctx, p: dict, prefix: str) -> dict:
+    """Per-sample columns of a dark-current population ``p``: ``{prefix}_density``, ``{prefix}_e``
+    (the median electrons at this call's ``exposure_s``) and ``{prefix}_log_std``."""
+    exposure = torch.as_tensor(ctx.fixed.get("exposure_s", 0.0), dtype=torch.float64, device=ctx.device).expand(ctx.batch)
+    n = ctx.k.shape[0]
+    return {f"{prefix}_density": ctx.k.new_full((n,), float(p["density"])), f"{prefix}_e": float(p["median_e_per_s"]) * exposure,
+            f"{prefix}_log_std": ctx.k.new_full((n,), float(p["log_std"]))}
 
 
 def validate_population(token: str, params, of: str) -> None:
@@ -83,16 +88,25 @@ def isolated_hot(frames):
     5 x 5 neighbourhood (same channel), none of whose 8 neighbours is so. Hot pixels are point
     defects: a smooth field (a glow's corner, its shot noise) is neither above its local median
     nor made of isolated pixels."""
+    excess, high = local_excess(frames)
+    ring = np.ones((1, 3, 3))
+    ring[0, 1, 1] = 0.0
+    hot = high & (ndimage.convolve(high.astype(np.float64), ring, mode="constant") == 0)
+    return hot, excess[hot]
+
+
+def local_excess(frames) -> tuple[np.ndarray, np.ndarray]:
+    """((4, h, w) excess in DN, its mask of hot pixels) of a stack (N, 4, h, w; DN): each pixel
+    of the stack mean less the median of its 5 x 5 neighbourhood (same channel) and less its
+    channel's median of that; hot where that stands THRESHOLD_SIGMA robust sigma (the
+    channel's) above."""
     m = np.asarray(frames, dtype=np.float64).mean(axis=0)
     r = m - ndimage.median_filter(m, size=(1, 5, 5), mode="mirror")
     flat = r.reshape(4, -1)
     med = np.median(flat, axis=1)[:, None, None]
     mad = 1.482602218505602 * np.median(np.abs(flat - med[:, :, 0]), axis=1)[:, None, None]
     high = (r - med) > THRESHOLD_SIGMA * np.where(mad > 0, mad, r.std(axis=(1, 2), keepdims=True) + 1e-12)
-    ring = np.ones((1, 3, 3))
-    ring[0, 1, 1] = 0.0
-    hot = high & (ndimage.convolve(high.astype(np.float64), ring, mode="constant") == 0)
-    return hot, (r - med)[hot]
+    return r - med, high
 
 
 def estimate(frames, synthesized, k: float, exposure_s=None, kind=None, seed: int = 59, **_) -> dict:
