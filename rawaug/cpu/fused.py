@@ -136,6 +136,8 @@ _BANK_NOISE_HIGH = L.BANK_NOISE >> L.WORD_BITS
 _CLD, _CLE, _CLL, _CLS = L.COLUMN["dclus_density"], L.COLUMN["dclus_e"], L.COLUMN["dclus_log_std"], L.COLUMN["dclus_size"]
 _DCLUS_WHERE, _DCLUS_SIZE = L.STREAM["dclus_where"], L.STREAM["dclus_size"]
 _DARK_CLUSTER_HIGH = L.DARK_CLUSTER >> L.WORD_BITS
+_BRD, _BRS, _BURST_ROW, _BURST_NOISE = L.COLUMN["burst_density"], L.COLUMN["burst_sigma"], L.STREAM["burst_row"], L.STREAM["burst_noise"]
+_ROW_BURST_HIGH = L.ROW_BURST >> L.WORD_BITS
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([tap[0] for tap in L.XTALK_TAPS], dtype=np.int64)
 _XT_DX = np.array([tap[1] for tap in L.XTALK_TAPS], dtype=np.int64)
@@ -634,6 +636,10 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 s = sig[x]
                 s += v[_BNC0 + (2 * x + col_set) % bank_p] * symmetric(normal, draw(keys[_BANK_NOISE], g))
                 sig[x] = s
+        if stages_high & _ROW_BURST_HIGH:  # a burst row of this frame: extra white noise at every pixel of the sensor row
+            if unit(draw(keys[_BURST_ROW], b * 2 * h + 2 * y + row_set)) < v[_BRD]:
+                for x in range(w):
+                    sig[x] += v[_BRS] * symmetric(normal, draw(keys[_BURST_NOISE], g0 + x))
         if stages & L.DARK_NOISE:  # exposure noise: white, new at every pixel and frame
             for x in range(w):
                 sig[x] += v[_DNS] * symmetric(normal, draw(keys[_DARK_NOISE], g0 + x))

@@ -79,6 +79,7 @@ REPEAT_CHAIN = 4  # repeated rows: the longest run of rows one repeat reaches ba
 BANK_NOISE = 1 << 65  # readout bank noise: extra white temporal noise of its own per interleaved column bank, new at every pixel and frame
 DARK_CLUSTER = 1 << 66  # clusters of hot pixels: square patches of sensor pixels sharing one dark-current rate (e-/s), before shot noise
 CLUSTER_MAX = 4  # clusters of hot pixels: the largest side of a patch (sensor pixels)
+ROW_BURST = 1 << 67  # burst rows: sensor rows read with extra white noise, at new rows in every frame (interference bursts during readout)
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
@@ -175,6 +176,7 @@ COLUMNS = (
     "repeat_density",  # repeated rows: share of the sensor rows of a frame that repeat the same colour's row above
     "bnoise_cp", *(f"bnoise_c{i}" for i in range(BANK_PERIOD_MAX)),  # readout bank noise: period (sensor columns), extra std per bank (DN)
     "dclus_density", "dclus_e", "dclus_log_std", "dclus_size",  # hot clusters: seeds per sensor pixel, median electrons this exposure, log spread, side
+    "burst_density", "burst_sigma",  # burst rows: share of a frame's sensor rows, extra std (DN)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -194,6 +196,7 @@ STREAMS = (
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
     "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
     "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
+    "burst_row", "burst_noise",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

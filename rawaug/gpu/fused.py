@@ -89,6 +89,7 @@ C_RPD, CHAIN = _column("repeat_density"), tl.constexpr(L.REPEAT_CHAIN)
 C_BNCP, C_BNC0 = _column("bnoise_cp"), _column("bnoise_c0")
 C_CLD, C_CLE, C_CLL, C_CLS = _column("dclus_density"), _column("dclus_e"), _column("dclus_log_std"), _column("dclus_size")
 CLUSTER_MAX = tl.constexpr(L.CLUSTER_MAX)
+C_BRD, C_BRS = _column("burst_density"), _column("burst_sigma")
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5, XT_DY6, XT_DX6 = (
@@ -112,6 +113,7 @@ K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
 K_COL_DRIFT, K_COL_DRIFT_PHASE = S["col_drift"], S["col_drift_phase"]
 K_ROW_REPEAT, K_BANK_NOISE = S["row_repeat"], S["bank_noise"]
 K_DCLUS_WHERE, K_DCLUS_SIZE = S["dclus_where"], S["dclus_size"]
+K_BURST_ROW, K_BURST_NOISE = S["burst_row"], S["burst_noise"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
@@ -453,6 +455,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS_HIGH & 4:  # (word 1) readout bank noise: the sensor column's bank's extra white noise, new at every pixel and frame
         bank_sigma = tl.load(v + C_BNC0 + (2 * x + col_set) % _col(v, C_BNCP).to(tl.int64), mask=live, other=0.0)
         s += bank_sigma * _normal(draw(_key(keys_ptr, K_BANK_NOISE), g))
+    if FLAGS_HIGH & 16:  # (word 1) burst rows: extra white noise at every pixel of a sensor row that bursts in this frame
+        burst = unit(draw(_key(keys_ptr, K_BURST_ROW), (b.to(tl.int64) * 2 * H + 2 * y + row_set).to(tl.uint64))) < _col(v, C_BRD)
+        s += tl.where(burst, _col(v, C_BRS) * _normal(draw(_key(keys_ptr, K_BURST_NOISE), g)), 0.0)
     if FLAGS & 36028797018963968:  # exposure noise: white, new at every pixel and frame
         s += _col(v, C_DNS) * _normal(draw(_key(keys_ptr, K_DARK_NOISE), g))
     read_gain = 1.0
