@@ -61,3 +61,12 @@ def test_estimate_finds_the_bursts_and_none_without():
     none = [row_burst.estimate(stack({}, 30 + s, size=128), base, K, kind="bias") for s in range(10)]
     assert all(row_burst.empty(row_burst.combine([e])) for e in none), none
     assert max(burst_rows(stack({}, 50 + s, size=128)) for s in range(5)) == 0.0
+
+
+def test_the_share_is_the_stacks_that_see_bursts():
+    """A gain whose read noise hides the bursts finds none: its stack does not lower the share."""
+    seen = {"density": 0.01, "k": [1.0], "sigma_dn": [3.0], "rows": [2048]}
+    hidden = {"density": 0.0, "k": [3.0], "sigma_dn": [0.0], "rows": [2048]}
+    out = row_burst.combine([seen, hidden, {**seen, "density": 0.02, "rows": [1024]}])
+    assert out["density"] == (0.01 * 2048 + 0.02 * 1024) / 3072 and out["k"] == [1.0] and out["sigma_dn"] == [3.0], out
+    assert row_burst.empty(row_burst.combine([hidden]))

@@ -79,16 +79,17 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
 
 
 def combine(records: list[dict]) -> dict:
-    """The camera's share of burst rows, every stack's weighed by its rows (those that found none
-    count as 0); the extra noise per gain, the rms over its stacks that found any."""
-    rows = np.array([r["rows"][0] for r in records], dtype=np.float64)
-    density = float(np.average([r["density"] for r in records], weights=rows))
-    by_k: dict = {}
-    for r in records:
-        if r["density"] > 0:
-            by_k.setdefault(float(r["k"][0]), []).append(r["sigma_dn"][0] ** 2)
-    if not by_k:
+    """The camera's share of burst rows: the stacks' that found any, weighed by their rows (a
+    burst is an event in time, the same share at every gain; where the read noise is larger it
+    hides the bursts, and a stack that sees none does not vote); the extra noise per gain, the
+    rms over its stacks that found any."""
+    found = [r for r in records if r["density"] > 0]
+    if not found:
         return {"density": 0.0, "k": [float(records[0]["k"][0])], "sigma_dn": [0.0]}
+    density = float(np.average([r["density"] for r in found], weights=[r["rows"][0] for r in found]))
+    by_k: dict = {}
+    for r in found:
+        by_k.setdefault(float(r["k"][0]), []).append(r["sigma_dn"][0] ** 2)
     ks = sorted(by_k)
     return {"density": density, "k": ks, "sigma_dn": [float(np.sqrt(np.mean(by_k[k]))) for k in ks]}
 
