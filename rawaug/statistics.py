@@ -1397,35 +1397,38 @@ def repeated_rows(frames, level_dn=None):
     return float(repeated_row_mask(frames).mean())
 
 
-BURST_Z = 8.0  # sds of a row's robust variance ratio by which a burst row stands out
+BURST_Z = 8.0  # sds of a row's variance ratio by which a burst row stands out
+BURST_CLIP = 8.0  # robust sigmas a residual counts up to in its row's variance
 
 
 def burst_row_ratios(frames) -> tuple[np.ndarray, float, np.ndarray]:
     """((N, 2h) ratios, threshold, (2h,) each row's median variance in DN^2) of a stack (N >= 3;
-    DN): each frame's sensor row's robust
-    variance (1.4826 MAD of its pixels' temporal residuals about their median, both packed
-    channels) over that row's median over the frames (a row noisier in every frame, a glow's
-    shot noise, is its own reference), and the ratio a burst row exceeds: 1 + ``BURST_Z`` sds of
-    that ratio for Gaussian noise (a MAD variance of n values: 2.32 / sqrt(n); a median of N
-    variances: sqrt(pi / 2N) of that more)."""
+    DN): each frame's sensor row's variance (its pixels' temporal residuals, both packed
+    channels, clipped at ``BURST_CLIP`` robust sigma of the stack's residuals: a pixel's spike
+    moves a row's little) over that row's median over the frames (a row noisier in every frame,
+    a glow's shot noise, is its own reference), and the ratio a burst row exceeds: 1 +
+    ``BURST_Z`` sds of that ratio for Gaussian noise (a variance of n values: sqrt(2 / n); a
+    median of N variances: sqrt(pi / 2N) of that more)."""
     f = np.asarray(frames, dtype=np.float64)
     n_frames, _, h, w = f.shape
     resid = f - temporal_moments(f)[0]
+    sub = resid[:, :, ::7, ::7]
+    scale = 1.482602218505602 * float(np.median(np.abs(sub - np.median(sub))))
+    if scale > 0:
+        resid = np.clip(resid, -BURST_CLIP * scale, BURST_CLIP * scale)
     var = np.empty((n_frames, 2 * h))
     for row_set in (0, 1):
-        rows = resid[:, [c for c in range(4) if ROW_SET[c] == row_set]].transpose(0, 2, 1, 3).reshape(n_frames, h, -1)
-        centred = rows - np.median(rows, axis=2, keepdims=True)
-        var[:, row_set::2] = (1.482602218505602 * np.median(np.abs(centred), axis=2)) ** 2
+        var[:, row_set::2] = resid[:, [c for c in range(4) if ROW_SET[c] == row_set]].var(axis=(1, 3), ddof=1)
     row = np.median(var, axis=0)
     ratio = var / np.maximum(row, 1e-30)[None, :]
-    sd = 2.32 / np.sqrt(2 * w) * np.sqrt(1.0 + np.pi / (2.0 * n_frames))
+    sd = np.sqrt(2.0 / (2 * w)) * np.sqrt(1.0 + np.pi / (2.0 * n_frames))
     return ratio, 1.0 + BURST_Z * sd, row
 
 
 def burst_rows(frames, level_dn=None):
     """Fraction of a stack's frames' sensor rows much noisier than the same row in the other
     frames (``burst_row_ratios``): interference bursts during the readout of a few rows; 0
-    without them (robust variances: a pixel's spike does not move a row's)."""
+    without them."""
     if np.asarray(frames).shape[0] < 3:
         return 0.0
     ratio, threshold, _ = burst_row_ratios(frames)

@@ -18,7 +18,8 @@ Profile entry (per-K records)::
     RowBurst: {density: 0.01, k: [K, ...], sigma_dn: [...]}
 
 Detected on bias and dark stacks of >= 3 frames by ``burst_rows`` (frames' sensor rows whose
-robust variance stands ``BURST_Z`` sds above the same row's median over the frames) and
+variance, clipped at 8 robust sigma, stands ``BURST_Z`` sds above the same row's median over
+the frames) and
 ``read_noise_spread``. Estimated by ``estimate``: the measured share of burst rows less the
 model's, kept where the count has a chance under ``P_VALUE`` under the model's (Poisson); the
 extra variance the median over the burst rows of their variance less their row's median, over
