@@ -312,8 +312,10 @@ SLOW_CASES = {"Col", "crosstalk", "banding", "column banding", "diagonal banding
               "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
               "skewed dark current", "raised floor", "frame-locked tone", "glow", "toe",
               "settling clamp", "nonlin", "PRNU",  # (these three since the twenty-second session, to keep the default run near 5 minutes)
-              "Dark", "twelve-bit ADC"}  # (since the twenty-fifth session: Dark is found in dark frames by tests/test_loop.py,
-# the stuck bits by tests/test_stuck_bit.py through calibration and the estimate)
+              "Dark", "twelve-bit ADC", "comb", "interference"}  # (since the twenty-fifth session: Dark is found in dark
+# frames by tests/test_loop.py, the stuck bits by tests/test_stuck_bit.py through calibration and the estimate, the comb's
+# CodeMap by tests/test_code_map.py and on a real dark frame by tests/test_real_noise_smoke.py, the interference's
+# LowFreq by its estimate in tests/test_effects_loop.py; on a manifest all four with -m slow)
 
 
 @pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow) if c in SLOW_CASES else c for c in CASES])
