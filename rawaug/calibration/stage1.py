@@ -544,23 +544,20 @@ def calibrate_iso(bias_frames, flat_pairs, iso: float, *, max_samples: int | Non
         (top, second, frame), (low, second_low, low_frame) = extremes  # the lows as the highs of -r
         gap, low_gap = top - second, low - second_low
         bright, dark = gap > SPIKE_Z * max(scale, 1e-9), low_gap > SPIKE_Z * max(scale, 1e-9)
-        n_spikes = 0
         side = spike_side(int(bright.sum()), int(dark.sum()))
         if side:  # impulses: the events of the side in excess leave (bright ones, or dark ones: dropouts)
-            hits, size, others, at = (bright, gap, dark, frame) if side > 0 else (dark, low_gap, bright, low_frame)
+            hits, size, others = (bright, gap, dark) if side > 0 else (dark, low_gap, bright)
             spike = np.zeros_like(hits)
             spike[hits] = beyond_dark(size[hits], int(others.sum()))
-            n_spikes = int(spike.sum())
-            keep = lambda i, w: ~((spike[w] & (at[w] == i)) | (dead[w] if dead is not None else False))  # noqa: E731
-            residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])
+            out_bright, out_dark = (spike, np.zeros_like(spike)) if side > 0 else (np.zeros_like(spike), spike)
         else:  # events of both signs as many: the read noise's tails, but for a far population (bit errors) of both
             cut = far_cut(np.concatenate([gap[bright], low_gap[dark]]), SPIKE_Z * max(scale, 1e-9))
-            far_bright, far_dark = bright & (gap >= cut), dark & (low_gap >= cut)
-            n_spikes = int(far_bright.sum() + far_dark.sum())
-            if n_spikes:
-                keep = lambda i, w: ~((far_bright[w] & (frame[w] == i)) | (far_dark[w] & (low_frame[w] == i))  # noqa: E731
-                                      | (dead[w] if dead is not None else False))
-                residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])
+            out_bright, out_dark = bright & (gap >= cut), dark & (low_gap >= cut)
+        n_spikes = int(out_bright.sum() + out_dark.sum())
+        if n_spikes:
+            keep = lambda i, w: ~((out_bright[w] & (frame[w] == i)) | (out_dark[w] & (low_frame[w] == i))  # noqa: E731
+                                  | (dead[w] if dead is not None else False))
+            residual = np.concatenate([v[keep(i, w)] for i, (w, v) in enumerate(samples)])
     read_var = float(np.median([r.read_variance_dn2 for r in rows]))
     sigma_r = float(np.median([r.sigma_r for r in rows]))
     censored = None
