@@ -1335,19 +1335,19 @@ def significant_spikes(n_bright: int, n_dark: int) -> bool:
     return n_bright - n_dark > 5.0 * np.sqrt(max(n_bright + n_dark, 1))
 
 
-def stuck_from_range(lo, hi):
+def stuck_from_range(lo, hi, lines: bool = True):
     """Mask of the stuck pixels from each pixel's lowest and highest value over a stack (same
     shape, (4, h, w)): equal in every frame. A pixel that stays at the stack's lowest (highest)
     value is left out where pixels that move also reach it: there it is the clip at black
     (white), not a stuck pixel; so is one on a row or column of its channel stuck for more
-    than half its length: a defect line."""
+    than half its length: a defect line (kept with ``lines`` False)."""
     const = lo == hi
     moving = ~const
     if moving.any():
         at_floor = (lo == lo.min()) & bool(lo[moving].min() == lo.min())
         at_ceiling = (hi == hi.max()) & bool(hi[moving].max() == hi.max())
         const &= ~(at_floor | at_ceiling)
-    if const.ndim == 3:  # (4, h, w): a row or column stuck for the most part is a defect line (Lines), not dead pixels
+    if lines and const.ndim == 3:  # (4, h, w): a row or column stuck for the most part is a defect line (Lines), not dead pixels
         const &= ~((const.mean(axis=2) > 0.5)[:, :, None] | (const.mean(axis=1) > 0.5)[:, None, :])
     return const
 
@@ -1365,7 +1365,7 @@ def stuck_pixels(frames):
 STUCK_OUTLIER = 5.0  # robust sigma from the channel median: a stuck pixel the noise estimates leave out
 
 
-def stuck_outliers(lo, hi, frame):
+def stuck_outliers(lo, hi, frame, lines: bool = True):
     """(4, h, w) mask of the stuck pixels (``stuck_from_range`` of the per-pixel lowest and
     highest values ``lo``, ``hi`` over a stack) lying more than STUCK_OUTLIER robust sigma
     from their channel's median in ``frame`` (one frame of the stack): dead pixels, left out
@@ -1374,7 +1374,7 @@ def stuck_outliers(lo, hi, frame):
     frame = np.asarray(frame, dtype=np.float64)
     med, scale = robust_scale(frame.reshape(4, -1), axis=1)
     far = np.abs(frame - med[:, :, None]) > STUCK_OUTLIER * scale[:, :, None]
-    return stuck_from_range(np.asarray(lo), np.asarray(hi)).reshape(frame.shape) & far
+    return stuck_from_range(np.asarray(lo), np.asarray(hi), lines).reshape(frame.shape) & far
 
 
 def stuck_fraction(frames, level_dn=None):

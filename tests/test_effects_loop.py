@@ -1376,6 +1376,38 @@ def test_dead_pixels_are_stuck_at_their_levels_and_estimated():
         dead_pixels.estimate(f[:2], base, K)
 
 
+DEAD_LINES = {"seed": 5, "density": 0.002, "levels_dn": [-40.0], "col_density": 0.04, "row_density": 0.02, "partial": 0.5,
+              "to_end": 0.75, "cut_lo": 0.2, "cut_hi": 0.8}  # broken column and row buses: half of the lines dead from a break on
+
+
+def test_dead_lines_whole_and_partial_are_estimated():
+    """Dead lines over 8 sensor instances (256 sensor columns and rows each): the pooled line
+    counts within 4 Poisson sd, the shares partial and reaching the end within 4 binomial sd,
+    the isolated pixels' density within 5 Poisson sd, the breaks' range within 0.05 of the
+    planted one (its ends' error ~ range / partial lines, ~0.01 here); dead pixels alone (1 %)
+    make no line in 10 of 10 stacks."""
+    est = [dead_pixels.estimate(synth({"Dead": DEAD_LINES}, batch=4, size=128, sigma_g=2.0, sensor=s), [], K)
+           for s in range(8)]
+    lines = 8 * 256
+    for key in ("col_density", "row_density"):
+        n = sum(e[key] for e in est) * 256  # lines found
+        assert abs(n - DEAD_LINES[key] * lines) < 4 * math.sqrt(DEAD_LINES[key] * lines), (key, n)
+    found = [dead_pixels.dead_parts(synth({"Dead": DEAD_LINES}, batch=4, size=128, sigma_g=2.0, sensor=s))[2]
+             for s in range(8)]
+    n_lines, partial, to_end = sum(f[4] for f in found), sum(f[2] for f in found), sum(f[3] for f in found)
+    assert abs(partial / n_lines - 0.5) < 4 * math.sqrt(0.25 / n_lines), (partial, n_lines)
+    assert abs(to_end / partial - 0.75) < 4 * math.sqrt(0.75 * 0.25 / partial), (to_end, partial)
+    cuts = dead_pixels.cut_range(np.concatenate([f[5] for f in found]))
+    assert abs(cuts["cut_lo"] - 0.2) < 0.05 and abs(cuts["cut_hi"] - 0.8) < 0.05, cuts
+    pixels = 8 * 4 * 128 * 128
+    density = np.mean([e["density"] for e in est])
+    assert abs(density - 0.002) < 5 * math.sqrt(0.002 / pixels), density
+    assert all(e["levels_dn"] == [-40.0] * 8 for e in est)
+    alone = [dead_pixels.estimate(synth({"Dead": {**DEAD, "seed": 60 + s}}, batch=4, size=128, sigma_g=2.0), [], K)
+             for s in range(10)]
+    assert not any("col_density" in e for e in alone) and all(e["density"] > 0.005 for e in alone)
+
+
 def test_impulses_count_once_as_impulses():
     """Cosmic-ray-like impulses (300 DN over 1 DN of noise, 0.1 % of the values) are seen by the
     impulse statistics only: line, hot-pixel and tail statistics read them replaced."""

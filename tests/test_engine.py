@@ -73,7 +73,8 @@ LOOP_EFFECTS = {
     "Noisy": {"seed": 89, "density": 0.05, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [4.0, 7.0]},  # a new normal per frame
     "NoisyCol": {"seed": 103, "density": 0.1, "log_std": 0.3, "k": [1.0, 3.0], "median_dn": [3.0, 5.0]},  # ... keyed by the sensor column
     "RTS": {"seed": 43, "density": 0.05, "high": 0.3, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [15.0, 30.0]},
-    "Dead": {"seed": 47, "density": 0.02, "levels_dn": [-3.0, 0.0, 2.5, 40.0, 400.0]},
+    "Dead": {"seed": 47, "density": 0.02, "levels_dn": [-3.0, 0.0, 2.5, 40.0, 400.0],
+             "col_density": 0.1, "row_density": 0.1, "partial": 0.6, "to_end": 0.5, "cut_lo": 0.1, "cut_hi": 0.7},  # dead lines, some over a part
     "RowDrift": {"k": [1.0, 3.0], "octave_dn": [[0.0, 0.4, 0.0, 0.9, 1.3, 0.5, 0.2, 0.1], [0.2] * 8]},
     "ColDrift": {"k": [1.0, 3.0], "octave_dn": [[0.3, 0.0, 0.8, 0.0, 1.1, 0.6, 0.0, 0.2], [0.1] * 8]},  # flag word 1
     "RowRepeat": {"density": 0.1},  # flag word 1: rows read as the same colour's row above

@@ -125,6 +125,9 @@ _DD, _DL0, _NDL = L.COLUMN["dead_density"], L.COLUMN["dead_l0"], L.DEAD_LEVELS
 _SBZ0, _SBLO, _SBHI = L.COLUMN["stuck_z0"], L.COLUMN["stuck_low"], L.COLUMN["stuck_high"]
 _BKCP, _BKRP, _BKC0, _BKR0 = L.COLUMN["bank_cp"], L.COLUMN["bank_rp"], L.COLUMN["bank_c0"], L.COLUMN["bank_r0"]
 _DEAD_WHERE, _DEAD_LEVEL = L.STREAM["dead_where"], L.STREAM["dead_level"]
+_DCOL, _DROW, _DPART, _DEND = L.COLUMN["dead_col_density"], L.COLUMN["dead_row_density"], L.COLUMN["dead_partial"], L.COLUMN["dead_to_end"]
+_DEAD_COL, _DEAD_ROW = L.STREAM["dead_col"], L.STREAM["dead_row"]
+_DCLO, _DCHI = L.COLUMN["dead_cut_lo"], L.COLUMN["dead_cut_hi"]
 _DR0, _OCT = L.COLUMN["drift_a0"], L.DRIFT_OCTAVES
 _ROW_DRIFT, _ROW_DRIFT_PHASE = L.STREAM["row_drift"], L.STREAM["row_drift_phase"]
 _CDR0, _COL_DRIFT, _COL_DRIFT_PHASE = L.COLUMN["cdrift_a0"], L.STREAM["col_drift"], L.STREAM["col_drift_phase"]
@@ -267,6 +270,22 @@ def defect_line_at(normal, key, line, density, median, log_std, negative):
         return 0.0
     size = median * math.exp(log_std * symmetric(normal, draw(key, 3 * line + 1)))
     return -size if unit(draw(key, 3 * line + 2)) < negative else size
+
+
+@njit(inline="always")
+def dead_line_slot(key, line, density, partial, to_end, cut_lo, cut_hi, pos, n):
+    """Level slot (0 .. DEAD_LEVELS - 1) of the element at sensor position ``pos`` of the ``n``
+    along sensor line ``line`` where the line is dead there, else -1: the line is dead where its
+    U(0, 1) falls below ``density``; with probability ``partial`` only from a break at
+    U(cut_lo, cut_hi) x n to the line's end (with probability ``to_end``) or from its start to there."""
+    if unit(draw(key, 5 * line)) >= density:
+        return -1
+    if unit(draw(key, 5 * line + 1)) < partial:
+        along = pos + 0.5
+        cut = (cut_lo + (cut_hi - cut_lo) * unit(draw(key, 5 * line + 3))) * n
+        if (along < cut) if unit(draw(key, 5 * line + 2)) < to_end else (along >= cut):
+            return -1
+    return min(int(unit(draw(key, 5 * line + 4)) * _NDL), _NDL - 1)
 
 
 @njit(inline="always")
@@ -805,12 +824,22 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 else:
                     s = code
                 sig[x] = s
-        if stages & L.DEAD:  # a dead pixel reads its stuck level, whatever came before
+        if stages & L.DEAD:  # a dead pixel reads its stuck level, whatever came before; so does a dead line's part
             for x in range(w):
                 p = p0 + x
                 s = sig[x]
                 if unit(draw(keys[_DEAD_WHERE], p)) < v[_DD]:
                     s = v[_DL0 + min(int(unit(draw(keys[_DEAD_LEVEL], p)) * _NDL), _NDL - 1)]
+                else:
+                    slot = -1
+                    if v[_DCOL] > 0.0:
+                        slot = dead_line_slot(keys[_DEAD_COL], (sensor * 2 + col_set) * w + x, v[_DCOL], v[_DPART], v[_DEND],
+                                              v[_DCLO], v[_DCHI], 2 * y + row_set, 2 * h)
+                    if slot < 0 and v[_DROW] > 0.0:
+                        slot = dead_line_slot(keys[_DEAD_ROW], (sensor * 2 + row_set) * h + y, v[_DROW], v[_DPART], v[_DEND],
+                                              v[_DCLO], v[_DCHI], 2 * x + col_set, 2 * w)
+                    if slot >= 0:
+                        s = v[_DL0 + slot]
                 sig[x] = s
         if stages & L.STUCK_BIT:  # the raw code the converter writes, its stuck bits cleared or set
             zero = v[_SBZ0 + c]

@@ -177,6 +177,8 @@ COLUMNS = (
     "bnoise_cp", *(f"bnoise_c{i}" for i in range(BANK_PERIOD_MAX)),  # readout bank noise: period (sensor columns), extra std per bank (DN)
     "dclus_density", "dclus_e", "dclus_log_std", "dclus_size",  # hot clusters: seeds per sensor pixel, median electrons this exposure, log spread, side
     "burst_density", "burst_sigma",  # burst rows: share of a frame's sensor rows, extra std (DN)
+    "dead_col_density", "dead_row_density", "dead_partial", "dead_to_end",  # dead lines: shares of sensor columns and rows, share partial, of those the share reaching the end
+    "dead_cut_lo", "dead_cut_hi",  # ... the range of a partial line's break (fractions of the line)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -196,7 +198,7 @@ STREAMS = (
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
     "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
     "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
-    "burst_row", "burst_noise",
+    "burst_row", "burst_noise", "dead_col", "dead_row",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -81,6 +81,8 @@ NB = tl.constexpr(L.READ_MAP_BLOCKS)
 C_SH = _column("shared_sigma")
 C_RTD, C_RTM, C_RTL, C_RTH = _column("rts_density"), _column("rts_median"), _column("rts_log_std"), _column("rts_high")
 C_DD, C_DL0 = _column("dead_density"), _column("dead_l0")
+C_DCOL, C_DROW, C_DPART, C_DEND = _column("dead_col_density"), _column("dead_row_density"), _column("dead_partial"), _column("dead_to_end")
+C_DCLO, C_DCHI = _column("dead_cut_lo"), _column("dead_cut_hi")
 C_SBZ0, C_SBLO, C_SBHI = _column("stuck_z0"), _column("stuck_low"), _column("stuck_high")
 C_BKCP, C_BKRP, C_BKC0, C_BKR0 = _column("bank_cp"), _column("bank_rp"), _column("bank_c0"), _column("bank_r0")
 NDL = tl.constexpr(L.DEAD_LEVELS)
@@ -109,6 +111,7 @@ K_XTALK, K_BAND, K_ROW_PATTERN, K_ROW_CHANNEL = S["xtalk"], S["band"], S["row_pa
 K_READ_MAP, K_SHARED = S["read_map"], S["shared"]
 K_RTS_WHERE, K_RTS_SIZE, K_RTS_STATE = S["rts_where"], S["rts_size"], S["rts_state"]
 K_DEAD_WHERE, K_DEAD_LEVEL = S["dead_where"], S["dead_level"]
+K_DEAD_COL, K_DEAD_ROW = S["dead_col"], S["dead_row"]
 K_ROW_DRIFT, K_ROW_DRIFT_PHASE = S["row_drift"], S["row_drift_phase"]
 K_COL_DRIFT, K_COL_DRIFT_PHASE = S["col_drift"], S["col_drift_phase"]
 K_ROW_REPEAT, K_BANK_NOISE = S["row_repeat"], S["bank_noise"]
@@ -172,6 +175,17 @@ def _defect_line(normal_ptr, key, line, density, median, log_std, negative):
     size = median * tl.exp(log_std * symmetric_table(normal_ptr, draw(key, 3 * line + 1)))
     size = tl.where(unit(draw(key, 3 * line + 2)) < negative, -size, size)
     return tl.where(unit(draw(key, 3 * line)) < density, size, 0.0)
+
+
+@triton.jit
+def _dead_line_slot(key, line, density, partial, to_end, cut_lo, cut_hi, pos, n):
+    """As ``rawaug.cpu.fused.dead_line_slot``: the level slot where sensor lines ``line`` (uint64) are dead at ``pos``, else -1."""
+    along = pos.to(tl.float64) + 0.5
+    cut = (cut_lo + (cut_hi - cut_lo) * unit(draw(key, 5 * line + 3))) * n
+    ends = unit(draw(key, 5 * line + 2)) < to_end
+    outside = (unit(draw(key, 5 * line + 1)) < partial) & tl.where(ends, along < cut, along >= cut)
+    slot = tl.minimum((unit(draw(key, 5 * line + 4)) * NDL).to(tl.int64), NDL - 1)
+    return tl.where((unit(draw(key, 5 * line)) < density) & ~outside, slot, -1)
 
 
 @triton.jit
@@ -638,6 +652,14 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 268435456:  # dead pixels: the stuck level, whatever came before
         dead = unit(draw(_key(keys_ptr, K_DEAD_WHERE), p)) < _col(v, C_DD)
         which = tl.minimum((unit(draw(_key(keys_ptr, K_DEAD_LEVEL), p)) * NDL).to(tl.int64), NDL - 1)
+        # a dead line's part (a column's first, then a row's), where the pixel itself is not dead
+        slot = _dead_line_slot(_key(keys_ptr, K_DEAD_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64), _col(v, C_DCOL),
+                               _col(v, C_DPART), _col(v, C_DEND), _col(v, C_DCLO), _col(v, C_DCHI), 2 * y + row_set, 2 * H)
+        slot = tl.where(slot < 0, _dead_line_slot(_key(keys_ptr, K_DEAD_ROW), ((sensor * 2 + row_set) * H + y).to(tl.uint64),
+                                                  _col(v, C_DROW), _col(v, C_DPART), _col(v, C_DEND), _col(v, C_DCLO),
+                                                  _col(v, C_DCHI), 2 * x + col_set, 2 * W), slot)
+        which = tl.where(dead, which, slot)
+        dead = dead | (slot >= 0)
         s = tl.where(dead, tl.load(v + C_DL0 + which, mask=live, other=0.0), s)
     if FLAGS & 2305843009213693952:  # stuck ADC bits: the raw code the converter writes, its stuck bits cleared or set
         zero = tl.load(v + C_SBZ0 + c)

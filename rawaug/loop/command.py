@@ -245,7 +245,7 @@ class _Collected:
 
 def _run_manifest(args, path):
     from ..calibration.stage1 import bias_frame_noise
-    from ..statistics import spike_outliers, stuck_outliers
+    from ..statistics import repaired, spike_outliers, stuck_outliers
     from .diagnose import FrameStack, channel_offsets
     from ..calibration.command import calibrate, options_from, visit_frames
     from .frames_loop import run_frame_loop
@@ -296,7 +296,8 @@ def _run_manifest(args, path):
             continue  # calibration reports flats it cannot use
         base, offsets, k, bias_stack = measured[iso]
         stack = np.stack([f for f, _ in frames]).astype(np.float64)
-        level = stack.mean(axis=(0, 2, 3)) - np.asarray(offsets)
+        # the light on the live pixels: dead pixels and lines, impulses left out (what the statistics read)
+        level = repaired(stack).mean(axis=(0, 2, 3)) - np.asarray(offsets)
         headroom = min(float(np.min(room)) for _, room in frames)
         if level.min() < 20 * k or stack.max() >= 0.98 * headroom:
             continue  # too dark to carry shot noise, or clipped at white
