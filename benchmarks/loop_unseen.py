@@ -793,6 +793,47 @@ def noisy_row_bank(dn, rng, **_):
     return dn + e * rng.standard_normal(dn.shape)
 
 
+# the eighth fresh batch (twenty-sixth session), written and committed before the loop ran on it
+def wandering_tone(dn, rng, **_):
+    """Interference from a switching regulator whose frequency wanders: 1.0 DN along the sensor rows at 0.12 cycles per sensor row, the frequency off by a normal 0.01 in each frame, a phase per frame."""
+    f = 0.12 + rng.normal(0.0, 0.01)
+    t = 1.0 * np.cos(2 * np.pi * f * np.arange(2 * dn.shape[1]) + rng.uniform(0, 2 * np.pi))
+    return dn + np.stack([t[0::2], t[0::2], t[1::2], t[1::2]])[:, :, None]
+
+
+def paired_columns(dn, rng, **_):
+    """Column ADCs shared by pairs of sensor columns: one fixed offset per pair (sensor columns 2j and 2j + 1), 1.0 DN rms, the same in every frame."""
+    pair = np.random.default_rng(141).normal(0.0, 1.0, dn.shape[2])  # packed column j holds sensor columns 2j, 2j + 1
+    return dn + pair[None, None, :]
+
+
+def row_noise_ramp(dn, rng, **_):
+    """Row noise whose level grows down the frame (a reference line settling during readout): each sensor row offset by a normal draw whose sd rises from 0.3 DN at the top to 2.5 DN at the bottom, new in every frame."""
+    y = np.arange(2 * dn.shape[1])
+    r = rng.standard_normal(y.size) * (0.3 + 2.2 * y / (y.size - 1))
+    return dn + np.stack([r[0::2], r[0::2], r[1::2], r[1::2]])[:, :, None]
+
+
+def noisy_edge_columns(dn, rng, **_):
+    """An edge of the array reads noisier: the leftmost 24 sensor columns carry 2 DN of extra white noise, new at every pixel and frame."""
+    extra = np.where(np.arange(2 * dn.shape[2]) < 24, 2.0, 0.0)
+    e = np.stack([extra[0::2], extra[1::2], extra[1::2], extra[0::2]])[:, None, :]  # R, G2 on even sensor columns
+    return dn + e * rng.standard_normal(dn.shape)
+
+
+def hot_tiles(dn, rng, **_):
+    """Shared-pixel defects: 0.1 % of the 2x2 Bayer tiles (fixed) read 30 DN high in all four of their pixels (a shared source follower with an offset of its own), in every frame."""
+    tile = np.random.default_rng(151).random(dn.shape[1:]) < 1e-3  # a tile is one packed position
+    return dn + 30.0 * tile[None]
+
+
+def red_compression(dn, rng, kind="", **_):
+    """The red channel's amplifier compresses: R reads its signal x (1 - 0.03 x signal / 6000 DN), 3 % low at 6000 DN; the other channels are linear."""
+    out = dn.copy()
+    out[0] = dn[0] * (1.0 - 0.03 * np.clip(dn[0], 0.0, None) / 6000.0)
+    return out
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -810,7 +851,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  laplace_rows, pixel_wander, dropouts, triple_adc_columns, column_flicker_1f,
                                  repeated_rows, quadrant_offsets, noisy_third_columns, hot_clusters, bit_flips, black_ramp,
                                  intermittent_tone, pixel_ringing, bank_gain, burst_rows, excess_shot_noise, black_col_ramp,
-                                 partial_dead_columns, noisy_row_bank)}
+                                 partial_dead_columns, noisy_row_bank, wandering_tone, paired_columns, row_noise_ramp,
+                                 noisy_edge_columns, hot_tiles, red_compression)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
