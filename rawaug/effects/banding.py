@@ -14,7 +14,9 @@ Profile entry (per-K records)::
     Band: {k: [K, ...], freq_per_row: [[f1, f2], ...], amplitude_dn: [[a1, a2], ...], on_share: [[p1, p2], ...]}
 
 (``on_share``, optional, default 1: the share of frames in which each tone is on, for a source
-that is switched on and off between frames; its amplitude is that of the frames where it is on.)
+that is switched on and off between frames; its amplitude is that of the frames where it is on.
+``freq_sd``, optional, default 0: the sd of each tone's frequency over frames, cycles per row,
+for a source whose frequency wanders with its load or temperature: drawn per frame and tone.)
 
 Detected by ``row_tone`` (power of the largest bin of the frames' sensor-row-mean periodogram
 above its median bin, above the low band). Estimated by ``estimate``: bins of that periodogram
@@ -24,7 +26,9 @@ refined (above the low band) to the
 frequency that maximizes the frames' power (grid of 1/40 bin), its amplitude from a circle
 fitted to the frames' Fourier coefficients there (radius: the tone; centre: a fixed part); a
 tone that is off in some frames (their coefficients at the centre) is a mixture of the circle
-and its centre, kept where it beats the circle at p 1e-3 (``tone_presence``).
+and its centre, kept where it beats the circle at p 1e-3 (``tone_presence``). A tone whose
+frequency wanders from frame to frame is measured at each frame's own peak
+(``frequency_wander``): the peaks' spread beyond their noise, the amplitude from their power.
 Judged with the row noise re-fitted (the tone's power had gone into it).
 """
 from __future__ import annotations
@@ -45,6 +49,9 @@ SMOOTH = 9  # bins of the model's spectrum in its running median
 LOCAL = 9  # bins of the measured spectrum's running median a tone must stand out of
 PRESENCE_P = 1e-3  # a tone is on in a share of the frames only where the mixture beats the circle at this p
 MIN_PRESENCE_FRAMES = 4  # frames a stack needs for its tone's share of frames to be fitted
+JITTER_WINDOW = 16  # bins either side of a tone where each frame's own peak is looked for
+JITTER_P = 1e-3  # a tone's frequency wanders where the frames' peaks scatter beyond their noise at this p
+CLEAR_SHARE = 0.75  # of the frames that must show the tone's peak clearly for its wander to be measured
 
 
 @register
@@ -55,18 +62,19 @@ class Banding(NoiseEffect):
     columns = tuple(f"band_f{j}" for j in range(L.BAND_TONES)) + tuple(f"band_a{j}" for j in range(L.BAND_TONES))
 
     def draw(self, ctx):
-        return draw_tones(self.profile.effects[self.token], ctx, {"f": "freq_per_row", "a": "amplitude_dn"}, "band")
+        return draw_tones(self.profile.effects[self.token], ctx, {"f": "freq_per_row", "a": "amplitude_dn"}, "band", jitter="f")
 
     @classmethod
     def validate_params(cls, params):
         validate_tones(cls.token, params, "freq_per_row", "sensor row")
 
 
-def draw_tones(p, ctx, fields: dict, prefix: str) -> dict:
+def draw_tones(p, ctx, fields: dict, prefix: str, jitter: str | None = None) -> dict:
     """Per-sample columns ``{prefix}_{name}{j}`` (j < BAND_TONES) of a tone record ``p``, one
     per ``fields`` entry ``name: key`` (its lists of per-tone values under ``key``), at the
     record nearest each drawn K; missing tones, and a key the record lacks, are 0 (amplitude 0:
-    no tone)."""
+    no tone). With ``jitter`` (the frequency field's name), a record's ``freq_sd`` moves each
+    tone's frequency by a normal draw per frame (sample) and tone, kept in (0, 0.5]."""
     idx = record_index(p, ctx.k)
     out = {}
     for name, key in fields.items():
@@ -75,6 +83,13 @@ def draw_tones(p, ctx, fields: dict, prefix: str) -> dict:
             table[r, : len(values)] = values
         for j in range(L.BAND_TONES):
             out[f"{prefix}_{name}{j}"] = ctx.k.new_tensor(table[:, j])[idx]
+    if jitter is not None and p.get("freq_sd") is not None:  # a source whose frequency wanders from frame to frame
+        sd = np.zeros((len(p["k"]), L.BAND_TONES))
+        for r, values in enumerate(p["freq_sd"]):
+            sd[r, : len(values)] = values
+        for j in range(L.BAND_TONES):
+            f = out[f"{prefix}_{jitter}{j}"] + ctx.k.new_tensor(sd[:, j])[idx] * ctx.normal(f"{prefix}_fj{j}").to(ctx.k.dtype)
+            out[f"{prefix}_{jitter}{j}"] = (0.5 - (0.5 - f.abs()).abs()).clamp(min=1e-6)  # folded into (0, 0.5]
     if p.get("on_share") is not None and "a" in fields:  # a tone switched on in a share of the frames
         share = np.ones((len(p["k"]), L.BAND_TONES))
         for r, values in enumerate(p["on_share"]):
@@ -100,6 +115,17 @@ def validate_tones(token: str, params, freq_key: str, line: str) -> None:
         for a in amps:
             if _number(a, f"{token}.amplitude_dn[]") < 0:
                 raise ValueError(f"effect {token!r}: amplitude_dn must be >= 0, got {a}")
+    sds = params.get("freq_sd")
+    if sds is not None:
+        if not isinstance(sds, (list, tuple)) or len(sds) != len(params["k"]):
+            raise ValueError(f"effect {token!r}: freq_sd needs one list per record ({len(params['k'])}), got {sds!r}")
+        for r, (sd, amps) in enumerate(zip(sds, params["amplitude_dn"])):
+            if not isinstance(sd, (list, tuple)) or len(sd) != len(amps):
+                raise ValueError(f"effect {token!r}: record {r} needs freq_sd as long as amplitude_dn ({len(amps)}), got {sd!r}")
+            for v in sd:
+                if not 0.0 <= _number(v, f"{token}.freq_sd[]") <= 0.25:
+                    raise ValueError(f"effect {token!r}: freq_sd (sd of a tone's frequency over frames, cycles per {line}) "
+                                     f"must be in [0, 0.25], got {v}")
     shares = params.get("on_share")
     if shares is None:
         return
@@ -206,8 +232,9 @@ def circle_amplitude(x, n: float, noise: float, coherent: float | None = None) -
     return 2.0 * np.sqrt(r2) / (n if coherent is None else coherent) if r2 > 0 else 0.0
 
 
-def line_tones(m, m_model) -> tuple[list[float], list[float], list[float]]:
-    """(frequencies in cycles per sensor line, amplitudes in DN, shares of frames on) of the tones in each frame's
+def line_tones(m, m_model) -> tuple[list[float], list[float], list[float], list[float]]:
+    """(frequencies in cycles per sensor line, amplitudes in DN, shares of frames on, sds of
+    the frequency over frames (``frequency_wander``; its frames' amplitudes at their own peaks)) of the tones in each frame's
     sensor-line means ``m`` (N, n; rows or columns) that the model's (``m_model``: one such
     array per synthesis) lacks. Tones are taken one at a time, strongest first, each removed
     from every frame's line means (least squares) before the next is looked for, so a tone's
@@ -224,7 +251,8 @@ def line_tones(m, m_model) -> tuple[list[float], list[float], list[float]]:
     narrow = stats.f.isf(FAMILY_P / len(f), 2 * n_frames, n_frames * LOCAL)
     step = 1.0 / n
     y = np.arange(n)
-    tones, amps, shares = [], [], []
+    tones, amps, shares, sds = [], [], [], []
+    m = np.array(m, dtype=np.float64)
     while len(tones) < L.BAND_TONES:
         measured = _power_at(m, f)
         local = ndimage.median_filter(measured, size=LOCAL, mode="mirror")
@@ -235,16 +263,55 @@ def line_tones(m, m_model) -> tuple[list[float], list[float], list[float]]:
         grid = np.clip(f[i] + step * np.linspace(-1, 1, 81), f[0], 0.5)  # not into the low band
         best = float(grid[int(np.argmax(_power_at(m, grid)))])
         noise = float(np.mean([_power_at(mm, [best])[0] for mm in m_model]))  # the model's power there, DN^2
-        amplitude, share = _tone_amplitude(m, best, noise)
+        sd, peaks, frame_amps = frequency_wander(m, best, noise, f[0])
+        if sd > 0:  # each frame's tone at its own frequency, the tone's the frames' mean
+            amplitude, share, best = float(np.sqrt(np.mean(frame_amps ** 2))), 1.0, float(np.mean(peaks))
+        else:
+            amplitude, share = _tone_amplitude(m, best, noise)
+            peaks = np.full(n_frames, best)
         if amplitude <= 0:
             break
         tones.append(best)
         amps.append(float(amplitude))
         shares.append(share)
-        basis = np.stack([np.cos(2 * np.pi * best * y), np.sin(2 * np.pi * best * y)], axis=1)
-        coef, *_ = np.linalg.lstsq(basis, m.T, rcond=None)
-        m = m - (basis @ coef).T
-    return tones, amps, shares
+        sds.append(sd)
+        for b, fb in enumerate(peaks):
+            basis = np.stack([np.cos(2 * np.pi * fb * y), np.sin(2 * np.pi * fb * y)], axis=1)
+            coef, *_ = np.linalg.lstsq(basis, m[b], rcond=None)
+            m[b] = m[b] - basis @ coef
+    return tones, amps, shares, sds
+
+
+def frequency_wander(m, f0: float, noise: float, low: float):
+    """(sd of the tone's frequency over frames, cycles per line; each frame's peak frequency
+    (N,); each frame's amplitude there, DN) of a tone near ``f0`` in the line means ``m`` (N, n),
+    ``noise`` the model's periodogram there (DN^2), ``low`` the low band's edge: each frame's
+    peak within JITTER_WINDOW bins (a grid of 1/8 bin, refined by a parabola). The sd is kept
+    where at least CLEAR_SHARE of the frames show their peak clearly (above the noise's largest
+    of the window's bins at p 1e-3), the peaks' variance over those passes the Cramer-Rao
+    variance of a frequency estimate (6 noise / ((2 pi a)^2 n (n^2 - 1)), a the tone) plus the
+    grid's at JITTER_P (chi2), and the sd is at least a quarter bin; else 0."""
+    n_frames, n = m.shape
+    step = 1.0 / (8 * n)
+    grid = np.clip(f0 + step * np.arange(-8 * JITTER_WINDOW, 8 * JITTER_WINDOW + 1), low, 0.5)
+    power = np.abs(m @ np.exp(-2j * np.pi * np.outer(grid, np.arange(n))).T) ** 2 / n  # (N, G), DN^2
+    i = np.clip(np.argmax(power, axis=1), 1, grid.size - 2)
+    rows = np.arange(n_frames)
+    left, mid, right = power[rows, i - 1], power[rows, i], power[rows, i + 1]
+    curve = left - 2 * mid + right
+    shift = np.where(curve < 0, 0.5 * (left - right) / np.where(curve < 0, curve, -1.0), 0.0)
+    peaks = grid[i] + np.clip(shift, -1.0, 1.0) * step
+    frame_amps = 2.0 * np.sqrt(np.maximum(mid - noise, 0.0) / n)  # |X|^2 / n = n a^2 / 4 + noise
+    clear = mid > noise * np.log((2 * JITTER_WINDOW + 1) / 1e-3)
+    if clear.sum() < max(3, CLEAR_SHARE * n_frames):
+        return 0.0, peaks, frame_amps
+    a2 = float(np.mean(frame_amps[clear] ** 2))
+    null = 6.0 * noise / ((2 * np.pi) ** 2 * a2 * n * (n * n - 1.0)) + step * step / 12.0
+    s2 = float(np.var(peaks[clear], ddof=1))
+    dof = int(clear.sum()) - 1
+    if dof * s2 / null <= stats.chi2.isf(JITTER_P, dof) or np.sqrt(s2) < 0.25 / n:
+        return 0.0, peaks, frame_amps
+    return float(np.sqrt(max(s2 - null, 0.0))), peaks, frame_amps
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
@@ -253,8 +320,9 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     frames = np.asarray(frames, dtype=np.float64)
     if level_dn is not None or not synthesized:
         raise ValueError("Band is measured on bias and dark stacks, against syntheses")
-    tones, amps, shares = line_tones(frame_row_means(frames), [frame_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
-    return {"k": [float(k)], "freq_per_row": [tones], "amplitude_dn": [amps], "on_share": [shares], "frames": [int(frames.shape[0])]}
+    tones, amps, shares, sds = line_tones(frame_row_means(frames), [frame_row_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
+    return {"k": [float(k)], "freq_per_row": [tones], "amplitude_dn": [amps], "on_share": [shares], "freq_sd": [sds],
+            "frames": [int(frames.shape[0])]}
 
 
 def combine(records: list[dict]) -> dict:
@@ -288,29 +356,35 @@ def combine_tones(records: list[dict], freq_key: str) -> dict:
     that found it (within 1/200 cycle per line), weighed by the degrees of freedom of each
     stack's circle fit (``frames`` - 3: a circle through 4 frames' coefficients is far less
     certain than one through 8; equal weights where none has more than 3 frames); the
-    amplitude is that power over the share. ``on_share`` is kept where some tone is off in a
+    amplitude is that power over the share, a wandering frequency's variance pooled alike. ``on_share`` is kept where some tone is off in a
     share of the frames."""
     by_k: dict = {}
     for r in records:
         by_k.setdefault(float(r["k"][0]), []).append(r)
     ks = sorted(by_k)
-    freqs, amps, shares = [], [], []
+    freqs, amps, shares, sds = [], [], [], []
     for k in ks:
         first = by_k[k][0]
         freqs.append(list(first[freq_key][0]))
-        row, row_share = [], []
+        row, row_share, row_sd = [], [], []
         for f in first[freq_key][0]:
-            found = [(a, p, max(r.get("frames", [4])[0] - 3, 0)) for r in by_k[k]
-                     for g, a, p in zip(r[freq_key][0], r["amplitude_dn"][0], (r.get("on_share") or [[]])[0] or [1.0] * len(r[freq_key][0]))
-                     if abs(g - f) < 0.005]
-            a, p, w = (np.array(v, dtype=np.float64) for v in zip(*found))
+            found = [(a, p, d, max(r.get("frames", [4])[0] - 3, 0)) for r in by_k[k]
+                     for g, a, p, d in zip(r[freq_key][0], r["amplitude_dn"][0],
+                                           (r.get("on_share") or [[]])[0] or [1.0] * len(r[freq_key][0]),
+                                           (r.get("freq_sd") or [[]])[0] or [0.0] * len(r[freq_key][0]))
+                     if abs(g - f) < max(0.005, 3.0 * d)]  # a wandering tone's stacks find it where their frames put it
+            a, p, d, w = (np.array(v, dtype=np.float64) for v in zip(*found))
             w = w if w.sum() > 0 else np.ones_like(w)
             share = float(np.average(p, weights=w))
             row.append(float(np.sqrt(np.average(p * a * a, weights=w) / share)) if share > 0 else 0.0)
             row_share.append(share)
+            row_sd.append(float(np.sqrt(np.average(d * d, weights=w))))  # the variances pooled
         amps.append(row)
         shares.append(row_share)
+        sds.append(row_sd)
     out = {"k": ks, freq_key: freqs, "amplitude_dn": amps}
     if any(v < 1.0 for row in shares for v in row):
         out["on_share"] = shares
+    if any(v > 0.0 for row in sds for v in row):
+        out["freq_sd"] = sds
     return out

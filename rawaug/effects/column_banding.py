@@ -45,7 +45,7 @@ class ColumnBanding(NoiseEffect):
     columns = tuple(f"cband_f{j}" for j in range(L.BAND_TONES)) + tuple(f"cband_a{j}" for j in range(L.BAND_TONES))
 
     def draw(self, ctx):
-        return draw_tones(self.profile.effects[self.token], ctx, {"f": "freq_per_col", "a": "amplitude_dn"}, "cband")
+        return draw_tones(self.profile.effects[self.token], ctx, {"f": "freq_per_col", "a": "amplitude_dn"}, "cband", jitter="f")
 
     @classmethod
     def validate_params(cls, params):
@@ -58,8 +58,9 @@ def estimate(frames, synthesized, k: float, level_dn=None, **_) -> dict:
     frames = np.asarray(frames, dtype=np.float64)
     if level_dn is not None or not synthesized:
         raise ValueError("ColBand is measured on bias and dark stacks, against syntheses")
-    tones, amps, shares = line_tones(frame_col_means(frames), [frame_col_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
-    return {"k": [float(k)], "freq_per_col": [tones], "amplitude_dn": [amps], "on_share": [shares], "frames": [int(frames.shape[0])]}
+    tones, amps, shares, sds = line_tones(frame_col_means(frames), [frame_col_means(np.asarray(s, dtype=np.float64)) for s in synthesized])
+    return {"k": [float(k)], "freq_per_col": [tones], "amplitude_dn": [amps], "on_share": [shares], "freq_sd": [sds],
+            "frames": [int(frames.shape[0])]}
 
 
 def combine(records: list[dict]) -> dict:
