@@ -1037,6 +1037,27 @@ def row_flicker_fraction(frames, level_dn=None):
 NOISY_LINE_Z = 6.0  # robust sigmas (over the sensor columns) above the median column: a noisy column
 
 
+def row_noise_blocks(frames):
+    """(READ_MAP_BLOCKS,) temporal variance (ddof 1) of the sensor-row means in each row block
+    (``block_index`` of the packed rows, as the kernels cut them), DN^2: each frame's row means
+    less that frame's mean (``frame_row_means``) and less the stack's mean row means (a fixed
+    row pattern)."""
+    m = frame_row_means(np.asarray(frames, dtype=np.float64))
+    n = m.shape[0]
+    r2 = (m - m.mean(axis=0, keepdims=True)) ** 2 * (n / (n - 1))
+    block = block_index(m.shape[1] // 2)[np.arange(m.shape[1]) // 2]
+    return np.bincount(block, weights=r2.sum(axis=0), minlength=READ_MAP_BLOCKS) / (n * np.bincount(block, minlength=READ_MAP_BLOCKS))
+
+
+def row_noise_spread(frames, level_dn=None):
+    """Rms over the row blocks of the log temporal variance of the sensor-row means
+    (``row_noise_blocks``) less their mean: near sqrt(2 / ((N - 1) rows per block)) for row
+    noise of one level; more where the row noise grows or falls along the frame (a reference
+    settling during readout, a row driver far from its supply)."""
+    v = np.log(np.maximum(row_noise_blocks(frames), 1e-12))
+    return float(np.sqrt(np.mean((v - v.mean()) ** 2)))
+
+
 def column_pixel_noise(frames):
     """(2w,) of a stack (N >= 2, 4, h, w; DN): each sensor column's median, over its pixels (its
     two packed channels, all rows), of their temporal variance (ddof 1) once each frame's
@@ -2041,6 +2062,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("fixed_row_excess", fixed_row_excess, min_frames=2),
         Statistic("neighbour_corr", neighbour_corr, min_frames=2),  # in flats: charge shared between pixels (diffusion)
         Statistic("read_noise_spread", read_noise_spread, min_frames=2, kind="bias"),
+        Statistic("row_noise_spread", row_noise_spread, min_frames=3, kind="bias"),
         Statistic("frame_noise_spread", frame_noise_spread, min_frames=3, kind="bias"),
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
         Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),

@@ -79,6 +79,7 @@ LOOP_EFFECTS = {
     "ColDrift": {"k": [1.0, 3.0], "octave_dn": [[0.3, 0.0, 0.8, 0.0, 1.1, 0.6, 0.0, 0.2], [0.1] * 8]},  # flag word 1
     "RowRepeat": {"density": 0.1},  # flag word 1: rows read as the same colour's row above
     "BankNoise": {"k": [1.0, 3.0], "col_period": 3, "sigma_dn": [[1.5, 0.0, 0.4], [2.0, 0.5, 0.0]]},  # flag word 1
+    "RowMap": {"k": [1.0, 3.0], "row_block_dn": [[0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5], [1.0] * 8], "frame_h": 40},  # flag word 1: a window per sample
     "DarkCluster": {"seed": 61, "density": 0.02, "size": 3, "median_e_per_s": 30.0, "log_std": 0.4},  # flag word 1: patches of hot pixels
     "RowBurst": {"density": 0.05, "k": [1.0, 3.0], "sigma_dn": [3.0, 5.0]},  # flag word 1: rows with extra noise in single frames
     "DNL": {"period": 5, "threshold_dn": [0.0, 0.3, -0.2, 0.25, -0.35]},  # codes 0.4 to 1.45 wide, then the code map

@@ -141,6 +141,8 @@ _DCLUS_WHERE, _DCLUS_SIZE = L.STREAM["dclus_where"], L.STREAM["dclus_size"]
 _DARK_CLUSTER_HIGH = L.DARK_CLUSTER >> L.WORD_BITS
 _BRD, _BRS, _BURST_ROW, _BURST_NOISE = L.COLUMN["burst_density"], L.COLUMN["burst_sigma"], L.STREAM["burst_row"], L.STREAM["burst_noise"]
 _ROW_BURST_HIGH = L.ROW_BURST >> L.WORD_BITS
+_ROWMAP_Y0, _ROWMAP_OY, _ROWMAP_H, _ROW_MAP = L.COLUMN["rowmap_y0"], L.COLUMN["rowmap_oy"], L.COLUMN["rowmap_h"], L.STREAM["row_map"]
+_ROW_MAP_HIGH = L.ROW_MAP >> L.WORD_BITS
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([tap[0] for tap in L.XTALK_TAPS], dtype=np.int64)
 _XT_DX = np.array([tap[1] for tap in L.XTALK_TAPS], dtype=np.int64)
@@ -362,6 +364,10 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             if stages & L.ROW_TAIL:  # heavy tails: Tukey's h transform, scaled back to unit variance
                 z_row *= math.exp(0.5 * v[_RH] * z_row * z_row) * (1.0 - 2.0 * v[_RH]) ** 0.75
             line += v[_R] * z_row
+        if stages_high & _ROW_MAP_HIGH:  # the row block's own row noise, per sensor row and frame
+            rwh = int(v[_ROWMAP_H]) if v[_ROWMAP_H] > 0.0 else h
+            line += (v[_ROWMAP_Y0 + min((y + int(v[_ROWMAP_OY])) * _NB // rwh, _NB - 1)]
+                     * symmetric(normal, draw(keys[_ROW_MAP], (b * 2 + row_set) * h + y)))
         if stages & L.BIAS:
             line += v[_B0 + c]
         if stages & L.BLE:

@@ -80,6 +80,7 @@ BANK_NOISE = 1 << 65  # readout bank noise: extra white temporal noise of its ow
 DARK_CLUSTER = 1 << 66  # clusters of hot pixels: square patches of sensor pixels sharing one dark-current rate (e-/s), before shot noise
 CLUSTER_MAX = 4  # clusters of hot pixels: the largest side of a patch (sensor pixels)
 ROW_BURST = 1 << 67  # burst rows: sensor rows read with extra white noise, at new rows in every frame (interference bursts during readout)
+ROW_MAP = 1 << 68  # row-noise map: extra row noise of its own level per row block of the measured frame
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
@@ -179,6 +180,7 @@ COLUMNS = (
     "burst_density", "burst_sigma",  # burst rows: share of a frame's sensor rows, extra std (DN)
     "dead_col_density", "dead_row_density", "dead_partial", "dead_to_end",  # dead lines: shares of sensor columns and rows, share partial, of those the share reaching the end
     "dead_cut_lo", "dead_cut_hi",  # ... the range of a partial line's break (fractions of the line)
+    *(f"rowmap_y{i}" for i in range(READ_MAP_BLOCKS)), "rowmap_oy", "rowmap_h",  # row-noise map: extra std per row block (DN), window
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -198,7 +200,7 @@ STREAMS = (
     "drts_where", "drts_size", "drts_state", "ncol_where", "ncol_size", "ncol_read",
     "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
     "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
-    "burst_row", "burst_noise", "dead_col", "dead_row",
+    "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

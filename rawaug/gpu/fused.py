@@ -92,6 +92,7 @@ C_BNCP, C_BNC0 = _column("bnoise_cp"), _column("bnoise_c0")
 C_CLD, C_CLE, C_CLL, C_CLS = _column("dclus_density"), _column("dclus_e"), _column("dclus_log_std"), _column("dclus_size")
 CLUSTER_MAX = tl.constexpr(L.CLUSTER_MAX)
 C_BRD, C_BRS = _column("burst_density"), _column("burst_sigma")
+C_RWY0, C_RWOY, C_RWH = _column("rowmap_y0"), _column("rowmap_oy"), _column("rowmap_h")
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5, XT_DY6, XT_DX6 = (
@@ -117,6 +118,7 @@ K_COL_DRIFT, K_COL_DRIFT_PHASE = S["col_drift"], S["col_drift_phase"]
 K_ROW_REPEAT, K_BANK_NOISE = S["row_repeat"], S["bank_noise"]
 K_DCLUS_WHERE, K_DCLUS_SIZE = S["dclus_where"], S["dclus_size"]
 K_BURST_ROW, K_BURST_NOISE = S["burst_row"], S["burst_noise"]
+K_ROW_MAP = S["row_map"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
@@ -576,6 +578,11 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
             h_row = _col(v, C_RH)
             z_row *= tl.exp(0.5 * h_row * z_row * z_row) * tl.exp(0.75 * tl.log(1.0 - 2.0 * h_row))
         line += _col(v, C_R) * z_row
+    if FLAGS_HIGH & 32:  # (word 1) row-noise map: the row block's own row noise, per sensor row and frame
+        rwh = tl.where(_col(v, C_RWH) > 0.0, _col(v, C_RWH), H * 1.0).to(tl.int64)
+        by = tl.minimum((y + _col(v, C_RWOY).to(tl.int64)) * NB // rwh, NB - 1)
+        line += (tl.load(v + C_RWY0 + by, mask=live, other=0.0)
+                 * _normal(draw(_key(keys_ptr, K_ROW_MAP), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64))))
     if FLAGS & 4194304:  # banding: tones along the sensor rows, a phase per frame and tone
         ry = 2 * y + row_set
         kb = _key(keys_ptr, K_BAND)

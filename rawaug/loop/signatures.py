@@ -27,7 +27,7 @@ from ..statistics import (CURVE_LAGS, col_tone_spectrum, column_pixel_noise, dia
 
 KIND = {
     "psd2d_lowfreq": "radial_spectrum",
-    "row_lowfreq": "row_spectrum", "row_excess": "row_spectrum",
+    "row_lowfreq": "row_spectrum", "row_excess": "row_spectrum", "row_noise_spread": "row_spectrum",
     "col_lowfreq": "col_spectrum", "col_excess": "col_spectrum", "fixed_col_excess": "mean_col_spectrum",
     "fixed_row_excess": "mean_row_spectrum",
     "mean_dn": "mean_map_histogram", "fixed_std": "mean_map_histogram", "fixed_pixel_var": "mean_map_histogram",
