@@ -17,7 +17,7 @@ LOOP_EFFECTS = {
     "Col": {"seed": 7, "k": [1.0, 3.0], "sigma_dn": [0.5, 0.9], "fixed_dn": [0.7, 1.1]},
     "FPN": {"seed": 11, "k": [1.0, 3.0], "sigma_dn": [0.4, 0.6], "shading_dn": [[[0.0, 1.0], [2.0, -1.0]], [[1.0, 0.5], [0.0, 3.0]]],
             "frame_h": 48, "frame_w": 64},  # larger than the test inputs: a window per sample
-    "Hot": {"seed": 13, "density": 0.01, "log_std": 0.5, "k": [1.0], "median_dn": [50.0]},
+    "Hot": {"seed": 13, "density": 0.01, "log_std": 0.5, "k": [1.0], "median_dn": [50.0], "tile_density": 0.02},  # hot 2x2 tiles too
     "DarkHot": {"seed": 61, "density": 0.03, "median_e_per_s": 5.0, "log_std": 0.5},  # before the Poisson draw
     "DarkRTS": {"seed": 97, "density": 0.05, "high": 0.4, "median_e_per_s": 6.0, "log_std": 0.4},  # ... in some frames
     "DarkCol": {"seed": 71, "density": 0.08, "median_e_per_s": 4.0, "log_std": 0.4},  # ... keyed by the sensor column

@@ -143,6 +143,7 @@ _BRD, _BRS, _BURST_ROW, _BURST_NOISE = L.COLUMN["burst_density"], L.COLUMN["burs
 _ROW_BURST_HIGH = L.ROW_BURST >> L.WORD_BITS
 _ROWMAP_Y0, _ROWMAP_OY, _ROWMAP_H, _ROW_MAP = L.COLUMN["rowmap_y0"], L.COLUMN["rowmap_oy"], L.COLUMN["rowmap_h"], L.STREAM["row_map"]
 _ROW_MAP_HIGH = L.ROW_MAP >> L.WORD_BITS
+_HTD, _HOT_TILE_WHERE, _HOT_TILE_SIZE = L.COLUMN["hot_tile_density"], L.STREAM["hot_tile_where"], L.STREAM["hot_tile_size"]
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([tap[0] for tap in L.XTALK_TAPS], dtype=np.int64)
 _XT_DX = np.array([tap[1] for tap in L.XTALK_TAPS], dtype=np.int64)
@@ -629,6 +630,10 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 s = sig[x]
                 if unit(draw(keys[_HOT_WHERE], p)) < v[_HD]:
                     s += v[_HM] * math.exp(v[_HL] * symmetric(normal, draw(keys[_HOT_SIZE], p)))
+                if v[_HTD] > 0.0:  # a hot tile: the four pixels of a 2x2 tile (a shared readout's defect) alike
+                    pt = (sensor * h + y) * w + x
+                    if unit(draw(keys[_HOT_TILE_WHERE], pt)) < v[_HTD]:
+                        s += v[_HM] * math.exp(v[_HL] * symmetric(normal, draw(keys[_HOT_TILE_SIZE], pt)))
                 sig[x] = s
         if stages & L.RTS:  # a telegraph pixel's step, in the frames where it is high
             for x in range(w):

@@ -181,6 +181,7 @@ COLUMNS = (
     "dead_col_density", "dead_row_density", "dead_partial", "dead_to_end",  # dead lines: shares of sensor columns and rows, share partial, of those the share reaching the end
     "dead_cut_lo", "dead_cut_hi",  # ... the range of a partial line's break (fractions of the line)
     *(f"rowmap_y{i}" for i in range(READ_MAP_BLOCKS)), "rowmap_oy", "rowmap_h",  # row-noise map: extra std per row block (DN), window
+    "hot_tile_density",  # hot pixels: share of the 2x2 tiles (packed positions) hot in all four pixels
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -201,6 +202,7 @@ STREAMS = (
     "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
     "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
     "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
+    "hot_tile_where", "hot_tile_size",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

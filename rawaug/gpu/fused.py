@@ -93,6 +93,7 @@ C_CLD, C_CLE, C_CLL, C_CLS = _column("dclus_density"), _column("dclus_e"), _colu
 CLUSTER_MAX = tl.constexpr(L.CLUSTER_MAX)
 C_BRD, C_BRS = _column("burst_density"), _column("burst_sigma")
 C_RWY0, C_RWOY, C_RWH = _column("rowmap_y0"), _column("rowmap_oy"), _column("rowmap_h")
+C_HTD = _column("hot_tile_density")
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
 XT_PAD = tl.constexpr(L.XTALK_PAD)
 XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, XT_DY5, XT_DX5, XT_DY6, XT_DX6 = (
@@ -119,6 +120,7 @@ K_ROW_REPEAT, K_BANK_NOISE = S["row_repeat"], S["bank_noise"]
 K_DCLUS_WHERE, K_DCLUS_SIZE = S["dclus_where"], S["dclus_size"]
 K_BURST_ROW, K_BURST_NOISE = S["burst_row"], S["burst_noise"]
 K_ROW_MAP = S["row_map"]
+K_HOT_TILE_WHERE, K_HOT_TILE_SIZE = S["hot_tile_where"], S["hot_tile_size"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
@@ -455,6 +457,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         hot = unit(draw(_key(keys_ptr, K_HOT_WHERE), p)) < _col(v, C_HD)
         size = _col(v, C_HM) * tl.exp(_col(v, C_HL) * _normal(draw(_key(keys_ptr, K_HOT_SIZE), p)))
         s += tl.where(hot, size, 0.0)
+        pt = (sensor.to(tl.int64) * hw + src).to(tl.uint64)  # a hot tile: the four pixels of a 2x2 tile alike
+        tile = unit(draw(_key(keys_ptr, K_HOT_TILE_WHERE), pt)) < _col(v, C_HTD)
+        s += tl.where(tile, _col(v, C_HM) * tl.exp(_col(v, C_HL) * _normal(draw(_key(keys_ptr, K_HOT_TILE_SIZE), pt))), 0.0)
     if FLAGS & 134217728:  # telegraph pixels: the step, in the frames where the pixel is high
         flips = (unit(draw(_key(keys_ptr, K_RTS_WHERE), p)) < _col(v, C_RTD)) & (unit(draw(_key(keys_ptr, K_RTS_STATE), g)) < _col(v, C_RTH))
         step = _col(v, C_RTM) * tl.exp(_col(v, C_RTL) * _normal(draw(_key(keys_ptr, K_RTS_SIZE), p)))
