@@ -856,7 +856,11 @@ def test_banding_estimate_finds_the_tones_and_nothing_in_white_line_noise(axis):
         module.estimate(meas, base, K, level_dn=100.0)
 
 
-@pytest.mark.parametrize("axis", list(TONE_AXES))
+# the columns share the rows' code (banding.line_tones, draw_tones): checked in the slow run
+ROWS_NOW = ["rows", pytest.param("columns", marks=pytest.mark.slow)]
+
+
+@pytest.mark.parametrize("axis", ROWS_NOW)
 def test_a_tone_switched_on_in_a_share_of_the_frames_is_drawn_and_estimated(axis):
     token, record, key, line_means, _, module = TONE_AXES[axis]
     record = {**record, "on_share": [[0.5, 1.0]]}  # the first tone on in half the frames, the second in all
@@ -886,7 +890,7 @@ def test_a_tone_switched_on_in_a_share_of_the_frames_is_drawn_and_estimated(axis
     assert abs(out["amplitude_dn"][0][0] - 1.2) < 0.15 * 1.2, out
 
 
-@pytest.mark.parametrize("axis", list(TONE_AXES))
+@pytest.mark.parametrize("axis", ROWS_NOW)
 def test_a_tone_whose_frequency_wanders_is_drawn_and_estimated(axis):
     """A 1.2 DN tone at 0.12 cycles per line, its frequency off by a normal 0.01 per frame: the
     frames' own peaks (64 nearly noiseless frames) spread with an sd within 4 chi sd of 0.01;
