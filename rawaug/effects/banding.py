@@ -115,28 +115,24 @@ def validate_tones(token: str, params, freq_key: str, line: str) -> None:
         for a in amps:
             if _number(a, f"{token}.amplitude_dn[]") < 0:
                 raise ValueError(f"effect {token!r}: amplitude_dn must be >= 0, got {a}")
-    sds = params.get("freq_sd")
-    if sds is not None:
-        if not isinstance(sds, (list, tuple)) or len(sds) != len(params["k"]):
-            raise ValueError(f"effect {token!r}: freq_sd needs one list per record ({len(params['k'])}), got {sds!r}")
-        for r, (sd, amps) in enumerate(zip(sds, params["amplitude_dn"])):
-            if not isinstance(sd, (list, tuple)) or len(sd) != len(amps):
-                raise ValueError(f"effect {token!r}: record {r} needs freq_sd as long as amplitude_dn ({len(amps)}), got {sd!r}")
-            for v in sd:
-                if not 0.0 <= _number(v, f"{token}.freq_sd[]") <= 0.25:
-                    raise ValueError(f"effect {token!r}: freq_sd (sd of a tone's frequency over frames, cycles per {line}) "
-                                     f"must be in [0, 0.25], got {v}")
-    shares = params.get("on_share")
-    if shares is None:
+    _per_tone(token, params, "freq_sd", 0.25, f"sd of a tone's frequency over frames, cycles per {line}")
+    _per_tone(token, params, "on_share", 1.0, "the share of frames a tone is on")
+
+
+def _per_tone(token: str, params, key: str, most: float, meaning: str) -> None:
+    """An optional per-tone list ``key`` of a tone record: one list per record, as long as its
+    amplitudes, each value in [0, most]."""
+    values = params.get(key)
+    if values is None:
         return
-    if not isinstance(shares, (list, tuple)) or len(shares) != len(params["k"]):
-        raise ValueError(f"effect {token!r}: on_share needs one list per record ({len(params['k'])}), got {shares!r}")
-    for r, (share, amps) in enumerate(zip(shares, params["amplitude_dn"])):
-        if not isinstance(share, (list, tuple)) or len(share) != len(amps):
-            raise ValueError(f"effect {token!r}: record {r} needs on_share as long as amplitude_dn ({len(amps)}), got {share!r}")
-        for v in share:
-            if not 0.0 <= _number(v, f"{token}.on_share[]") <= 1.0:
-                raise ValueError(f"effect {token!r}: on_share (the share of frames a tone is on) must be in [0, 1], got {v}")
+    if not isinstance(values, (list, tuple)) or len(values) != len(params["k"]):
+        raise ValueError(f"effect {token!r}: {key} needs one list per record ({len(params['k'])}), got {values!r}")
+    for r, (row, amps) in enumerate(zip(values, params["amplitude_dn"])):
+        if not isinstance(row, (list, tuple)) or len(row) != len(amps):
+            raise ValueError(f"effect {token!r}: record {r} needs {key} as long as amplitude_dn ({len(amps)}), got {row!r}")
+        for v in row:
+            if not 0.0 <= _number(v, f"{token}.{key}[]") <= most:
+                raise ValueError(f"effect {token!r}: {key} ({meaning}) must be in [0, {most:g}], got {v}")
 
 
 def _power_at(m, f):

@@ -71,21 +71,22 @@ class ReadMap(NoiseEffect):
         frame_size(cls.token, params)
 
 
+def pattern_beyond(measured, synth, p_value: float = P_VALUE) -> bool:
+    """Is a measured pattern (n,) beyond the model's, its syntheses' (S, n)? An F-test: the
+    measured pattern's deviation from the syntheses' mean, over the syntheses' own spread."""
+    m = np.asarray(synth)
+    s, n = m.shape
+    spread = np.sum((m - m.mean(axis=0)) ** 2) / ((s - 1) * (n - 1)) * (1.0 + 1.0 / s)
+    f = np.sum((measured - m.mean(axis=0)) ** 2) / (n - 1) / max(spread, 1e-300)
+    return bool(stats.f.sf(f, n - 1, (s - 1) * (n - 1)) < p_value)
+
+
 def _significant(measured, synth) -> list[bool]:
     """Per group (channel, row block, column block): is the measured main-effect pattern of the
-    log cell variances beyond the model's? An F-test, family-wise ``P_VALUE`` per group: the
-    measured effects' deviation from the syntheses' mean, over the syntheses' own spread."""
-    s = len(synth)
+    log cell variances beyond the model's (``pattern_beyond``, family-wise ``P_VALUE`` per group)?"""
     meas = map_effects(np.log(np.maximum(measured, 1e-12)))
     parts = [map_effects(np.log(np.maximum(c, 1e-12))) for c in synth]
-    out = []
-    for g in range(len(GROUPS)):
-        m = np.array([p[g] for p in parts])  # (S, n)
-        n = m.shape[1]
-        spread = np.sum((m - m.mean(axis=0)) ** 2) / ((s - 1) * (n - 1)) * (1.0 + 1.0 / s)
-        f = np.sum((meas[g] - m.mean(axis=0)) ** 2) / (n - 1) / max(spread, 1e-300)
-        out.append(bool(stats.f.sf(f, n - 1, (s - 1) * (n - 1)) < P_VALUE))
-    return out
+    return [pattern_beyond(meas[g], np.array([p[g] for p in parts])) for g in range(len(GROUPS))]
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, kind: str = "bias", **_) -> dict:

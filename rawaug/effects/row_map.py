@@ -25,12 +25,11 @@ frame's average).
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
-
 from ..engine import layout as L
 from ..statistics import row_noise_blocks
 from .base import BANDING, NoiseEffect, register
 from .k_records import _number, all_zero, record_index, validate_records, window_columns
+from .read_map import pattern_beyond
 
 STATISTICS = ("row_noise_spread",)
 SHARES_ROW_NOISE = True  # calibration counted its variance in the frame's row noise
@@ -70,15 +69,11 @@ class RowMap(NoiseEffect):
 
 
 def _significant(measured, synth) -> bool:
-    """Is the measured pattern of the log block variances beyond the model's? An F-test: its
-    deviation from the syntheses' mean over the syntheses' own spread, at ``P_VALUE``."""
+    """Is the measured pattern of the log block variances (each less its mean) beyond the
+    model's (``read_map.pattern_beyond``, at ``P_VALUE``)?"""
     meas = np.log(np.maximum(measured, 1e-12))
     m = np.log(np.maximum(synth, 1e-12))
-    meas, m = meas - meas.mean(), m - m.mean(axis=1, keepdims=True)
-    s, n = m.shape
-    spread = np.sum((m - m.mean(axis=0)) ** 2) / ((s - 1) * (n - 1)) * (1.0 + 1.0 / s)
-    f = np.sum((meas - m.mean(axis=0)) ** 2) / (n - 1) / max(spread, 1e-300)
-    return bool(stats.f.sf(f, n - 1, (s - 1) * (n - 1)) < P_VALUE)
+    return pattern_beyond(meas - meas.mean(), m - m.mean(axis=1, keepdims=True), P_VALUE)
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, kind: str = "bias", **_) -> dict:
