@@ -272,7 +272,7 @@ def without_stuck(frames):
 def without_impulses(frames):
     """The frames (N >= 3) with each impulse (``spike_outliers``: a bright single-frame event
     beyond the read noise's own tail, as a cosmic ray makes, or a dark one) replaced by its pixel's median
-    over the stack, DN: an impulse is counted once, as an impulse, and not also as a defect
+    over the stack (the lower middle value of an even stack: one the pixel read), DN: an impulse is counted once, as an impulse, and not also as a defect
     line, a flickering line, a hot pixel or a heavy tail. Fewer frames, or no significant
     excess of bright events: the frames themselves."""
     f = np.asarray(frames, dtype=np.float64)
@@ -283,7 +283,9 @@ def without_impulses(frames):
         return f
     c = f.copy()
     n, ch, y, x = np.nonzero(hit)
-    c[n, ch, y, x] = np.median(f[:, ch, y, x], axis=0)
+    # the lower of the two middle values (an even stack's median is their mean, a half code): a
+    # value the pixel read, so that whole codes stay whole (``code_dnl``, ``missing_codes``)
+    c[n, ch, y, x] = np.partition(f[:, ch, y, x], (f.shape[0] - 1) // 2, axis=0)[(f.shape[0] - 1) // 2]
     return c
 
 

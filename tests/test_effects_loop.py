@@ -1478,6 +1478,21 @@ def test_impulses_count_once_as_impulses():
     assert all(untouched), untouched.count(False)
 
 
+def test_impulses_replaced_in_an_even_stack_keep_whole_codes():
+    """An impulse is replaced by a value its pixel read (an even stack's median, the mean of two
+    codes, is a half code): whole codes stay whole, and the code statistics still read them
+    (before, one replaced impulse made ``code_dnl`` 0 on every synthesis of a camera)."""
+    from rawaug.statistics import code_dnl, statistic_view, without_impulses
+
+    big = {**SPIKES, "density_per_s": 0.0, "median_dn": [300.0], "log_std": 0.3}
+    f = np.rint(synth({"Spikes": big}, batch=8, size=64, seed=4, sigma_g=3.0))
+    clean = np.rint(synth({}, batch=8, size=64, seed=4, sigma_g=3.0))
+    assert without_impulses(f) is not f  # impulses were replaced
+    view = statistic_view("code_dnl", f)
+    assert np.array_equal(view, np.rint(view))
+    assert abs(code_dnl(view) - code_dnl(statistic_view("code_dnl", clean))) < 0.3, (code_dnl(view), code_dnl(clean))
+
+
 def test_dead_pixels_count_once_and_clipped_pixels_are_not_dead():
     f = synth({"Dead": DEAD}, batch=6, size=64, sigma_g=1.0)
     # every other statistic reads the frames with their dead pixels replaced by live neighbours
