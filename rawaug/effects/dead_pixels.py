@@ -117,21 +117,6 @@ LINE_MIN = 8  # stuck pixels in a row along a sensor line that make a dead line 
 LINE_SHARE = 0.9  # of the pixels of a dead line's part that are stuck (a few may be hit by impulses)
 
 
-def _sensor_lines(mask, sets, axis):
-    """(2 x lines, positions) of a (4, h, w) mask: each sensor line of the given orientation
-    (``axis`` 1: columns, along the sensor rows; 2: rows, along the sensor columns), its two
-    packed channels interleaved in sensor order. ``sets`` is the channels' set along the line."""
-    out = []
-    for line_set in (0, 1):
-        chans = [c for c in range(4) if (L.COLUMN_SET if axis == 1 else L.ROW_SET)[c] == line_set]
-        chans = sorted(chans, key=lambda c: sets[c])  # sensor order along the line
-        m = np.stack([mask[c] if axis == 1 else mask[c].T for c in chans], axis=1)  # (h, 2, w) or (w, 2, h)
-        out.append(m.reshape(-1, m.shape[2]).T)  # (lines of this set, positions along them)
-    lines = np.empty((2 * out[0].shape[0], out[0].shape[1]), dtype=bool)
-    lines[0::2], lines[1::2] = out  # sensor line 2j + line_set
-    return lines
-
-
 def dead_segments(mask):
     """Per line of a (lines, n) mask of stuck pixels: (dead, partial, to_end, start, stop) arrays.
     A line is dead over the segment, whole or from a position to one end, that holds the most
@@ -153,24 +138,23 @@ def dead_segments(mask):
 
 
 def dead_lines(stuck):
-    """Dead lines of a (4, h, w) mask of stuck pixels (line pixels included): (column fraction,
-    row fraction, partial count, partial to the end count, line count, (4, h, w) mask of their
-    dead parts, the partial lines' breaks as fractions of their lines)."""
+    """Dead lines of a (4, h, w) mask of stuck pixels (line pixels included), looked for along
+    the sensor rows and columns of its mosaic: (column fraction, row fraction, partial count,
+    partial to the end count, line count, (4, h, w) mask of their dead parts, the partial lines'
+    breaks as fractions of their lines)."""
     _, h, w = stuck.shape
+    mosaic = np.zeros((2 * h, 2 * w), dtype=bool)
+    for c in range(4):
+        mosaic[L.ROW_SET[c]::2, L.COLUMN_SET[c]::2] = stuck[c]
     found, cuts = [], []
-    part = np.zeros_like(stuck)
-    for axis, sets in ((1, L.ROW_SET), (2, L.COLUMN_SET)):
-        lines = _sensor_lines(stuck, sets, axis)
+    covered = np.zeros_like(mosaic)
+    for lines, dead_part in ((mosaic.T, covered.T), (mosaic, covered)):  # sensor columns, then rows (views)
         dead, partial, to_end, lo, hi = dead_segments(lines)
         found.append((dead, partial, to_end))
         cuts += (np.where(to_end, lo, hi)[partial] / lines.shape[1]).tolist()
-        covered = np.zeros_like(lines)
         for i in np.flatnonzero(dead):
-            covered[i, lo[i]:hi[i]] = True
-        for c in range(4):  # back to the packed channels
-            line_set = (L.COLUMN_SET if axis == 1 else L.ROW_SET)[c]
-            along = covered[line_set::2, sets[c]::2]  # (w, h) or (h, w)
-            part[c] |= along.T if axis == 1 else along
+            dead_part[i, lo[i]:hi[i]] = True
+    part = np.stack([covered[L.ROW_SET[c]::2, L.COLUMN_SET[c]::2] for c in range(4)])
     (cd, cp, ce), (rd, rp, re) = found
     partial = int(cp.sum() + rp.sum())
     return (float(cd.mean()), float(rd.mean()), partial, int((cp & ce).sum() + (rp & re).sum()),

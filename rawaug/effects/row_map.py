@@ -48,7 +48,8 @@ class RowMap(NoiseEffect):
         p = self.profile.effects[self.token]
         table = ctx.k.new_tensor(np.asarray(p["row_block_dn"], dtype=np.float64).reshape(len(p["k"]), NB))[record_index(p, ctx.k)]
         out = {f"rowmap_y{i}": table[:, i] for i in range(NB)}
-        window = window_columns(ctx, self.token, {"frame_h": p["frame_h"], "frame_w": 1 << 20} if "frame_h" in p else {},
+        # a window along the rows only: a frame 1 column wide is never narrower than the input
+        window = window_columns(ctx, self.token, {"frame_h": p["frame_h"], "frame_w": 1} if "frame_h" in p else {},
                                 ("rowmap_oy", "rowmap_ox", "rowmap_h", "rowmap_w"))
         out["rowmap_oy"], out["rowmap_h"] = window["rowmap_oy"], window["rowmap_h"]
         return out
