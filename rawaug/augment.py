@@ -313,7 +313,8 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         if not self._flags & L.NONLIN:
             return 1.0
         v = values.to(clean.device, torch.float64)
-        c, k, ratio = (v[:, L.COLUMN[n]].view(-1, 1, 1, 1) for n in ("nl_c", "k", "ratio"))
+        k, ratio = (v[:, L.COLUMN[n]].view(-1, 1, 1, 1) for n in ("k", "ratio"))
+        c = v[:, L.COLUMN["nl_c0"]:L.COLUMN["nl_c0"] + 4].view(-1, 4, 1, 1)  # per channel
         x = clean.to(torch.float64) * float(self.profile.span_dn) / ratio
         return (1.0 - c * (2.0 * x.clamp(min=0.0) + k)).to(clean.dtype)
 

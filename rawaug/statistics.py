@@ -1709,6 +1709,17 @@ def flat_linearity(frames, level_dn=None):
     return float(np.mean(frames.mean(axis=(0, 2, 3)) / np.maximum(level, 1e-12) - 1.0))
 
 
+def channel_linearity(frames, level_dn=None):
+    """Spread over the channels (rms about their mean) of a flat stack's linearity error
+    (``flat_linearity`` per channel): a channel whose response bends unlike the others'. The
+    light's instability, common to the channels, cancels."""
+    if level_dn is None:
+        raise ValueError("channel_linearity needs the level of a linear response (level_dn)")
+    level = np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,))
+    e = frames.mean(axis=(0, 2, 3)) / np.maximum(level, 1e-12) - 1.0
+    return float(np.sqrt(np.mean((e - e.mean()) ** 2)))
+
+
 def flat_gain_spread(frames, level_dn=None):
     """Spread (ddof 1) over a flat stack's frames of their means, over the stack's level (its
     mean or ``level_dn``'s): a gain or a light that changes from frame to frame."""
@@ -1986,6 +1997,7 @@ def tap_log_gains(log_mosaic, col_edges, row_edges) -> tuple[np.ndarray, np.ndar
 
 
 LIGHT_STABILITY = 1e-3  # a flat's light is stable to about 0.1 %: smaller deviations of its mean are not resolved
+CHANNEL_LINEARITY_FLOOR = 5e-4  # the channels' linearity errors resolved against each other: the light's colour, the lowest flats' noise
 
 
 @dataclass(frozen=True)
@@ -2087,6 +2099,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("frame_mean_lag1", frame_mean_lag1, min_frames=4),  # a black level drifting over the frames
         Statistic("flat_fixed_rel", flat_fixed_rel, min_frames=2, kind="flat"),
         Statistic("flat_linearity", flat_linearity, kind="flat", floor=LIGHT_STABILITY),
+        Statistic("channel_linearity", channel_linearity, kind="flat", floor=CHANNEL_LINEARITY_FLOOR),
         # a flat pair holds one degree of freedom: a jitter of a few times the light's stability
         # shows only in the pairs of every level and ISO together
         Statistic("flat_gain_spread", flat_gain_spread, min_frames=2, kind="flat", floor=LIGHT_STABILITY, pooled=True),

@@ -293,13 +293,16 @@ def test_amp_glow_stage_adds_poisson_electrons_on_its_grid(which):
 @pytest.mark.parametrize("which", ["numba", "triton"])
 def test_gain_non_linearity_compresses_each_count(which):
     # after exact Poisson shot noise (K = 1: DN = electrons): s -> s (1 - c s), the same counts
-    # as without the stage, so the output is a function of the count; mean x - c (x^2 + x)
-    c, b = 2e-5, (16 if which == "numba" else 4)
+    # as without the stage, so the output is a function of the count; mean x - c (x^2 + x);
+    # each channel its own c (one expands)
+    b = 16 if which == "numba" else 4
+    c = np.array([2e-5, 1e-5, -1e-5, 3e-5])
     lam = torch.tensor([2.0, 300.0, 5000.0, 12000.0], dtype=torch.float64).view(1, 4, 1, 1).expand(b, 4, 32, 32)
     plain = run_stages(L.SHOT_POISSON, lam, seed=4, which=which).numpy()
-    out = run_stages(L.SHOT_POISSON | L.NONLIN, lam, {"nl_c": c}, seed=4, which=which).numpy()
+    out = run_stages(L.SHOT_POISSON | L.NONLIN, lam, {f"nl_c{i}": c[i] for i in range(4)}, seed=4, which=which).numpy()
+    c = c[:, None, None]
     assert np.allclose(out, plain * (1 - c * plain), rtol=1e-12, atol=0)
-    x = lam[0, :, 0, 0].numpy()
+    x, c = lam[0, :, 0, 0].numpy(), c.ravel()
     var = (1 - 2 * c * x) ** 2 * x + 2 * c**2 * x**2  # Var[s - c s^2] for Poisson s, to second order in c
     z = (out.mean(axis=(0, 2, 3)) - (x - c * (x * x + x))) / np.sqrt(var / (b * 32 * 32))
     assert np.abs(z).max() < 5, z  # 4 channels: a correct stage fails this with p ~ 2e-6

@@ -46,7 +46,7 @@ LOOP_EFFECTS = {
     "Glow": {"k": [1.0, 3.0], "rate_e_per_s": [[[0.0, 1.0, 4.0, 9.0], [0.5, 2.0, 6.0, 20.0], [0.0, 0.0, 1.0, 3.0]],
                                                [[1.0, 1.0, 2.0, 5.0], [0.0, 2.0, 3.0, 10.0], [0.0, 1.0, 1.0, 2.0]]],
              "frame_h": 30, "frame_w": 50},  # a 3 x 4 grid beside FPN's 2 x 2 (a padded table), a window per sample
-    "NonLin": {"k": [1.0, 3.0], "compression_per_dn": [3e-6, -2e-6]},  # compression at one gain, expansion at the other
+    "NonLin": {"k": [1.0, 3.0], "compression_per_dn": [3e-6, [-2e-6, 1e-6, -1e-6, 4e-6]]},  # one compression at one gain, per channel at the other
     "Trap": {"k": [1.0, 3.0], "trap_e": [12.0, 4.0]},  # traps of 12 and 4 electrons: a toe at low light
     "GainNoise": {"k": [1.0, 3.0], "sigma_rel": [0.03, 0.01]},  # a relative draw per pixel and frame on the signal
     "StuckBit": {"zero_code": [512, 509, 513, 510], "low_mask": 8, "high_mask": 2},  # bit 3 at 0, bit 1 at 1, blacks of their own
@@ -211,8 +211,10 @@ def test_gradient_is_straight_through_and_noise_unchanged(samplers):
 
 def test_gradient_with_a_gain_non_linearity_is_the_slope_of_the_mean(samplers):
     # E[noisy] = x - c (x^2 + K x) at a clean level x DN: d/dx = 1 - c (2 x + K), per sample's K
+    # and, in the second record, per channel
     c = 3e-6
-    profile = NoiseProfile.load("SonyA7S2").with_effect("NonLin", {"k": [1.0, 3.0], "compression_per_dn": [c, 2 * c]})
+    c2 = torch.tensor([2 * c, c, -c, 0.0], dtype=torch.float64).view(4, 1, 1)
+    profile = NoiseProfile.load("SonyA7S2").with_effect("NonLin", {"k": [1.0, 3.0], "compression_per_dn": [c, c2.ravel().tolist()]})
     aug = RawNoiseAugment(profile, model="G+P*", ratio=1.0, fixed={"k": [1.0, 3.0]})
     x = torch.rand(2, 4, 8, 8, dtype=torch.float64, generator=torch.Generator().manual_seed(3))
     y = aug(x)
@@ -221,7 +223,7 @@ def test_gradient_with_a_gain_non_linearity_is_the_slope_of_the_mean(samplers):
     assert torch.equal(yg.detach(), y)
     yg.sum().backward()
     dn = x * profile.span_dn
-    expected = torch.stack([1 - c * (2 * dn[0] + 1.0), 1 - 2 * c * (2 * dn[1] + 3.0)])
+    expected = torch.stack([1 - c * (2 * dn[0] + 1.0), 1 - c2 * (2 * dn[1] + 3.0)])
     assert torch.allclose(xg.grad, expected, rtol=1e-12)
 
 

@@ -48,6 +48,14 @@ def soft_knee(dn, rng, **_):
     return dn / (1.0 + 0.08 * np.maximum(dn, 0.0) / BASE.span_dn)
 
 
+def red_knee(dn, rng, **_):
+    """The red channel alone compresses (its own amplifier): R reads dn / (1 + 0.08 dn / 15871),
+    the other channels are linear."""
+    out = np.array(dn, dtype=np.float64)
+    out[..., 0, :, :] = soft_knee(out[..., 0, :, :], rng)
+    return out
+
+
 def shallow_traps(dn, rng, kind="", k=1.0, **_):
     """Charge traps (made outside rawaug): a flat's pixel of q electrons (its value over K, shot
     noise included) loses 25 (1 - exp(-q / 25)) of them: a toe at low light, a 25 e- shortfall
@@ -259,6 +267,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
          "comb": (None, None, digital_gain, ["CodeMap"]), "interference": (None, None, interference, ["LowFreq"]),
          "glow": (None, None, amp_glow, ["Glow"]),
          "nonlin": (None, None, soft_knee, ["NonLin"]),
+         "red nonlin": (None, None, red_knee, ["NonLin"]),
          "toe": (None, None, shallow_traps, ["Trap"]),
          "crosstalk": (None, None, coupled_readout, ["Xtalk"]),
          "banding": (None, None, interference_tone, ["Band"]),
@@ -288,7 +297,7 @@ CASES = {"Col": ("Col", COLUMN, None, ["Col"]), "Dark": ("Dark", DARK, None, ["D
 SERIES = (0.02, 0.1, 0.3, 0.5, 0.8)  # flat levels (fraction of white) of a flat series, taken at exposures in proportion
 # every other case: two levels, no series; the gain jitter's pairs at five levels (one degree
 # of freedom each, judged pooled over the 10 pairs of the camera)
-FLAT_LEVELS = {"nonlin": SERIES, "toe": SERIES, "none_series": SERIES, "gain jitter": SERIES}
+FLAT_LEVELS = {"nonlin": SERIES, "red nonlin": SERIES, "toe": SERIES, "none_series": SERIES, "gain jitter": SERIES}
 # physical effects a case may add besides its own: the clamp's decay has low-frequency power that
 # FPN's fixed shading (a smooth fixed offset) reproduces; where FPN takes that part first (3 of
 # sessions 1-10), LineMap reproduces the rest
@@ -311,7 +320,7 @@ def write_frames(folder, effect=None, params=None, post=None, seed=0, dark_expos
 SLOW_CASES = {"Col", "crosstalk", "banding", "column banding", "diagonal banding", "dark hot pixels", "column gain", "fixed rows", "row per channel", "split amplifiers", "shared readout", "telegraph",
               "leaky columns", "black drift", "impulses", "column flicker", "gain jitter", "row gain", "offset pattern",
               "skewed dark current", "raised floor", "frame-locked tone", "glow", "toe",
-              "settling clamp", "nonlin", "PRNU",  # (these three since the twenty-second session, to keep the default run near 5 minutes)
+              "settling clamp", "nonlin", "red nonlin", "PRNU",  # (these three since the twenty-second session, to keep the default run near 5 minutes)
               "Dark", "twelve-bit ADC", "comb", "interference"}  # (since the twenty-fifth session: Dark is found in dark
 # frames by tests/test_loop.py, the stuck bits by tests/test_stuck_bit.py through calibration and the estimate, the comb's
 # CodeMap by tests/test_code_map.py and on a real dark frame by tests/test_real_noise_smoke.py, the interference's
@@ -360,6 +369,9 @@ def check_case(tmp_path, case, seed):
         base = NoiseProfile.load(report / "calibration" / "base_profile.yaml")
         for k in (0.75, 3.0):
             assert abs(base.k_at_iso(800 if k == 0.75 else 3200) / k - 1) < 0.05, (k, base.k_at_iso(800), base.k_at_iso(3200))
+    if case == "red nonlin":  # the red channel's own compression; the others' near none
+        for c in effects["NonLin"]["compression_per_dn"]:
+            assert isinstance(c, list) and 0.8 < c[0] * BASE.span_dn / 0.08 < 1.05 and max(abs(v) for v in c[1:]) * BASE.span_dn < 0.01, c
     if case == "nonlin":  # the hyperbola's compression near zero is 0.08 / span per DN; a parabola over the series fits a bit less
         c = effects["NonLin"]["compression_per_dn"]
         assert all(0.8 < v * BASE.span_dn / 0.08 < 1.05 for v in c), c

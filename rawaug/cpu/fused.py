@@ -45,7 +45,7 @@ _LINES_ROW, _LINES_COL = L.STREAM["lines_row"], L.STREAM["lines_col"]
 _FGH, _FGW = L.COLUMN["fpn_gh"], L.COLUMN["fpn_gw"]
 _GLS, _GLR, _GLOY, _GLOX = L.COLUMN["glow_s"], L.COLUMN["glow_record"], L.COLUMN["glow_oy"], L.COLUMN["glow_ox"]
 _GLH, _GLW, _GLGH, _GLGW = L.COLUMN["glow_h"], L.COLUMN["glow_w"], L.COLUMN["glow_gh"], L.COLUMN["glow_gw"]
-_NL, _TRAP = L.COLUMN["nl_c"], L.COLUMN["trap_dn"]
+_NL, _TRAP = L.COLUMN["nl_c0"], L.COLUMN["trap_dn"]
 Z_MAX = L.READ_TABLE_Z
 _LOWFREQ = L.STREAM["lowfreq"]
 _ROW = L.STREAM["row"]
@@ -591,7 +591,7 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
         if stages & L.NONLIN:  # the photo signal compressed: s (1 - c s) above 0 DN
             for x in range(w):
                 s = sig[x]
-                s -= v[_NL] * s * max(s, 0.0)
+                s -= v[_NL + c] * s * max(s, 0.0)
                 sig[x] = s
         if stages & L.FRAME_GAIN:  # this frame's gain on the photo signal and its shot noise
             for x in range(w):

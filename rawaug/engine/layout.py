@@ -117,7 +117,7 @@ COLUMNS = (
     "lines_row_density", "lines_col_density", "lines_median", "lines_log_std", "lines_negative",
     "fpn_gh", "fpn_gw",  # FPN shading grid size (the grids table may be padded to a larger one)
     "glow_s", "glow_record", "glow_oy", "glow_ox", "glow_h", "glow_w", "glow_gh", "glow_gw",  # exposure, grid, window
-    "nl_c",  # gain non-linearity: compression per DN of signal
+    "nl_c0", "nl_c1", "nl_c2", "nl_c3",  # gain non-linearity: compression per DN of signal, per packed channel
     "sensor",  # sensor instance of the fixed patterns (an integer; 0: the profile's own)
     *(f"xt_{i}" for i in range(7)),  # correlated read noise: the kernel's tap (DN) at each of XTALK_TAPS
     "band_f0", "band_f1", "band_f2", "band_a0", "band_a1", "band_a2",  # banding tones: cycles per sensor row, amplitude (DN)

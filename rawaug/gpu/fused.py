@@ -36,7 +36,7 @@ C_FOY, C_FOX, C_FH, C_FW = _column("fpn_oy"), _column("fpn_ox"), _column("fpn_h"
 C_FGH, C_FGW = _column("fpn_gh"), _column("fpn_gw")
 C_GLS, C_GLR, C_GLOY, C_GLOX = _column("glow_s"), _column("glow_record"), _column("glow_oy"), _column("glow_ox")
 C_GLH, C_GLW, C_GLGH, C_GLGW = _column("glow_h"), _column("glow_w"), _column("glow_gh"), _column("glow_gw")
-C_NL, C_TRAP = _column("nl_c"), _column("trap_dn")
+C_NL, C_TRAP = _column("nl_c0"), _column("trap_dn")
 C_XT0 = _column("xt_0")
 C_BF0, C_BA0 = _column("band_f0"), _column("band_a0")
 C_CBF0, C_CBA0 = _column("cband_f0"), _column("cband_a0")
@@ -432,7 +432,7 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         trap = _col(v, C_TRAP)
         s -= tl.where(s > 0.0, trap * (1.0 - tl.exp(-tl.maximum(s, 0.0) / tl.maximum(trap, 1e-30))), 0.0)  # 0 for trap 0
     if FLAGS & 1048576:  # gain non-linearity: the photo signal compressed, s (1 - c s) above 0 DN
-        s -= _col(v, C_NL) * s * tl.maximum(s, 0.0)
+        s -= tl.load(v + C_NL + c) * s * tl.maximum(s, 0.0)
     if FLAGS & 549755813888:  # frame-to-frame gain: this frame's factor on the photo signal and its shot noise
         s *= _col(v, C_FG)
     if FLAGS & 4294967296:  # column gain: the sensor column's amplifier gain on the photo signal and its shot noise

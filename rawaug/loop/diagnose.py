@@ -29,8 +29,7 @@ from ..augment import RawNoiseAugment, parse_model
 from ..calibration.censored import black_floor, clipped_share
 from ..effects.charge_trap import fit_rates as trap_rates, trap_at
 from ..effects.base import EFFECTS
-from ..effects.gain_nonlinearity import fit_rates, linear_rates
-from ..effects.k_records import value_at_k
+from ..effects.gain_nonlinearity import at_k as nonlin_at, fit_rates, linear_rates
 from ..profile import NoiseProfile
 from .registry import effects_for
 from ..statistics import STATISTICS, flat_gain_edges, flat_log_mosaic, frame_statistics, repaired, stack_step_excess
@@ -65,15 +64,15 @@ class FlatSeries:
         """(4,) clean level (DN) that puts the model's mean on the series at ``dose``:
         the nominal one, or, with charge traps or a gain non-linearity, the rate their
         response implies."""
-        params = profile.effects.get("NonLin")
-        c = float(value_at_k(params, "compression_per_dn", torch.tensor([float(k)], dtype=torch.float64))[0]) if params else 0.0
+        c = nonlin_at(profile.effects.get("NonLin"), k)  # (4,) per channel
         q = trap_at(profile, k)
-        if c == 0.0 and q == 0.0:
+        if not c.any() and q == 0.0:
             return self.nominal(dose)
-        if (c, q, k) not in self._rates_at:
-            self._rates_at[(c, q, k)] = (fit_rates(self.doses, self.signal_dn, c, k) if q == 0.0
-                                         else trap_rates(self.doses, self.signal_dn, q, k, c))
-        return self._rates_at[(c, q, k)] * float(dose)
+        key = (tuple(c.tolist()), q, k)
+        if key not in self._rates_at:
+            self._rates_at[key] = (fit_rates(self.doses, self.signal_dn, c, k) if q == 0.0
+                                   else trap_rates(self.doses, self.signal_dn, q, k, c))
+        return self._rates_at[key] * float(dose)
 
 
 @dataclass
@@ -148,7 +147,7 @@ class FrameStack:
     def statistic_names(self):
         """The battery's statistics this stack can show (None: every one that applies): the
         linearity needs a series."""
-        return None if self.series is not None else [n for n in STATISTICS if n != "flat_linearity"]
+        return None if self.series is not None else [n for n in STATISTICS if n not in ("flat_linearity", "channel_linearity")]
 
     def statistics(self, frames) -> dict:
         """The battery's statistics of ``frames`` (measured or synthesized like this stack)."""

@@ -32,7 +32,7 @@ KIND = {
     "fixed_row_excess": "mean_row_spectrum",
     "mean_dn": "mean_map_histogram", "fixed_std": "mean_map_histogram", "fixed_pixel_var": "mean_map_histogram",
     "flat_fixed_rel": "mean_map_histogram",
-    "flat_linearity": "mean_map_histogram",
+    "flat_linearity": "mean_map_histogram", "channel_linearity": "mean_map_histogram",
     "temporal_std": "temporal_histogram",
     "frame_mean_std": "frame_means", "frame_mean_common_cov": "frame_means", "frame_mean_lag1": "frame_sequence",
     "hot_fraction": "mean_map_histogram", "missing_codes": "code_histogram", "code_dnl": "code_histogram", "defect_lines": "line_means",
