@@ -1660,13 +1660,33 @@ def local_background(p):
     return (big - core) / (LOCAL**2 - CORE**2)
 
 
+FIXED_OUTLIER_Z = 8.0  # robust sigmas of the mean map beyond which a pixel's fixed offset is a defect's (as hot_fraction's)
+
+
+def without_fixed_outliers(frames, z: float = FIXED_OUTLIER_Z):
+    """The frames (N, 4, h, w; DN) with the pixels whose stack mean stands ``z`` robust sigmas
+    from its channel's median (hot pixels and tiles, dim ones) set to their frame's channel
+    median: a sparse fixed pattern's broad spectrum, the same in every frame, is not a tone's
+    (a tone of any phase moves the mean map's scale with it and makes no outlier)."""
+    frames = np.asarray(frames, dtype=np.float64)
+    m = temporal_moments(frames)[0].reshape(4, -1)
+    med, scale = robust_scale(m, axis=1)
+    scale = np.maximum(scale, grid_step(frames) / frames.shape[0])  # the mean of N whole codes: a grid of 1/N
+    out = (np.abs(m - med) > z * scale).reshape(frames.shape[1:])
+    if not out.any():
+        return frames
+    fill = median(frames.reshape(frames.shape[0], 4, -1), axis=2)  # (N, 4)
+    return np.where(out[None], fill[:, :, None, None], frames)
+
+
 def diag_tone_spectrum(frames):
     """(fy, fx, mean windowed periodogram over frames in DN^2 (``windowed_periodogram``), its
     ``local_background``) of each frame's raw mosaic (``frame_mosaic``) at the bins
     ``diagonal_bins`` keeps. Per frame: a tone of random phase has the same power in every
     frame. Windowed and against the local median: the leakage and the broad spectrum of strong
-    smooth fields (a glow, low-frequency interference) are not taken for a tone."""
-    raw = frame_mosaic(frames)
+    smooth fields (a glow, low-frequency interference) are not taken for a tone; nor is a sparse
+    fixed pattern's (``without_fixed_outliers``)."""
+    raw = frame_mosaic(without_fixed_outliers(frames))
     p = windowed_periodogram(raw)
     fy, fx, mask = diagonal_bins(raw.shape[1:])
     return fy[mask], fx[mask], p[mask], local_background(p)[mask]
