@@ -887,6 +887,18 @@ def temporal_variance_cells(frames):
     return (total / np.maximum(count, 1.0)).reshape(4, b, b)
 
 
+def temporal_variance_lines(frames) -> tuple[np.ndarray, np.ndarray]:
+    """((h,), (w,)) mean over each packed row and each packed column (every channel) of the
+    per-pixel variance of the high-passed temporal residual, DN^2, flickering pixels left out:
+    ``temporal_variance_cells`` line by line."""
+    frames = np.asarray(frames, dtype=np.float64)
+    var = np.mean(temporal_highpass(frames) ** 2, axis=0)
+    keep = var <= FLICKER * max(float(median(var)), 1e-12)
+    kept = np.where(keep, var, 0.0)
+    return (kept.sum(axis=(0, 2)) / np.maximum(keep.sum(axis=(0, 2)), 1),
+            kept.sum(axis=(0, 1)) / np.maximum(keep.sum(axis=(0, 1)), 1))
+
+
 FLICKER_P = 1e-6  # a white pixel's chance of being counted as flickering
 
 

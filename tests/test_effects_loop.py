@@ -1241,20 +1241,52 @@ def test_read_noise_map_is_estimated_and_white_stacks_get_none():
     # the model as calibrated: one read noise, the frame's average variance
     avg = math.sqrt(1.0 + 4.0 / 4 + 2.25 / 2)
     base = [synth({}, batch=6, size=64, seed=s, sigma_g=avg) for s in range(1, 9)]
-    est = read_map.estimate(meas, base, K)
+    est = read_map.combine([read_map.estimate(meas, base, K)])
     ch, cols, rows = np.square(est["channel_dn"][0]), np.square(est["col_block_dn"][0]), np.square(est["row_block_dn"][0])
     # a channel mean pools 64 x 64 pixels x 5 degrees of freedom (relative sd ~ 0.01 of ~3 DN^2 plus the
-    # median's inefficiency), a column-block mean 4 x 64 x 8: bounds of 0.35 DN^2 are several sd
+    # median's inefficiency), a run's mean 4 x 64 x 32 x 5: bounds of 0.35 DN^2 are several sd
     assert abs(ch[1] - 4.0) < 0.35 and np.all(ch[[0, 2, 3]] < 0.35), ch
-    assert np.all(np.abs(cols[4:] - 2.25) < 0.35) and np.all(cols[:4] < 0.35), cols
-    assert np.all(rows == 0.0), rows  # no row-block structure: the group is not significant
+    assert est["col_block_edges"] == [0.5], est  # the two halves, cut where they meet
+    assert abs(cols[1] - 2.25) < 0.35 and cols[0] == 0.0 and np.all(cols[2:] == 0.0), cols
+    assert np.all(rows == 0.0) and "row_block_edges" not in est, rows  # no row structure: the group is not significant
     # white stacks: a group is kept where an F-test gives p < 1e-3: 30 groups keep 2 or more with p ~ 4e-4
     white_base = [synth({}, batch=6, size=64, seed=s, sigma_g=1.0) for s in range(1, 9)]
-    white = [read_map.estimate(synth({}, batch=6, size=64, seed=s, sigma_g=1.0), white_base, K) for s in range(20, 30)]
+    white = [read_map.combine([read_map.estimate(synth({}, batch=6, size=64, seed=s, sigma_g=1.0), white_base, K)])
+             for s in range(20, 30)]
     kept = sum(any(v > 0 for v in w[key][0]) for w in white for key in ("channel_dn", "row_block_dn", "col_block_dn"))
     assert kept <= 2, white
     with pytest.raises(ValueError, match="bias stacks"):
         read_map.estimate(meas, base, K, level_dn=100.0)
+
+
+def test_read_noise_map_blocks_at_measured_edges():
+    # a noisy edge of the array: the first 12 packed columns (24 sensor columns) with 2 DN more;
+    # the synthesis adds the variance at the edge it is given, and the estimate cuts the runs
+    # there (not at a block of 1/8 of the frame), within a line, over 6 stacks, every one
+    edge = {"k": [K], "channel_dn": [[0.0] * 4], "row_block_dn": [[0.0] * 8], "col_block_dn": [[2.0] + [0.0] * 7],
+            "col_block_edges": [12 / 64]}
+    f = synth({"ReadMap": edge}, batch=16, size=64, sigma_g=1.0)
+    var = f.var(axis=0, ddof=1)
+    sd = math.sqrt(2 / 15) / math.sqrt(4 * 64 * 12)  # relative sd of a mean variance over 12 columns
+    assert abs(var[:, :, :12].mean() / 5.0 - 1) < 5 * sd and abs(var[:, :, 12:].mean() / 1.0 - 1) < 5 * sd
+    avg = math.sqrt(1.0 + 4.0 * 12 / 64)
+    base = [synth({}, batch=6, size=64, seed=s, sigma_g=avg) for s in range(1, 9)]
+    for s in range(6):
+        est = read_map.combine([read_map.estimate(synth({"ReadMap": edge}, batch=6, size=64, seed=50 + s, sigma_g=1.0), base, K)])
+        cols = np.square(est["col_block_dn"][0])
+        assert len(est["col_block_edges"]) == 1 and abs(est["col_block_edges"][0] * 64 - 12) <= 1, est
+        assert abs(cols[0] - 4.0) < 0.8 and np.all(cols[1:] == 0.0), cols
+
+
+def test_read_noise_map_segments_find_runs_and_no_more():
+    # runs of one level in white noise of sd 1: the edges of steps of 3 sd over runs of 20 lines
+    # or more are found within a line; a profile of noise alone stays one run (BIC), over 20 seeds each
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        y = np.concatenate([np.zeros(40), np.full(30, 3.0), np.full(60, -1.0), np.full(20, 2.0)]) + rng.standard_normal(150)
+        edges = read_map.segments([y], [1.0])
+        assert len(edges) == 3 and np.all(np.abs(np.array(edges) - [40, 70, 130]) <= 1), edges
+        assert read_map.segments([rng.standard_normal(150)], [1.0]) == []
 
 
 def test_shared_pixel_noise_is_shared_by_a_tile_and_estimated():

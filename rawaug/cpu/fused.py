@@ -117,6 +117,7 @@ _RC, _ROW_CHANNEL = L.COLUMN["rowch_sigma"], L.STREAM["row_channel"]
 _TONES = L.BAND_TONES
 _RMC0, _RMY0, _RMX0 = L.COLUMN["rmap_c0"], L.COLUMN["rmap_y0"], L.COLUMN["rmap_x0"]
 _RMOY, _RMOX, _RMH, _RMW = L.COLUMN["rmap_oy"], L.COLUMN["rmap_ox"], L.COLUMN["rmap_h"], L.COLUMN["rmap_w"]
+_RMYE0, _RMXE0 = L.COLUMN["rmap_ye0"], L.COLUMN["rmap_xe0"]
 _READ_MAP, _NB = L.STREAM["read_map"], L.READ_MAP_BLOCKS
 _SH, _SHARED = L.COLUMN["shared_sigma"], L.STREAM["shared"]
 _RTD, _RTM, _RTL, _RTH = L.COLUMN["rts_density"], L.COLUMN["rts_median"], L.COLUMN["rts_log_std"], L.COLUMN["rts_high"]
@@ -303,6 +304,18 @@ def tap_at(line, v, first, lines):
 
 
 @njit(inline="always")
+def block_at(pos, v, first, size):
+    """Read-noise map block (0 .. READ_MAP_BLOCKS - 1) of packed position ``pos`` of a frame of
+    ``size``: the edges at or below it, stored as fractions of ``size`` in
+    ``v[first:first + READ_MAP_BLOCKS - 1]`` (2: none)."""
+    block = 0
+    for i in range(_NB - 1):
+        if pos >= v[first + i] * size:
+            block += 1
+    return block
+
+
+@njit(inline="always")
 def table_at(lut, row, z):
     """Row ``row`` of ``lut`` (values on a uniform grid of normal scores in [-Z_MAX, Z_MAX])
     at score ``z``, linear between grid points, the end values beyond."""
@@ -414,7 +427,7 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             rmh = int(v[_RMH]) if v[_RMH] > 0.0 else h
             rmw = int(v[_RMW]) if v[_RMW] > 0.0 else w
             rmox = int(v[_RMOX])
-            rm_row = v[_RMC0 + c] ** 2 + v[_RMY0 + min((y + int(v[_RMOY])) * _NB // rmh, _NB - 1)] ** 2
+            rm_row = v[_RMC0 + c] ** 2 + v[_RMY0 + block_at(y + int(v[_RMOY]), v, _RMYE0, rmh)] ** 2
         tap_row, tap_ox, tap_cols = 0, 0, 2.0 * w
         if stages & L.TAP_BLACK:  # readout taps: this row's band of taps; the column's tap below
             tap_ox = int(v[_TPOX])
@@ -699,7 +712,7 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             for x in range(w):
                 g = g0 + x
                 s = sig[x]
-                s += math.sqrt(rm_row + v[_RMX0 + min((x + rmox) * _NB // rmw, _NB - 1)] ** 2) * symmetric(normal, draw(keys[_READ_MAP], g))
+                s += math.sqrt(rm_row + v[_RMX0 + block_at(x + rmox, v, _RMXE0, rmw)] ** 2) * symmetric(normal, draw(keys[_READ_MAP], g))
                 sig[x] = s
         if stages & L.SPIKES:  # a single-frame event at this pixel of this frame
             for x in range(w):

@@ -182,6 +182,7 @@ COLUMNS = (
     "dead_cut_lo", "dead_cut_hi",  # ... the range of a partial line's break (fractions of the line)
     *(f"rowmap_y{i}" for i in range(READ_MAP_BLOCKS)), "rowmap_oy", "rowmap_h",  # row-noise map: extra std per row block (DN), window
     "hot_tile_density",  # hot pixels: share of the 2x2 tiles (packed positions) hot in all four pixels
+    *(f"rmap_ye{i}" for i in range(READ_MAP_BLOCKS - 1)), *(f"rmap_xe{i}" for i in range(READ_MAP_BLOCKS - 1)),  # read-noise map: block edges (fractions of its frame; 2: none)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

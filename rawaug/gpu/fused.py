@@ -77,6 +77,7 @@ TONES = tl.constexpr(L.BAND_TONES)
 FIXED_PHASE = tl.constexpr(L.FIXED_PHASE)
 C_RMC0, C_RMY0, C_RMX0 = _column("rmap_c0"), _column("rmap_y0"), _column("rmap_x0")
 C_RMOY, C_RMOX, C_RMH, C_RMW = _column("rmap_oy"), _column("rmap_ox"), _column("rmap_h"), _column("rmap_w")
+C_RMYE0, C_RMXE0 = _column("rmap_ye0"), _column("rmap_xe0")
 NB = tl.constexpr(L.READ_MAP_BLOCKS)
 C_SH = _column("shared_sigma")
 C_RTD, C_RTM, C_RTL, C_RTH = _column("rts_density"), _column("rts_median"), _column("rts_log_std"), _column("rts_high")
@@ -289,6 +290,16 @@ def _key(keys_ptr, slot: tl.constexpr):
 @triton.jit
 def _col(v_ptr, col: tl.constexpr):
     return tl.load(v_ptr + col)
+
+
+@triton.jit
+def _block(v, first: tl.constexpr, pos, size):
+    """As ``rawaug.cpu.fused.block_at``: the read-noise map block of packed position ``pos`` of a
+    frame of ``size``, from the edges at ``v[first:first + NB - 1]`` (fractions of ``size``)."""
+    block = tl.zeros_like(pos).to(tl.int64)
+    for i in tl.static_range(NB - 1):
+        block += (pos >= tl.load(v + first + i) * size).to(tl.int64)
+    return block
 
 
 @triton.jit
@@ -513,8 +524,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         rmw = _col(v, C_RMW).to(tl.int64)
         rmh = tl.where(rmh > 0, rmh, H.to(tl.int64))
         rmw = tl.where(rmw > 0, rmw, W.to(tl.int64))
-        by = tl.minimum((y + _col(v, C_RMOY).to(tl.int64)) * NB // rmh, NB - 1)
-        bx = tl.minimum((x + _col(v, C_RMOX).to(tl.int64)) * NB // rmw, NB - 1)
+        by = _block(v, C_RMYE0, (y + _col(v, C_RMOY).to(tl.int64)).to(tl.float64), rmh.to(tl.float64))
+        bx = _block(v, C_RMXE0, (x + _col(v, C_RMOX).to(tl.int64)).to(tl.float64), rmw.to(tl.float64))
         sc = tl.load(v + C_RMC0 + c)
         sy = tl.load(v + C_RMY0 + by, mask=live, other=0.0)
         sx = tl.load(v + C_RMX0 + bx, mask=live, other=0.0)
