@@ -834,6 +834,51 @@ def red_compression(dn, rng, kind="", **_):
     return out
 
 
+# the ninth fresh batch (twenty-seventh session), written and committed before the loop ran on it
+def ar_row_noise(dn, rng, **_):
+    """Row noise with a memory: each sensor row's offset is 0.85 of the row above's plus a new normal draw (a clamp whose time constant spans several lines), 1.5 DN rms, new in every frame."""
+    n = 2 * dn.shape[1]
+    e = rng.normal(0.0, 1.5 * np.sqrt(1.0 - 0.85**2), n)
+    r = np.empty(n)
+    r[0] = rng.normal(0.0, 1.5)
+    for i in range(1, n):
+        r[i] = 0.85 * r[i - 1] + e[i]
+    return dn + np.stack([r[0::2], r[0::2], r[1::2], r[1::2]])[:, :, None]
+
+
+def skewed_read_noise(dn, rng, **_):
+    """Read noise with a one-sided tail (a source follower with a trap that only adds): 3 % of the readings, new at every pixel and frame, get an extra exponential of mean 4 DN."""
+    return dn + (rng.random(dn.shape) < 0.03) * rng.exponential(4.0, dn.shape)
+
+
+def checker_tiles(dn, rng, **_):
+    """A checkerboard fixed pattern: 4 x 4 sensor-pixel tiles alternately 0.8 DN high and low (two interleaved layouts of a shared readout), the same in every frame."""
+    y, x = np.mgrid[0:2 * dn.shape[1], 0:2 * dn.shape[2]]
+    return dn + _raw_to_packed(np.where((y // 4 + x // 4) % 2 == 0, 0.8, -0.8))
+
+
+def partial_hot_columns(dn, rng, **_):
+    """Partial hot columns: 6 sensor columns (fixed) read 15 DN high from a row of their own down to the bottom (a leak from a defect point), in every kind of frame."""
+    raw = np.zeros((2 * dn.shape[1], 2 * dn.shape[2]))
+    where = np.random.default_rng(161)
+    for _ in range(6):
+        x, y = where.integers(0, raw.shape[1]), where.integers(0, 3 * raw.shape[0] // 4)
+        raw[y:, x] = 15.0
+    return dn + _raw_to_packed(raw)
+
+
+def bimodal_black(dn, rng, **_):
+    """A clamp toggling between two references: each frame's black level is 3 DN higher in a random half of the frames (a coin per frame)."""
+    return dn + (3.0 if rng.random() < 0.5 else 0.0)
+
+
+def column_dark_current(dn, rng, exposure=0.0, k=1.0, **_):
+    """Dark current of every sensor column's own: a column rate of 1 e-/s times a lognormal (sigma 0.5 in log), the same in every frame, with its shot noise (columns of a process gradient)."""
+    rate = np.exp(0.5 * np.random.default_rng(171).standard_normal(2 * dn.shape[2]))
+    cols = np.stack([rate[0::2], rate[1::2], rate[1::2], rate[0::2]])[:, None, :]  # R, G2 on even sensor columns
+    return dn + k * rng.poisson(np.broadcast_to(cols * exposure, dn.shape))
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -852,7 +897,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  repeated_rows, quadrant_offsets, noisy_third_columns, hot_clusters, bit_flips, black_ramp,
                                  intermittent_tone, pixel_ringing, bank_gain, burst_rows, excess_shot_noise, black_col_ramp,
                                  partial_dead_columns, noisy_row_bank, wandering_tone, paired_columns, row_noise_ramp,
-                                 noisy_edge_columns, hot_tiles, red_compression)}
+                                 noisy_edge_columns, hot_tiles, red_compression, ar_row_noise, skewed_read_noise,
+                                 checker_tiles, partial_hot_columns, bimodal_black, column_dark_current)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
