@@ -1677,9 +1677,9 @@ FIXED_OUTLIER_Z = 8.0  # robust sigmas of the mean map beyond which a pixel's fi
 
 def without_fixed_outliers(frames, z: float = FIXED_OUTLIER_Z):
     """The frames (N, 4, h, w; DN) with the pixels whose stack mean stands ``z`` robust sigmas
-    from its channel's median (hot pixels and tiles, dim ones) set to their frame's channel
-    median: a sparse fixed pattern's broad spectrum, the same in every frame, is not a tone's
-    (a tone of any phase moves the mean map's scale with it and makes no outlier)."""
+    from its channel's median (hot pixels and tiles, dim ones) set to that median, moved with
+    the frame's channel mean: a sparse fixed pattern's broad spectrum, the same in every frame,
+    is not a tone's (a tone of any phase moves the mean map's scale with it and makes no outlier)."""
     frames = np.asarray(frames, dtype=np.float64)
     m = temporal_moments(frames)[0].reshape(4, -1)
     med, scale = robust_scale(m, axis=1)
@@ -1687,7 +1687,8 @@ def without_fixed_outliers(frames, z: float = FIXED_OUTLIER_Z):
     out = (np.abs(m - med) > z * scale).reshape(frames.shape[1:])
     if not out.any():
         return frames
-    fill = median(frames.reshape(frames.shape[0], 4, -1), axis=2)  # (N, 4)
+    means = frames.mean(axis=(2, 3))  # (N, 4)
+    fill = med.reshape(1, 4) + means - means.mean(axis=0, keepdims=True)
     return np.where(out[None], fill[:, :, None, None], frames)
 
 
