@@ -20,7 +20,7 @@ Profile entry (per-K records)::  ``ReadDist: {k: [K, ...], quantiles_dn: [[[q, .
 
 Estimated by ``estimate``: the quantiles, at the grid's probabilities, of the dark
 residual stage 1 fits the Tukey lambda to (each frame's row means and channel mean removed,
-defect lines repaired, whole codes dequantized: ``dequantized``; the pixels of the hot-pixel
+defect lines repaired, single-frame events kept, whole codes dequantized: ``dequantized``; the pixels of the hot-pixel
 detector left out where the model already places hot pixels), zero mean. The loop's read-noise re-fit does not apply
 to it; the colour bias is fitted with it (``rawaug.loop.diagnose.fitted_offsets``).
 """
@@ -34,8 +34,9 @@ from ..engine import layout as L
 from .base import READ, NoiseEffect, log_linear_draw, register
 from .k_records import record_index, validate_records, value_at_k
 
-STATISTICS = ("ppcc_r2", "tail_mass", "hot_fraction", "clip_low")
+STATISTICS = ("ppcc_r2", "tail_mass", "hot_fraction", "clip_low", "spike_fraction")  # a one-sided or heavy tail makes single-frame events
 MEASURED = True
+RAW_FRAMES = True  # the residual keeps the single-frame events (``with_impulses``): they are the tail it measures
 TWO_SIDED = True  # it replaces the read noise's shape: it can lower a statistic as well as raise it
 N_GRID = 257  # normal scores on the grid
 Z_MAX = L.READ_TABLE_Z  # grid range; beyond it a draw takes the end value
@@ -100,10 +101,11 @@ def dequantized(codes, seed: int = 0) -> np.ndarray:
 
 def residual(frames, seed: int = 0) -> np.ndarray:
     """(N, 4, h, w) DN: the frames' dark residual, stage 1's (row means and channel mean of
-    each frame removed) with defect lines repaired first and whole codes dequantized."""
-    from ..statistics import repaired
+    each frame removed) with dead pixels and defect lines repaired first, single-frame events
+    kept (``with_impulses``: a read noise's own tail), whole codes dequantized."""
+    from ..statistics import with_impulses
 
-    c = np.array(repaired(np.asarray(frames, dtype=np.float64)))
+    c = np.array(with_impulses(np.asarray(frames, dtype=np.float64)))
     if np.all(c == np.rint(c)):
         c = dequantized(c, seed)
     c -= c.mean(axis=3, keepdims=True)
