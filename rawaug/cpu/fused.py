@@ -68,6 +68,7 @@ _CBF0, _CBA0 = L.COLUMN["cband_f0"], L.COLUMN["cband_a0"]
 _DHD, _DHE, _DHL = L.COLUMN["dhot_density"], L.COLUMN["dhot_e"], L.COLUMN["dhot_log_std"]
 _DHOT_WHERE, _DHOT_SIZE = L.STREAM["dhot_where"], L.STREAM["dhot_size"]
 _CGS, _COLGAIN_PATTERN = L.COLUMN["colgain_sigma"], L.STREAM["colgain_pattern"]
+_DSNU_COL, _DSNU_COL_PATTERN = L.COLUMN["dsnu_col_log"], L.STREAM["dsnu_col_pattern"]
 _RGF, _RGT = L.COLUMN["rowgain_fixed"], L.COLUMN["rowgain_frame"]
 _ROWGAIN_PATTERN, _ROWGAIN_FRAME = L.STREAM["rowgain_pattern"], L.STREAM["rowgain_frame"]
 _DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_log_std"]
@@ -480,7 +481,9 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 p = p0 + x
                 s = sig[x]
                 sl = v[_DSNU_LOG]  # a log-normal rate map of mean 1
-                s += k * v[_DARK_E] * v[_DARK_C0 + c] * math.exp(sl * symmetric(normal, draw(keys[_DSNU_PATTERN], p)) - 0.5 * sl * sl)
+                sc = v[_DSNU_COL]  # ... times the sensor column's log-normal factor of mean 1
+                col = sc * symmetric(normal, draw(keys[_DSNU_COL_PATTERN], (sensor * 2 + col_set) * w + x)) - 0.5 * sc * sc if sc > 0.0 else 0.0
+                s += k * v[_DARK_E] * v[_DARK_C0 + c] * math.exp(sl * symmetric(normal, draw(keys[_DSNU_PATTERN], p)) - 0.5 * sl * sl + col)
                 sig[x] = s
         if stages & L.GLOW:
             for x in range(w):

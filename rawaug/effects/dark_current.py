@@ -13,23 +13,31 @@ channel (the pixels of a 2x2 tile differ in layout: a shared readout, a transfer
 another side; mean 1 over R, G1, B, G2, 1 each when the entry has none), ``g`` a standard-normal map keyed by the
 profile's seed and the pixel position and ``b = sqrt(log(1 + dsnu^2))``: a log-normal rate
 map of mean 1 and relative spread ``dsnu``. Dark current is skewed (a few pixels leak far
-more than most), and a rate is never negative. The exposure is a synthesis setting
+more than most), and a rate is never negative. Optionally (``col_dsnu``) the rate has a
+factor per sensor column too, log-normal of mean 1 and relative spread ``col_dsnu`` (keyed by
+the sensor column): column DSNU, a column's own leakage or a process gradient across the
+columns, dense where ``DarkCol``'s leaky columns are few. The exposure is a synthesis setting
 (``RawNoiseAugment(fixed={"exposure_s": t})``, default 0: no dark signal).
 
 Profile entry (per-K records, nearest record in log K)::
 
-    Dark: {seed: 19, k: [K, ...], rate_e_per_s: [...], dsnu: [...], channel: [f_R, f_G1, f_B, f_G2]}
+    Dark: {seed: 19, k: [K, ...], rate_e_per_s: [...], dsnu: [...], col_dsnu: [...], channel: [f_R, f_G1, f_B, f_G2]}
 
-(``channel`` optional: one set for the camera, a property of the pixels' layout.)
+(``channel`` optional: one set for the camera, a property of the pixels' layout; ``col_dsnu``
+optional, 0 by default.)
 
 Detected on dark stacks (``FrameStack(kind="dark", exposure_s=t)``, synthesized with the
 offsets and read noise of the bias frames of the same ISO) by ``mean_dn`` (the dark signal),
-``temporal_std`` (its shot noise), ``fixed_std`` and ``fixed_pixel_var`` (DSNU). Estimated by ``estimate``: the
+``temporal_std`` (its shot noise), ``fixed_std`` and ``fixed_pixel_var`` (DSNU), ``fixed_col_excess`` (column
+DSNU). Estimated by ``estimate``: the
 mean excess over the model gives the rate, the excess white fixed-pattern variance
 (``fixed_pixel_var``: the dark shot noise left in an N-frame mean, ``Glow`` and ``FPN``
 shading cancel) gives DSNU, solved for through the same statistic (``log_normal_spread``:
 it leaves out a heavy tail's far cells), and each channel's mean excess over their mean its
-relative rate (``combine``: averaged over the stacks, weighted by their signal).
+relative rate (``combine``: averaged over the stacks, weighted by their signal); the column
+DSNU from the spread of the sensor columns' relative dark signal less what their pixels' spread
+leaves in a column mean, kept where a chi-square test of the columns passes p 1e-3
+(``column_spread``).
 """
 from __future__ import annotations
 
@@ -37,14 +45,16 @@ import math
 
 import numpy as np
 import torch
-from scipy import optimize
+from scipy import optimize, stats
 
 from ..engine import layout as L
+from ..engine.layout import COLUMN_SET
 from ..statistics import fixed_pixel_var
 from .base import PHOTON, NoiseEffect, pattern_key, register
 from .k_records import check_seed, validate_records, value_at_k
 
-STATISTICS = ("mean_dn", "temporal_std", "fixed_std", "fixed_pixel_var")
+STATISTICS = ("mean_dn", "temporal_std", "fixed_std", "fixed_pixel_var", "fixed_col_excess")
+COLUMN_P = 1e-3  # a column pattern of the dark signal counts where pixels alone make one as large less often
 AMPLITUDES = ("rate_e_per_s", "dsnu")  # corrected by simulation under a clip (rawaug.loop.clip_correction)
 
 
@@ -53,7 +63,7 @@ class DarkCurrent(NoiseEffect):
     token = "Dark"
     order = PHOTON + 5
     flag = L.DARK_CURRENT
-    columns = ("dark_e", "dsnu_log", "dark_c0", "dark_c1", "dark_c2", "dark_c3")
+    columns = ("dark_e", "dsnu_log", "dark_c0", "dark_c1", "dark_c2", "dark_c3", "dsnu_col_log")
     exposure = True
 
     def draw(self, ctx):
@@ -62,16 +72,21 @@ class DarkCurrent(NoiseEffect):
         exposure = torch.as_tensor(exposure, dtype=torch.float64, device=ctx.device).expand(ctx.batch)
         dsnu = value_at_k(p, "dsnu", ctx.k)
         out = {"dark_e": value_at_k(p, "rate_e_per_s", ctx.k) * exposure, "dsnu_log": torch.sqrt(torch.log1p(dsnu * dsnu))}
+        col = value_at_k(p, "col_dsnu", ctx.k) if "col_dsnu" in p else torch.zeros_like(ctx.k)
+        out["dsnu_col_log"] = torch.sqrt(torch.log1p(col * col))
         for c, f in enumerate(p.get("channel", (1.0,) * 4)):
             out[f"dark_c{c}"] = ctx.k.new_full((ctx.batch,), float(f))
         return out
 
     def pattern_streams(self):
-        return {"dsnu_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
+        seed = self.profile.effects[self.token]["seed"]
+        return {"dsnu_pattern": pattern_key(seed, self.token), "dsnu_col_pattern": pattern_key(seed, self.token, "column")}
 
     @classmethod
     def validate_params(cls, params):
         validate_records(cls.token, params, ("rate_e_per_s", "dsnu"), nonnegative=("rate_e_per_s", "dsnu"))
+        if "col_dsnu" in params:
+            validate_records(cls.token, params, ("col_dsnu",), nonnegative=("col_dsnu",))
         check_seed(cls.token, params)
         if "channel" in params:
             f = params["channel"]
@@ -100,8 +115,27 @@ def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, kin
     # the white fixed spread over the model's: its dark shot noise, glow and shading cancel
     excess = fixed_pixel_var(frames) - float(np.mean([fixed_pixel_var(s) for s in base]))
     dsnu = log_normal_spread(excess, base[0], signal_dn / k * channel[:, None, None], k)
+    mean_map = frames.mean(axis=0) - np.mean([s.mean(axis=0) for s in base], axis=0)
     return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [signal_dn / (k * float(exposure_s))], "dsnu": [dsnu],
+            "col_dsnu": [column_spread(mean_map / np.maximum(channel_dn, 1e-12)[:, None, None])],
             "channel": [float(f) for f in channel], "signal_dn": signal_dn}
+
+
+def column_spread(relative) -> float:
+    """Relative spread (sd over mean) of the sensor columns' factors on a dark signal, from its
+    map relative to each channel's mean (4, h, w): the variance of the columns' means (a sensor
+    column: its two packed channels, all rows) less what their pixels' own spread leaves in a
+    mean; 0 unless the columns' chi-square against that passes ``COLUMN_P``."""
+    means, noise = [], []
+    for col_set in (0, 1):
+        pixels = np.concatenate([relative[c] for c in range(4) if COLUMN_SET[c] == col_set], axis=0)  # (2h, w)
+        means.append(pixels.mean(axis=0))
+        noise.append(pixels.var(axis=0, ddof=1) / pixels.shape[0])
+    f, v = np.stack(means, axis=1).ravel(), np.stack(noise, axis=1).ravel()  # sensor columns in order
+    chi2 = float(np.sum((f - f.mean()) ** 2 / np.maximum(v, 1e-300)))
+    if stats.chi2.sf(chi2, f.size - 1) >= COLUMN_P:
+        return 0.0
+    return float(math.sqrt(max(f.var(ddof=1) - v.mean(), 0.0)) / max(f.mean(), 1e-12))
 
 
 DSNU_MAX = 20.0  # relative spread searched up to (log-normal b = 2.45)
@@ -152,6 +186,9 @@ def combine(records: list[dict]) -> dict:
     out = {"seed": records[0]["seed"], "k": ks,
            "rate_e_per_s": [float(np.mean([r["rate_e_per_s"][0] for r in by_k[k]])) for k in ks],
            "dsnu": [float(np.mean([r["dsnu"][0] for r in by_k[k]])) for k in ks]}
+    col = [float(np.mean([r.get("col_dsnu", [0.0])[0] for r in by_k[k]])) for k in ks]
+    if any(col):
+        out["col_dsnu"] = col
     weights = np.array([max(float(r.get("signal_dn", 0.0)), 0.0) for r in records])
     if weights.sum() > 0.0:
         channel = np.average([r.get("channel", [1.0] * 4) for r in records], axis=0, weights=weights)

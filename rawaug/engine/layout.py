@@ -183,6 +183,7 @@ COLUMNS = (
     *(f"rowmap_y{i}" for i in range(READ_MAP_BLOCKS)), "rowmap_oy", "rowmap_h",  # row-noise map: extra std per row block (DN), window
     "hot_tile_density",  # hot pixels: share of the 2x2 tiles (packed positions) hot in all four pixels
     *(f"rmap_ye{i}" for i in range(READ_MAP_BLOCKS - 1)), *(f"rmap_xe{i}" for i in range(READ_MAP_BLOCKS - 1)),  # read-noise map: block edges (fractions of its frame; 2: none)
+    "dsnu_col_log",  # dark current: log-normal sigma of the sensor columns' factors on the rate (column DSNU)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -203,7 +204,7 @@ STREAMS = (
     "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
     "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
     "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
-    "hot_tile_where", "hot_tile_size",
+    "hot_tile_where", "hot_tile_size", "dsnu_col_pattern",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

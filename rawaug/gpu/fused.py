@@ -23,6 +23,7 @@ def _column(name: str) -> tl.constexpr:
 
 C_K, C_RATIO, C_PRNU = _column("k"), _column("ratio"), _column("prnu_sigma")
 C_DARK_E, C_DSNU_LOG, C_DARK_C0 = _column("dark_e"), _column("dsnu_log"), _column("dark_c0")
+C_DSNU_COL = _column("dsnu_col_log")
 C_LF, C_LF_GH, C_LF_GW = _column("lowfreq_sigma"), _column("lowfreq_gh"), _column("lowfreq_gw")
 C_CM_REC, C_CM_LO, C_CM_N = _column("codemap_record"), _column("codemap_lo"), _column("codemap_n")
 C_CM_P = _column("codemap_period")
@@ -125,6 +126,7 @@ K_HOT_TILE_WHERE, K_HOT_TILE_SIZE = S["hot_tile_where"], S["hot_tile_size"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN = S["colgain_pattern"]
+K_DSNU_COL = S["dsnu_col_pattern"]
 K_ROWGAIN, K_ROWGAIN_FRAME = S["rowgain_pattern"], S["rowgain_frame"]
 K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
 K_DROW_WHERE, K_DROW_SIZE = S["drow_where"], S["drow_size"]
@@ -361,7 +363,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     s_pixel = s  # ... and after them: the dark signal is what the stages below add
     if FLAGS & 16384:  # dark current: K * dark electrons * a log-normal DSNU map of mean 1, before shot noise
         sl = _col(v, C_DSNU_LOG)
-        s += k * _col(v, C_DARK_E) * tl.load(v + C_DARK_C0 + c) * tl.exp(sl * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)) - 0.5 * sl * sl)
+        sc = _col(v, C_DSNU_COL)  # the sensor column's log-normal factor of mean 1 (column DSNU)
+        col = tl.where(sc > 0.0, sc * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64))) - 0.5 * sc * sc, 0.0)
+        s += k * _col(v, C_DARK_E) * tl.load(v + C_DARK_C0 + c) * tl.exp(sl * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)) - 0.5 * sl * sl + col)
     if FLAGS & 524288:  # amplifier glow: K * exposure * a smooth dark-current map (e-/s), a window of glow_h x glow_w
         gh_ = _col(v, C_GLH)
         gw_ = _col(v, C_GLW)
