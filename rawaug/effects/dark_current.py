@@ -117,21 +117,29 @@ def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, kin
     dsnu = log_normal_spread(excess, base[0], signal_dn / k * channel[:, None, None], k)
     mean_map = frames.mean(axis=0) - np.mean([s.mean(axis=0) for s in base], axis=0)
     return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [signal_dn / (k * float(exposure_s))], "dsnu": [dsnu],
-            "col_dsnu": [column_spread(mean_map / np.maximum(channel_dn, 1e-12)[:, None, None])],
+            "col_dsnu": [column_spread(mean_map, channel_dn)],
             "channel": [float(f) for f in channel], "signal_dn": signal_dn}
 
 
-def column_spread(relative) -> float:
+def column_spread(signal_map, channel_dn) -> float:
     """Relative spread (sd over mean) of the sensor columns' factors on a dark signal, from its
-    map relative to each channel's mean (4, h, w): the variance of the columns' means (a sensor
-    column: its two packed channels, all rows) less what their pixels' own spread leaves in a
-    mean; 0 unless the columns' chi-square against that passes ``COLUMN_P``."""
+    map (4, h, w; DN) and each channel's mean (4,): the variance of the columns' means of the
+    map relative to its channel's mean (a sensor column: its packed channels, all rows) less
+    what their pixels' own spread leaves in a mean; 0 unless the columns' chi-square against
+    that passes ``COLUMN_P``. Channels with a quarter of the strongest one's signal or less are
+    left out (a colour without dark current has no column factor to show), and with them the
+    columns of a column set that keeps none."""
+    channel_dn = np.asarray(channel_dn, dtype=np.float64)
+    shown = channel_dn > 0.25 * channel_dn.max()
     means, noise = [], []
     for col_set in (0, 1):
-        pixels = np.concatenate([relative[c] for c in range(4) if COLUMN_SET[c] == col_set], axis=0)  # (2h, w)
+        chans = [c for c in range(4) if COLUMN_SET[c] == col_set and shown[c]]
+        if not chans:
+            continue
+        pixels = np.concatenate([signal_map[c] / channel_dn[c] for c in chans], axis=0)  # (rows, w)
         means.append(pixels.mean(axis=0))
         noise.append(pixels.var(axis=0, ddof=1) / pixels.shape[0])
-    f, v = np.stack(means, axis=1).ravel(), np.stack(noise, axis=1).ravel()  # sensor columns in order
+    f, v = np.concatenate(means), np.concatenate(noise)
     chi2 = float(np.sum((f - f.mean()) ** 2 / np.maximum(v, 1e-300)))
     if stats.chi2.sf(chi2, f.size - 1) >= COLUMN_P:
         return 0.0
