@@ -869,17 +869,21 @@ def block_index(n: int, blocks: int = READ_MAP_BLOCKS) -> np.ndarray:
 FLICKER = 25.0  # a pixel whose temporal variance exceeds this many times the stack's median flickers (telegraph noise)
 
 
-def temporal_variance_cells(frames):
-    """(4, B, B) mean over each cell of the per-pixel variance of the high-passed temporal
-    residual (``temporal_highpass``; DN^2), the cells being each channel cut into
-    B = READ_MAP_BLOCKS row and column blocks: white temporal noise only, so that a per-frame
-    field of uneven amplitude (interference) does not count. Pixels that flicker (variance
-    beyond FLICKER x the stack's median: telegraph noise) are left out; a mean, not a median,
-    so that the noise's shape (its kurtosis) does not weigh on the level."""
+def white_variance(frames) -> tuple[np.ndarray, np.ndarray]:
+    """((4, h, w) per-pixel variance of the high-passed temporal residual (``temporal_highpass``;
+    DN^2), (4, h, w) mask of the pixels kept): white temporal noise only, so that a per-frame
+    field of uneven amplitude (interference) does not count; pixels that flicker (variance
+    beyond FLICKER x the stack's median: telegraph noise) are left out."""
     frames = np.asarray(frames, dtype=np.float64)
-    _, _, h, w = frames.shape
     var = np.mean(temporal_highpass(frames) ** 2, axis=0)
-    keep = var <= FLICKER * max(float(median(var)), 1e-12)
+    return var, var <= FLICKER * max(float(median(var)), 1e-12)
+
+
+def variance_cells(var, keep):
+    """(4, B, B) mean over each cell of the kept pixels' variance (``white_variance``), the
+    cells being each channel cut into B = READ_MAP_BLOCKS row and column blocks; a mean, not a
+    median, so that the noise's shape (its kurtosis) does not weigh on the level."""
+    _, h, w = var.shape
     b = READ_MAP_BLOCKS
     cell = (np.arange(4)[:, None, None] * b + block_index(h)[:, None]) * b + block_index(w)  # (4, h, w) cell of each pixel
     total = np.bincount(cell.ravel(), np.where(keep, var, 0.0).ravel(), minlength=4 * b * b)
@@ -887,16 +891,18 @@ def temporal_variance_cells(frames):
     return (total / np.maximum(count, 1.0)).reshape(4, b, b)
 
 
-def temporal_variance_lines(frames) -> tuple[np.ndarray, np.ndarray]:
+def variance_lines(var, keep) -> tuple[np.ndarray, np.ndarray]:
     """((h,), (w,)) mean over each packed row and each packed column (every channel) of the
-    per-pixel variance of the high-passed temporal residual, DN^2, flickering pixels left out:
-    ``temporal_variance_cells`` line by line."""
-    frames = np.asarray(frames, dtype=np.float64)
-    var = np.mean(temporal_highpass(frames) ** 2, axis=0)
-    keep = var <= FLICKER * max(float(median(var)), 1e-12)
+    kept pixels' variance (``white_variance``): ``variance_cells`` line by line."""
     kept = np.where(keep, var, 0.0)
     return (kept.sum(axis=(0, 2)) / np.maximum(keep.sum(axis=(0, 2)), 1),
             kept.sum(axis=(0, 1)) / np.maximum(keep.sum(axis=(0, 1)), 1))
+
+
+def temporal_variance_cells(frames):
+    """(4, B, B) white temporal variance per cell of a stack (``variance_cells`` of its
+    ``white_variance``), DN^2."""
+    return variance_cells(*white_variance(frames))
 
 
 FLICKER_P = 1e-6  # a white pixel's chance of being counted as flickering
@@ -1732,24 +1738,26 @@ def flat_fixed_rel(frames, level_dn=None):
     return pixel_fixed_std(frames) / max(level, 1e-12)
 
 
-def flat_linearity(frames, level_dn=None):
-    """Mean of a flat stack relative to the level a linear response gives it (the line through
-    zero a series of flats fits), less 1, mean over channels: EMVA 1288's linearity error at
-    this level. ``level_dn`` is that level including the black offsets."""
+def linearity_errors(frames, level_dn, name: str = "flat_linearity") -> np.ndarray:
+    """(4,) each channel's mean of a flat stack relative to the level a linear response gives it
+    (the line through zero a series of flats fits; ``level_dn`` including the black offsets),
+    less 1: EMVA 1288's linearity error at this level."""
     if level_dn is None:
-        raise ValueError("flat_linearity needs the level of a linear response (level_dn)")
+        raise ValueError(f"{name} needs the level of a linear response (level_dn)")
     level = np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,))
-    return float(np.mean(frames.mean(axis=(0, 2, 3)) / np.maximum(level, 1e-12) - 1.0))
+    return frames.mean(axis=(0, 2, 3)) / np.maximum(level, 1e-12) - 1.0
+
+
+def flat_linearity(frames, level_dn=None):
+    """The linearity error (``linearity_errors``), mean over channels."""
+    return float(np.mean(linearity_errors(frames, level_dn)))
 
 
 def channel_linearity(frames, level_dn=None):
-    """Spread over the channels (rms about their mean) of a flat stack's linearity error
-    (``flat_linearity`` per channel): a channel whose response bends unlike the others'. The
-    light's instability, common to the channels, cancels."""
-    if level_dn is None:
-        raise ValueError("channel_linearity needs the level of a linear response (level_dn)")
-    level = np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,))
-    e = frames.mean(axis=(0, 2, 3)) / np.maximum(level, 1e-12) - 1.0
+    """Spread over the channels (rms about their mean) of the linearity error
+    (``linearity_errors``): a channel whose response bends unlike the others'. The light's
+    instability, common to the channels, cancels."""
+    e = linearity_errors(frames, level_dn, "channel_linearity")
     return float(np.sqrt(np.mean((e - e.mean()) ** 2)))
 
 

@@ -27,12 +27,13 @@ the rate its compression implies (``fit_rates``).
 from __future__ import annotations
 
 import numpy as np
+import torch
 from scipy import optimize
 
 from ..engine import layout as L
 from .base import SHOT, NoiseEffect, register
 from ..statistics import CHANNEL_LINEARITY_FLOOR
-from .k_records import validate_records, value_at_k
+from .k_records import record_index, validate_records
 
 STATISTICS = ("flat_linearity", "channel_linearity")
 CHANNEL_EXCESS = 3.0  # a channel's own compression: the common one's channel spread over the channels' own fits' at least this
@@ -48,8 +49,8 @@ class GainNonLinearity(NoiseEffect):
 
     def draw(self, ctx):
         params = self.profile.effects[self.token]
-        per_channel = channel_records(params)
-        return {f"nl_c{i}": value_at_k({"k": params["k"], "c": [r[i] for r in per_channel]}, "c", ctx.k) for i in range(4)}
+        table = ctx.k.new_tensor(channel_records(params))[record_index(params, ctx.k)]  # (B, 4)
+        return {f"nl_c{i}": table[:, i] for i in range(4)}
 
     @classmethod
     def check(cls, profile, fixed):
@@ -78,8 +79,7 @@ def at_k(params: dict | None, k: float) -> np.ndarray:
     """(4,) compression per channel (/DN) of the record nearest ``k`` (zeros without NonLin)."""
     if not params:
         return np.zeros(4)
-    i = int(np.argmin(np.abs(np.log(np.asarray(params["k"], dtype=np.float64)) - np.log(float(k)))))
-    return np.asarray(channel_records(params)[i])
+    return np.asarray(channel_records(params)[int(record_index(params, torch.tensor([float(k)], dtype=torch.float64))[0])])
 
 
 def mean_response(x, c, k):

@@ -35,7 +35,7 @@ import torch
 from scipy import stats
 
 from ..engine import layout as L
-from ..statistics import highpass_gain, map_effects, temporal_variance_cells, temporal_variance_lines
+from ..statistics import highpass_gain, map_effects, variance_cells, variance_lines, white_variance
 from .base import READ, NoiseEffect, register
 from .k_records import all_zero, frame_size, record_index, validate_records, window_columns
 
@@ -125,8 +125,9 @@ def estimate(frames, synthesized, k: float, level_dn=None, kind: str = "bias", *
     if kind != "bias" or level_dn is not None or frames.shape[0] < 2 or len(synthesized) < 3:
         raise ValueError("ReadMap is measured on bias stacks of >= 2 frames, against >= 3 syntheses")
     gain = highpass_gain(*frames.shape[2:])
-    measured = temporal_variance_cells(frames)
-    synth = np.array([temporal_variance_cells(s) for s in synthesized])
+    white = [white_variance(frames)] + [white_variance(s) for s in synthesized]  # once per stack: cells and lines
+    measured = variance_cells(*white[0])
+    synth = np.array([variance_cells(*w) for w in white[1:]])
     model = synth.mean(axis=0)
     # per cell, the white variance the model lacks (the high pass kept highpass_gain of it), DN^2
     excess = model.mean() * (measured / np.maximum(model, 1e-12) - 1.0) / gain
@@ -135,8 +136,8 @@ def estimate(frames, synthesized, k: float, level_dn=None, kind: str = "bias", *
     channel = channel - channel.min() if keep[0] else np.zeros_like(channel)
     out = {"k": [float(k)], "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3]),
            "channel_dn": [[float(v) for v in np.sqrt(channel)]]}
-    lines_measured = temporal_variance_lines(frames)
-    lines_synth = [temporal_variance_lines(s) for s in synthesized]
+    lines_measured = variance_lines(*white[0])
+    lines_synth = [variance_lines(*w) for w in white[1:]]
     for axis, (_, _, excess_key, noise_key, keep_key) in enumerate(LINES):
         parts = np.array([ls[axis] for ls in lines_synth])  # (S, n)
         model = parts.mean(axis=0)
