@@ -879,6 +879,55 @@ def column_dark_current(dn, rng, exposure=0.0, k=1.0, **_):
     return dn + k * rng.poisson(np.broadcast_to(cols * exposure, dn.shape))
 
 
+# the tenth fresh batch (twenty-eighth session), written and committed before the loop ran on it
+def noisy_patch(dn, rng, **_):
+    """A damaged region of the readout: one rectangle of the sensor (rows 1/4 to 1/2, columns 1/2 to 3/4 of the frame, 1/16 of its area) reads with 2 DN of extra white noise, new at every pixel and frame."""
+    _, h, w = dn.shape
+    extra = np.zeros((h, w))
+    extra[h // 4 : h // 2, w // 2 : 3 * w // 4] = 2.0
+    return dn + extra * rng.standard_normal(dn.shape)
+
+
+def row_spikes(dn, rng, **_):
+    """Row decoder glitches: in every frame 0.2 % of the sensor rows (new ones each frame) read 15 to 40 DN off, up or down, along their whole length."""
+    n = 2 * dn.shape[1]
+    r = (rng.random(n) < 0.002) * rng.choice([-1.0, 1.0], n) * rng.uniform(15.0, 40.0, n)
+    return dn + np.stack([r[0::2], r[0::2], r[1::2], r[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
+def first_frame_black(dn, rng, kind="", exposure=0.0, k=1.0, **_):
+    """A clamp that settles after each change of setting: the first frame after a change (the first bias frame of an ISO, the first dark, the first flat of each level) reads 2 DN high."""
+    key = ("first", id(rng), kind, exposure, k)
+    first = key not in _WALK
+    _WALK[key] = True
+    return dn + (2.0 if first else 0.0)
+
+
+def exposure_black_shift(dn, rng, exposure=0.0, **_):
+    """A clamp that leaks during integration: black rises 0.25 DN per second of exposure (1 DN in a 4 s dark), with no noise of its own, at every ISO alike."""
+    return dn + 0.25 * exposure
+
+
+def column_wander(dn, rng, k=1.0, **_):
+    """Column offsets that wander from frame to frame: each sensor column's offset is 0.8 of its offset in the frame before plus a new draw (AR(1), 1 DN rms stationary), in the order the frames were taken at each ISO, in every kind of frame."""
+    key = ("column_wander", id(rng), k)
+    prev = _WALK.get(key)
+    n = 2 * dn.shape[2]
+    c = rng.standard_normal(n) if prev is None else 0.8 * prev + 0.6 * rng.standard_normal(n)
+    _WALK[key] = c
+    return dn + np.stack([c[0::2], c[1::2], c[1::2], c[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
+def smooth_dsnu(dn, rng, exposure=0.0, k=1.0, **_):
+    """Dark current that varies smoothly over the sensor (a process or temperature gradient): 0.5 e-/s times exp(0.6 z), z a fixed Gaussian field smoothed over 16 sensor pixels and scaled to unit sd, with its shot noise."""
+    from scipy.ndimage import gaussian_filter
+
+    _, h, w = dn.shape
+    z = gaussian_filter(_fixed(181, (2 * h, 2 * w)), 16.0, mode="wrap")
+    rate = _raw_to_packed(0.5 * np.exp(0.6 * z / z.std()))
+    return dn + k * rng.poisson(rate * exposure)
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -898,7 +947,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  intermittent_tone, pixel_ringing, bank_gain, burst_rows, excess_shot_noise, black_col_ramp,
                                  partial_dead_columns, noisy_row_bank, wandering_tone, paired_columns, row_noise_ramp,
                                  noisy_edge_columns, hot_tiles, red_compression, ar_row_noise, skewed_read_noise,
-                                 checker_tiles, partial_hot_columns, bimodal_black, column_dark_current)}
+                                 checker_tiles, partial_hot_columns, bimodal_black, column_dark_current, noisy_patch,
+                                 row_spikes, first_frame_black, exposure_black_shift, column_wander, smooth_dsnu)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
