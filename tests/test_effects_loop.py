@@ -1278,6 +1278,39 @@ def test_read_noise_map_blocks_at_measured_edges():
         assert abs(cols[0] - 4.0) < 0.8 and np.all(cols[1:] == 0.0), cols
 
 
+def test_read_noise_map_cells_hold_a_region_of_its_own():
+    # a damaged patch: rows 16..31 x columns 32..47 of 64 with 2 DN more. The synthesis puts the
+    # variance in that cell alone; the estimate finds the blocks' edges and holds the patch in
+    # its cell (not in a row block and a column block, which would make a cross), in 5 of 5
+    # sessions; blocks whose levels add up (a noisy row block and a noisy column block) get no
+    # cells in 30 of 30 (the interaction's chi-square at p 1e-3: about 0.03 expected)
+    cells = np.zeros((8, 8))
+    cells[1, 1] = 2.0
+    patch = {"k": [K], "channel_dn": [[0.0] * 4], "row_block_dn": [[0.0] * 8], "col_block_dn": [[0.0] * 8],
+             "row_block_edges": [0.25, 0.5], "col_block_edges": [0.5, 0.75], "cell_dn": [cells.tolist()]}
+    var = synth({"ReadMap": patch}, batch=16, size=64, sigma_g=1.0).var(axis=0, ddof=1)
+    sd = math.sqrt(2 / 15) / math.sqrt(4 * 16 * 16)  # relative sd of the patch's mean variance
+    assert abs(var[:, 16:32, 32:48].mean() / 5.0 - 1) < 5 * sd, var[:, 16:32, 32:48].mean()
+    assert abs(var[:, 16:32, :32].mean() - 1.0) < 5 * sd * 2 and abs(var[:, :16].mean() - 1.0) < 5 * sd * 2
+    base = [synth({}, batch=6, size=64, seed=s, sigma_g=math.sqrt(1.0 + 4.0 / 16)) for s in range(1, 9)]
+    for s in range(5):
+        est = read_map.combine([read_map.estimate(synth({"ReadMap": patch}, batch=6, size=64, seed=50 + s, sigma_g=1.0), base, K)])
+        assert est["row_block_edges"] == [0.25, 0.5] and est["col_block_edges"] == [0.5, 0.75], est
+        got = np.square(est["cell_dn"][0])[:3, :3]
+        # the patch's cell pools 16 x 16 x 4 pixels x 5 degrees of freedom: sd ~ 0.15 DN^2 of 4
+        assert abs(got[1, 1] - 4.0) < 0.6 and np.delete(got.ravel(), 4).max() < 0.3, got
+        assert not any(est["row_block_dn"][0]) and not any(est["col_block_dn"][0]), est
+    add = {"k": [K], "channel_dn": [[0.0] * 4], "row_block_dn": [[0.0, 1.5] + [0.0] * 6],
+           "col_block_dn": [[0.0, 0.0, 1.5] + [0.0] * 5], "row_block_edges": [0.25, 0.5], "col_block_edges": [0.5, 0.75]}
+    base = [synth({}, batch=6, size=64, seed=s, sigma_g=math.sqrt(1.0 + 2.25 / 2)) for s in range(1, 9)]
+    found = [read_map.combine([read_map.estimate(synth({"ReadMap": add}, batch=6, size=64, seed=100 + s, sigma_g=1.0), base, K)])
+             for s in range(30)]
+    assert all("cell_dn" not in e for e in found), [e.get("cell_dn") for e in found]
+    assert sum(e.get("row_block_edges") == [0.25, 0.5] for e in found) >= 25, [e.get("row_block_edges") for e in found]
+    with pytest.raises(ValueError, match="cell_dn must hold one 8 x 8 grid"):
+        BASE.with_effect("ReadMap", {**patch, "cell_dn": [cells[:4].tolist()]})
+
+
 def test_read_noise_map_segments_find_runs_and_no_more():
     # runs of one level in white noise of sd 1: the edges of steps of 3 sd over runs of 20 lines
     # or more are found within a line; a profile of noise alone stays one run (BIC), over 20 seeds each

@@ -68,7 +68,8 @@ LOOP_EFFECTS = {
               "tap_2_0_dn": [0.6, 0.4]},
     "ReadMap": {"k": [1.0, 3.0], "channel_dn": [[0.0, 2.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0]],
                 "row_block_dn": [[0.0] * 4 + [1.5] * 4, [0.3] * 8], "col_block_dn": [[0.0, 0.7] * 4, [0.0] * 7 + [2.0]],
-                "frame_h": 40, "frame_w": 64, "col_block_edges": [0.19, 0.5, 0.77]},  # larger than the test inputs' 24 rows: a window per sample; measured column edges
+                "frame_h": 40, "frame_w": 64, "col_block_edges": [0.19, 0.5, 0.77],
+                "cell_dn": [[[0.0] * 8, [0.0, 0.0, 1.2] + [0.0] * 5] + [[0.0] * 8] * 6, [[0.4] * 8] * 8]},  # larger than the test inputs' 24 rows: a window per sample; measured column edges
     "Shared": {"k": [1.0, 3.0], "sigma_dn": [0.9, 1.6]},
     "Noisy": {"seed": 89, "density": 0.05, "log_std": 0.4, "k": [1.0, 3.0], "median_dn": [4.0, 7.0]},  # a new normal per frame
     "NoisyCol": {"seed": 103, "density": 0.1, "log_std": 0.3, "k": [1.0, 3.0], "median_dn": [3.0, 5.0]},  # ... keyed by the sensor column

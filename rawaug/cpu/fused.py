@@ -118,7 +118,7 @@ _RC, _ROW_CHANNEL = L.COLUMN["rowch_sigma"], L.STREAM["row_channel"]
 _TONES = L.BAND_TONES
 _RMC0, _RMY0, _RMX0 = L.COLUMN["rmap_c0"], L.COLUMN["rmap_y0"], L.COLUMN["rmap_x0"]
 _RMOY, _RMOX, _RMH, _RMW = L.COLUMN["rmap_oy"], L.COLUMN["rmap_ox"], L.COLUMN["rmap_h"], L.COLUMN["rmap_w"]
-_RMYE0, _RMXE0 = L.COLUMN["rmap_ye0"], L.COLUMN["rmap_xe0"]
+_RMYE0, _RMXE0, _RMCR = L.COLUMN["rmap_ye0"], L.COLUMN["rmap_xe0"], L.COLUMN["rmap_cell_record"]
 _READ_MAP, _NB = L.STREAM["read_map"], L.READ_MAP_BLOCKS
 _SH, _SHARED = L.COLUMN["shared_sigma"], L.STREAM["shared"]
 _RTD, _RTM, _RTL, _RTH = L.COLUMN["rts_density"], L.COLUMN["rts_median"], L.COLUMN["rts_log_std"], L.COLUMN["rts_high"]
@@ -423,12 +423,14 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
         glw = v[_GLW] if v[_GLW] > 0.0 else float(w)
         glox = v[_GLOX]
         glrec, glgh, glgw = int(v[_GLR]), int(v[_GLGH]), int(v[_GLGW])
-        rmw, rmox, rm_row = w, 0, 0.0
-        if stages & L.READ_MAP:  # the row block's and channel's part of the read-noise map; the column block's below
+        rmw, rmox, rm_row, rm_by, rm_rec = w, 0, 0.0, 0, -1
+        if stages & L.READ_MAP:  # the row block's and channel's part of the read-noise map; the column block's and cell's below
             rmh = int(v[_RMH]) if v[_RMH] > 0.0 else h
             rmw = int(v[_RMW]) if v[_RMW] > 0.0 else w
             rmox = int(v[_RMOX])
-            rm_row = v[_RMC0 + c] ** 2 + v[_RMY0 + block_at(y + int(v[_RMOY]), v, _RMYE0, rmh)] ** 2
+            rm_by = block_at(y + int(v[_RMOY]), v, _RMYE0, rmh)
+            rm_row = v[_RMC0 + c] ** 2 + v[_RMY0 + rm_by] ** 2
+            rm_rec = int(v[_RMCR])
         tap_row, tap_ox, tap_cols = 0, 0, 2.0 * w
         if stages & L.TAP_BLACK:  # readout taps: this row's band of taps; the column's tap below
             tap_ox = int(v[_TPOX])
@@ -715,7 +717,9 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             for x in range(w):
                 g = g0 + x
                 s = sig[x]
-                s += math.sqrt(rm_row + v[_RMX0 + block_at(x + rmox, v, _RMXE0, rmw)] ** 2) * symmetric(normal, draw(keys[_READ_MAP], g))
+                bx = block_at(x + rmox, v, _RMXE0, rmw)
+                var = rm_row + v[_RMX0 + bx] ** 2 + (grids[rm_rec, rm_by, bx] if rm_rec >= 0 else 0.0)
+                s += math.sqrt(var) * symmetric(normal, draw(keys[_READ_MAP], g))
                 sig[x] = s
         if stages & L.SPIKES:  # a single-frame event at this pixel of this frame
             for x in range(w):

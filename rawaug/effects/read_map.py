@@ -5,18 +5,21 @@ readout split into halves or column groups, each with its own amplifier and ADC,
 noise of its own level there. The ELD read noise has one level for the whole frame;
 calibration measures the frame's average.
 
-Synthesis: extra white read noise ``sqrt(c[ch]^2 + r[by]^2 + q[bx]^2) * z``, ``z`` standard
-normal per pixel and frame, where ``by`` / ``bx`` are the row / column block of the pixel:
+Synthesis: extra white read noise ``sqrt(c[ch]^2 + r[by]^2 + q[bx]^2 + cell[by, bx]^2) * z``,
+``z`` standard normal per pixel and frame, where ``by`` / ``bx`` are the row / column block of the pixel:
 ``READ_MAP_BLOCKS`` equal runs of the measured frame, or the runs between the measured
 edges (``row_block_edges``, ``col_block_edges``: up to 7 increasing fractions of the frame;
 a readout split where its amplifiers meet, a noisy edge of the array); an input smaller than
-the measured frame is a window of it at an offset drawn per sample (as ``FPN`` shading).
+the measured frame is a window of it at an offset drawn per sample (as ``FPN`` shading). The
+cells are the blocks' crossings: a region read through an amplifier of its own (a quadrant, a
+damaged patch) is noisier in one cell, not along a whole row block and column block.
 
 Profile entry (per-K records; extra sigma in DN, frame size in packed pixels)::
 
     ReadMap: {k: [K, ...], channel_dn: [[4 values], ...], row_block_dn: [[8 values], ...],
               col_block_dn: [[8 values], ...], frame_h: H, frame_w: W,
-              row_block_edges: [fractions], col_block_edges: [fractions]}  # optional
+              row_block_edges: [fractions], col_block_edges: [fractions],  # optional
+              cell_dn: [[[8 values] x 8], ...]}  # optional: per record, row blocks x column blocks
 
 Detected by ``read_noise_spread`` (the channel, row-block and column-block main effects of the
 log white temporal variance per cell: per-frame smooth fields and flickering pixels left
@@ -25,8 +28,10 @@ white temporal variance, times the model's, less it; the channel main effect of 
 and along each axis the excess per packed row and column, cut by ``combine`` into the runs
 of one level that fit the stacks of every gain best (``segments``: dynamic programming, the
 number of runs by BIC, at most 8); each group shifted to start at 0 and kept only where an
-F-test puts its block pattern beyond the model's at p < 1e-3. Judged with the read noise
-re-fitted (calibration counted the extra noise in the frame's average).
+F-test puts its block pattern beyond the model's at p < 1e-3. Where the excess per cell of
+those blocks departs from the row and column levels' sum (a chi-square of the interaction at
+p < 1e-3; ``cell_levels``), the cells take it whole and the blocks none. Judged with the read
+noise re-fitted (calibration counted the extra noise in the frame's average).
 """
 from __future__ import annotations
 
@@ -55,7 +60,7 @@ class ReadMap(NoiseEffect):
     order = READ
     flag = L.READ_MAP
     columns = (tuple(f"{prefix}{i}" for _, prefix, n in GROUPS for i in range(n)) + ("rmap_oy", "rmap_ox", "rmap_h", "rmap_w")
-               + tuple(f"{prefix}{i}" for _, prefix in EDGES for i in range(NB - 1)))
+               + tuple(f"{prefix}{i}" for _, prefix in EDGES for i in range(NB - 1)) + ("rmap_cell_record",))
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
@@ -70,7 +75,15 @@ class ReadMap(NoiseEffect):
             edges = list(p.get(key, UNIFORM))
             for i, e in enumerate(edges + [NO_EDGE] * (NB - 1 - len(edges))):
                 out[f"{prefix}{i}"] = torch.full_like(ctx.k, float(e))
+        out["rmap_cell_record"] = ((ctx.grid_slot(self.token)[0] + idx).to(torch.float64) if "cell_dn" in p
+                                   else torch.full_like(ctx.k, -1.0))
         return out
+
+    def tables(self):
+        p = self.profile.effects[self.token]
+        if "cell_dn" not in p:
+            return {}
+        return {"grids": torch.tensor(p["cell_dn"], dtype=torch.float64) ** 2}  # extra variance per cell, DN^2
 
     @classmethod
     def validate_params(cls, params):
@@ -83,6 +96,12 @@ class ReadMap(NoiseEffect):
                     if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
                         raise ValueError(f"effect 'ReadMap': {key} values must be finite and >= 0 (DN), got {v!r}")
         frame_size(cls.token, params)
+        if "cell_dn" in params:
+            cells = params["cell_dn"]
+            arr = np.asarray(cells, dtype=np.float64) if isinstance(cells, (list, tuple)) else None
+            if arr is None or arr.shape != (len(params["k"]), NB, NB) or not np.isfinite(arr).all() or (arr < 0).any():
+                raise ValueError(f"effect 'ReadMap': cell_dn must hold one {NB} x {NB} grid of extra sigma (DN, finite, "
+                                 f">= 0) per record of k, got {cells!r:.80}")
         for key, _ in EDGES:
             if key in params:
                 e = params[key]
@@ -148,6 +167,56 @@ def estimate(frames, synthesized, k: float, level_dn=None, kind: str = "bias", *
         noise = level * ratio * np.sqrt(spread.var(axis=0, ddof=1).mean() * (1.0 + 1.0 / len(parts)))
         out[excess_key], out[noise_key] = [(level * (ratio - 1.0)).tolist()], [noise.tolist()]
         out[keep_key] = [bool(keep[axis + 1])]
+    tiles = tile_variance(*white[0])
+    parts = np.array([tile_variance(*w) for w in white[1:]])
+    model = parts.mean(axis=0)
+    level = model.mean() / gain
+    ratio = tiles / np.maximum(model, 1e-12)
+    spread = parts / np.maximum(model, 1e-12) - 1.0
+    out["tile_excess"] = [level * (ratio - 1.0)]  # (h // TILE, w // TILE) DN^2: for the cells at the edges combine finds
+    out["tile_noise"] = [level * ratio * np.sqrt(spread.var(axis=0, ddof=1).mean() * (1.0 + 1.0 / len(parts)))]
+    return out
+
+
+TILE = MIN_RUN  # packed lines per side of a tile of the excess map
+
+
+def tile_variance(var, keep):
+    """(h // TILE, w // TILE) mean over each tile of TILE x TILE packed pixels (every channel)
+    of the kept pixels' variance (``white_variance``)."""
+    _, h, w = var.shape
+    th, tw = h // TILE, w // TILE
+    cut = lambda a: a[:, : th * TILE, : tw * TILE].reshape(4, th, TILE, tw, TILE)  # noqa: E731
+    kept = cut(np.where(keep, var, 0.0)).sum(axis=(0, 2, 4))
+    return kept / np.maximum(cut(keep.astype(np.float64)).sum(axis=(0, 2, 4)), 1.0)
+
+
+def cell_levels(excess, noise, row_edges, col_edges, p_value: float = P_VALUE):
+    """(NB, NB) excess variance per cell (DN^2) of the blocks between ``row_edges`` and
+    ``col_edges`` (packed lines), from a tile map of the excess (``tile_excess``, its ``noise``
+    per tile), or None where the cells' excess is the sum of a row level and a column level
+    (the interaction's chi-square, weighed by the cells' noise, below its p_value quantile)."""
+    th, tw = excess.shape
+    by = np.searchsorted(np.asarray(row_edges), np.arange(th) * TILE + TILE / 2.0, side="right")
+    bx = np.searchsorted(np.asarray(col_edges), np.arange(tw) * TILE + TILE / 2.0, side="right")
+    nr, nc = len(row_edges) + 1, len(col_edges) + 1
+    cell = (by[:, None] * nc + bx[None, :]).ravel()
+    count = np.bincount(cell, minlength=nr * nc).reshape(nr, nc)
+    if (count == 0).any() or nr * nc < 4 or min(nr, nc) < 2:
+        return None
+    mean = np.bincount(cell, excess.ravel(), minlength=nr * nc).reshape(nr, nc) / count
+    var = np.bincount(cell, (noise**2).ravel(), minlength=nr * nc).reshape(nr, nc) / count**2
+    weight = 1.0 / np.maximum(var, 1e-300)
+    # weighted additive fit mean ~ a + r[i] + q[j], by alternating least squares
+    r, q = np.zeros(nr), np.zeros(nc)
+    for _ in range(50):
+        r = np.sum(weight * (mean - q[None, :]), axis=1) / weight.sum(axis=1)
+        q = np.sum(weight * (mean - r[:, None]), axis=0) / weight.sum(axis=0)
+    chi2 = float(np.sum(weight * (mean - r[:, None] - q[None, :]) ** 2))
+    if stats.chi2.sf(chi2, (nr - 1) * (nc - 1)) >= p_value:
+        return None
+    out = np.zeros((NB, NB))
+    out[:nr, :nc] = mean - mean.min()
     return out
 
 
@@ -196,12 +265,14 @@ def combine(records: list[dict]) -> dict:
     ks = sorted(by_k)
     out: dict = {"k": ks}
     out["channel_dn"] = [[float(v) for v in np.sqrt(np.mean([np.square(r["channel_dn"][0]) for r in by_k[k]], axis=0))] for k in ks]
+    found = []  # per axis: the edges (packed lines) and the gains whose stacks show a pattern
     for key, edge_key, excess_key, noise_key, keep_key in LINES:
         excess = [np.mean([r[excess_key][0] for r in by_k[k]], axis=0) for k in ks]
         noise = [np.sqrt(np.mean([np.square(r[noise_key][0]) for r in by_k[k]], axis=0) / len(by_k[k])) for k in ks]
         keep = [any(r[keep_key][0] for r in by_k[k]) for k in ks]
         shown = [i for i in range(len(ks)) if keep[i]]
         edges = segments([excess[i] for i in shown], [noise[i] for i in shown], min_runs=2) if shown else []
+        found.append((edges, keep))
         bounds = [0, *edges, len(excess[0])]
         out[key] = []
         for i in range(len(ks)):
@@ -210,10 +281,23 @@ def combine(records: list[dict]) -> dict:
             out[key].append([float(v) for v in np.sqrt(var)])
         if shown:
             out[edge_key] = [e / len(excess[0]) for e in edges]
+    (row_edges, row_keep), (col_edges, col_keep) = found
+    if "tile_excess" in first and row_edges and col_edges:
+        cells = []
+        for i, k in enumerate(ks):
+            tiles = np.mean([r["tile_excess"][0] for r in by_k[k]], axis=0)
+            noise = np.sqrt(np.mean([np.square(r["tile_noise"][0]) for r in by_k[k]], axis=0) / len(by_k[k]))
+            cells.append(cell_levels(tiles, noise, row_edges, col_edges) if row_keep[i] and col_keep[i] else None)
+        if any(c is not None for c in cells):  # the cells hold the map whole where they depart from the blocks' sum
+            out["cell_dn"] = []
+            for i, c in enumerate(cells):
+                if c is not None:
+                    out["row_block_dn"][i], out["col_block_dn"][i] = [0.0] * NB, [0.0] * NB
+                out["cell_dn"].append(np.sqrt(c).tolist() if c is not None else np.zeros((NB, NB)).tolist())
     out["frame_h"], out["frame_w"] = first["frame_h"], first["frame_w"]
     return out
 
 
 def empty(params) -> bool:
     """True when every amplitude is 0: it would add nothing."""
-    return all_zero(params, tuple(g[0] for g in GROUPS))
+    return all_zero(params, tuple(g[0] for g in GROUPS) + ("cell_dn",))

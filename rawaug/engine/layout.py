@@ -184,6 +184,7 @@ COLUMNS = (
     "hot_tile_density",  # hot pixels: share of the 2x2 tiles (packed positions) hot in all four pixels
     *(f"rmap_ye{i}" for i in range(READ_MAP_BLOCKS - 1)), *(f"rmap_xe{i}" for i in range(READ_MAP_BLOCKS - 1)),  # read-noise map: block edges (fractions of its frame; 2: none)
     "dsnu_col_log",  # dark current: log-normal sigma of the sensor columns' factors on the rate (column DSNU)
+    "rmap_cell_record",  # read-noise map: grids record of its cells' extra variance (row block x column block, DN^2; -1: none)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
