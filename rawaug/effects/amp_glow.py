@@ -25,7 +25,11 @@ less that of the model's syntheses (which hold ``FPN``'s shading and the tempora
 plus the mean excess, less the far field (the grid's minimum) where that is positive: a
 uniform dark signal the model lacks is ``Dark``'s; where the model's uniform dark signal
 already holds the glow's mean, the grid keeps its zero mean. Over ``K * exposure_s``;
-``combine`` fits one grid per gain through the origin over every exposure.
+``combine`` fits one grid per gain through the origin over every exposure. The grid's cells
+(4 to 32 pixels) are the ones that predict each stack's odd frames from its even ones and
+back best, summed over the stacks (``split_half_error``): a glow that falls off within a
+tenth of the frame and a dark signal that varies over a few pixels need fine cells, a
+faint one coarse cells that average the noise.
 """
 from __future__ import annotations
 
@@ -34,16 +38,42 @@ import torch
 
 from ..engine import layout as L
 from .base import PHOTON, NoiseEffect, register
-from .dark_shading import fixed_shading_grid
+from .dark_shading import fixed_shading_grid, shading_grid, upsample_grid
 from .k_records import frame_size, grid_columns, validate_records
 
 STATISTICS = ("psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
-MAX_GRID, MIN_CELL = 16, 4  # a glow falls off within a tenth of the frame: finer than FPN's shading (8 x 8)
+MAX_GRID = 64  # cells per axis at most (the profile's limit)
+CELLS = (4, 6, 8, 12, 16, 24, 32)  # packed pixels per cell the grid is tried at; the data choose (``split_half_error``)
+
+
+def glow_grid_shapes(h: int, w: int) -> list[tuple[int, int]]:
+    """The (gh, gw) glow grids tried over a packed frame of h x w, finest first: cells of each
+    size of CELLS, at most MAX_GRID per axis."""
+    return sorted({(max(1, min(MAX_GRID, h // c)), max(1, min(MAX_GRID, w // c))) for c in CELLS}, reverse=True)
 
 
 def glow_grid_shape(h: int, w: int) -> tuple[int, int]:
-    """(gh, gw) of the glow grid over a packed frame of h x w: cells of >= MIN_CELL pixels."""
-    return max(1, min(MAX_GRID, h // MIN_CELL)), max(1, min(MAX_GRID, w // MIN_CELL))
+    """The finest glow grid over a packed frame of h x w."""
+    return glow_grid_shapes(h, w)[0]
+
+
+def _mean_map(frames) -> np.ndarray:
+    """(h, w) channel-averaged stack mean, each channel's mean taken out, DN."""
+    m = frames.mean(axis=0)
+    return (m - m.mean(axis=(1, 2), keepdims=True)).mean(axis=0)
+
+
+def split_half_error(frames, shape) -> float:
+    """Mean squared error (DN^2 per pixel) with which the grid of ``shape`` fitted to the even
+    frames' mean map predicts the odd frames', and back: the finer grid follows the glow closer
+    and the noise more, and the grid that predicts frames it was not fitted to best is the one
+    the data support."""
+    h, w = frames.shape[2:]
+    halves = (frames[0::2], frames[1::2])
+    err = 0.0
+    for fit, test in (halves, halves[::-1]):
+        err += float(np.mean((upsample_grid(shading_grid(fit, shape), h, w) - _mean_map(test)) ** 2))
+    return err / 2.0
 
 
 @register
@@ -85,19 +115,30 @@ def estimate(frames, synthesized, k: float, exposure_s=None, kind: str = "dark",
     if kind != "dark" or not exposure_s:
         raise ValueError("Glow needs a dark stack and its exposure_s")
     base = [np.asarray(s, dtype=np.float64) for s in synthesized]
-    shape = glow_grid_shape(*frames.shape[2:])
-    smooth = fixed_shading_grid(frames, shape) - np.mean([fixed_shading_grid(s, shape) for s in base], axis=0)  # zero mean
-    excess_dn = smooth + float(frames.mean() - np.mean([s.mean() for s in base]))
-    # the glow is what rises above the far field: a uniform dark signal the model lacks is
-    # Dark's (left out), one the model has in excess is the glow's mean it already counts
-    excess_dn = excess_dn - max(float(excess_dn.min()), 0.0)
-    return {"k": [float(k)], "rate_e_per_s": [(excess_dn / (k * float(exposure_s))).tolist()],
+    shapes = glow_grid_shapes(*frames.shape[2:]) if frames.shape[0] >= 2 else [glow_grid_shape(*frames.shape[2:])]
+    grids, errors = {}, {}
+    for shape in shapes:
+        smooth = fixed_shading_grid(frames, shape) - np.mean([fixed_shading_grid(s, shape) for s in base], axis=0)  # zero mean
+        excess_dn = smooth + float(frames.mean() - np.mean([s.mean() for s in base]))
+        # the glow is what rises above the far field: a uniform dark signal the model lacks is
+        # Dark's (left out), one the model has in excess is the glow's mean it already counts
+        excess_dn = excess_dn - max(float(excess_dn.min()), 0.0)
+        grids[shape] = (excess_dn / (k * float(exposure_s))).tolist()
+        errors[shape] = split_half_error(frames, shape) if len(shapes) > 1 else 0.0
+    best = min(shapes, key=lambda sh: errors[sh])
+    return {"k": [float(k)], "rate_e_per_s": [grids[best]], "grids": grids, "split_half_error": errors,
             "exposure_s": [float(exposure_s)], "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3])}
 
 
 def combine(records: list[dict]) -> dict:
     """One grid per gain from the dark stacks of every exposure: the least-squares rate
-    through the origin (each exposure's grid weighted by its exposure squared)."""
+    through the origin (each exposure's grid weighted by its exposure squared), at the grid
+    whose split-half error summed over the stacks is least (``split_half_error``)."""
+    shared = [r for r in records if "split_half_error" in r and (r["frame_h"], r["frame_w"]) == (records[0]["frame_h"], records[0]["frame_w"])]
+    if len(shared) == len(records):
+        shapes = list(shared[0]["split_half_error"])
+        best = min(shapes, key=lambda sh: sum(r["split_half_error"][sh] for r in shared))
+        records = [{**r, "rate_e_per_s": [r["grids"][best]]} for r in records]
     by_k: dict = {}
     for r in records:
         by_k.setdefault(r["k"][0], []).append(r)
