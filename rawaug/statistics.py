@@ -1579,6 +1579,31 @@ def steady_rows(rm, keep=None) -> np.ndarray:
 ROW_TAIL_Z = 4.0  # robust sigmas of the temporal row means: a row burst, where a Gaussian gives 6e-5
 
 
+ROW_SPIKE_Z = 8.0  # robust sigmas of the rows' frame-to-frame spread: a row's event in one frame
+
+
+def row_spike_events(frames) -> tuple[np.ndarray, np.ndarray, float]:
+    """((N, 2h) offsets DN, (N, 2h) mask of events, robust sigma DN) of a stack (N >= 3; DN):
+    each frame's sensor-row means less that frame's median row and less the row's median
+    over the frames; an event is an offset beyond ``ROW_SPIKE_Z`` robust sigmas of them all,
+    in a row that has it in one frame only (a row that jumps in several is a telegraph's)."""
+    m = sensor_row_means(np.asarray(frames, dtype=np.float64))
+    m = m - median(m, axis=1, keepdims=True)
+    d = m - median(m, axis=0, keepdims=True)
+    _, scale = robust_scale(d.ravel(), axis=0)
+    hit = np.abs(d) > ROW_SPIKE_Z * float(scale[0])
+    return d, hit & (hit.sum(axis=0, keepdims=True) == 1), float(scale[0])
+
+
+def row_spike_fraction(frames, level_dn=None):
+    """Share of a stack's frames' sensor rows offset far from the same row in the other frames
+    (``row_spike_events``): row glitches, new rows in every frame; 0 without them. Read on the
+    frames as measured: a row far off in one frame is what the line repair takes out."""
+    if np.asarray(frames).shape[0] < 3:
+        return 0.0
+    return float(row_spike_events(frames)[1].mean())
+
+
 def row_tail_mass(frames, level_dn=None):
     """Fraction of the temporal row means (``temporal_row_means``, rows of their own left out)
     beyond ``ROW_TAIL_Z`` robust sigmas (1.4826 MAD) of their median: heavy-tailed row noise
@@ -2130,6 +2155,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
         Statistic("repeated_rows", repeated_rows, row_fraction=True, view="raw"),
         Statistic("burst_rows", burst_rows, min_frames=3, kind="bias", row_fraction=True),
+        Statistic("row_spike_fraction", row_spike_fraction, min_frames=3, kind="bias", row_fraction=True, view="raw"),
         Statistic("row_tail_mass", row_tail_mass, min_frames=2, kind="bias", view="lines", line_fraction=True,
                   base="row noise shape (Gaussian)"),
         Statistic("row_tone", row_tone, kind="bias"),

@@ -83,6 +83,7 @@ LOOP_EFFECTS = {
     "RowMap": {"k": [1.0, 3.0], "row_block_dn": [[0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5], [1.0] * 8], "frame_h": 40},  # flag word 1: a window per sample
     "DarkCluster": {"seed": 61, "density": 0.02, "size": 3, "median_e_per_s": 30.0, "log_std": 0.4},  # flag word 1: patches of hot pixels
     "RowBurst": {"density": 0.05, "k": [1.0, 3.0], "sigma_dn": [3.0, 5.0]},  # flag word 1: rows with extra noise in single frames
+    "RowSpikes": {"density": 0.05, "log_std": 0.4, "negative": 0.3, "k": [1.0, 3.0], "median_dn": [20.0, 35.0]},  # flag word 1: rows offset in single frames
     "DNL": {"period": 5, "threshold_dn": [0.0, 0.3, -0.2, 0.25, -0.35]},  # codes 0.4 to 1.45 wide, then the code map
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]],
                 "split_dn": [[0.5, 0.1, 0.5, 0.5, -0.2, 0.5, 0.5, 0.1, 0.5, 0.5, -0.2]],

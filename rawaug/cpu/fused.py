@@ -145,6 +145,8 @@ _BRD, _BRS, _BURST_ROW, _BURST_NOISE = L.COLUMN["burst_density"], L.COLUMN["burs
 _ROW_BURST_HIGH = L.ROW_BURST >> L.WORD_BITS
 _ROWMAP_Y0, _ROWMAP_OY, _ROWMAP_H, _ROW_MAP = L.COLUMN["rowmap_y0"], L.COLUMN["rowmap_oy"], L.COLUMN["rowmap_h"], L.STREAM["row_map"]
 _ROW_MAP_HIGH = L.ROW_MAP >> L.WORD_BITS
+_RSD, _RSM, _RSL, _RSN = L.COLUMN["rspike_density"], L.COLUMN["rspike_median"], L.COLUMN["rspike_log_std"], L.COLUMN["rspike_negative"]
+_RSPIKE_WHERE, _RSPIKE_SIZE, _ROW_SPIKES_HIGH = L.STREAM["rspike_where"], L.STREAM["rspike_size"], L.ROW_SPIKES >> L.WORD_BITS
 _HTD, _HOT_TILE_WHERE, _HOT_TILE_SIZE = L.COLUMN["hot_tile_density"], L.STREAM["hot_tile_where"], L.STREAM["hot_tile_size"]
 _XTALK = L.STREAM["xtalk"]
 _XT_DY = np.array([tap[0] for tap in L.XTALK_TAPS], dtype=np.int64)
@@ -383,6 +385,11 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             rwh = int(v[_ROWMAP_H]) if v[_ROWMAP_H] > 0.0 else h
             line += (v[_ROWMAP_Y0 + min((y + int(v[_ROWMAP_OY])) * _NB // rwh, _NB - 1)]
                      * symmetric(normal, draw(keys[_ROW_MAP], (b * 2 + row_set) * h + y)))
+        if stages_high & _ROW_SPIKES_HIGH:  # a row glitch of this frame: the whole sensor row offset
+            q = b * 2 * h + 2 * y + row_set
+            if unit(draw(keys[_RSPIKE_WHERE], 2 * q)) < v[_RSD]:
+                size = v[_RSM] * math.exp(v[_RSL] * symmetric(normal, draw(keys[_RSPIKE_SIZE], q)))
+                line += -size if unit(draw(keys[_RSPIKE_WHERE], 2 * q + 1)) < v[_RSN] else size
         if stages & L.BIAS:
             line += v[_B0 + c]
         if stages & L.BLE:

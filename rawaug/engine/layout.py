@@ -81,6 +81,7 @@ DARK_CLUSTER = 1 << 66  # clusters of hot pixels: square patches of sensor pixel
 CLUSTER_MAX = 4  # clusters of hot pixels: the largest side of a patch (sensor pixels)
 ROW_BURST = 1 << 67  # burst rows: sensor rows read with extra white noise, at new rows in every frame (interference bursts during readout)
 ROW_MAP = 1 << 68  # row-noise map: extra row noise of its own level per row block of the measured frame
+ROW_SPIKES = 1 << 69  # row glitches: sensor rows offset far in one frame, at new rows in every frame
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
 READ_MAP_BLOCKS = 8  # row and column blocks of the read-noise map (over the measured frame)
@@ -185,6 +186,7 @@ COLUMNS = (
     *(f"rmap_ye{i}" for i in range(READ_MAP_BLOCKS - 1)), *(f"rmap_xe{i}" for i in range(READ_MAP_BLOCKS - 1)),  # read-noise map: block edges (fractions of its frame; 2: none)
     "dsnu_col_log",  # dark current: log-normal sigma of the sensor columns' factors on the rate (column DSNU)
     "rmap_cell_record",  # read-noise map: grids record of its cells' extra variance (row block x column block, DN^2; -1: none)
+    "rspike_density", "rspike_median", "rspike_log_std", "rspike_negative",  # row glitches: share of a frame's sensor rows, median offset (DN), log spread, share negative
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -205,7 +207,7 @@ STREAMS = (
     "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
     "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
     "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
-    "hot_tile_where", "hot_tile_size", "dsnu_col_pattern",
+    "hot_tile_where", "hot_tile_size", "dsnu_col_pattern", "rspike_where", "rspike_size",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

@@ -94,6 +94,7 @@ C_BNCP, C_BNC0 = _column("bnoise_cp"), _column("bnoise_c0")
 C_CLD, C_CLE, C_CLL, C_CLS = _column("dclus_density"), _column("dclus_e"), _column("dclus_log_std"), _column("dclus_size")
 CLUSTER_MAX = tl.constexpr(L.CLUSTER_MAX)
 C_BRD, C_BRS = _column("burst_density"), _column("burst_sigma")
+C_RSD, C_RSM, C_RSL, C_RSN = _column("rspike_density"), _column("rspike_median"), _column("rspike_log_std"), _column("rspike_negative")
 C_RWY0, C_RWOY, C_RWH = _column("rowmap_y0"), _column("rowmap_oy"), _column("rowmap_h")
 C_HTD = _column("hot_tile_density")
 OCT = tl.constexpr(L.DRIFT_OCTAVES)
@@ -121,6 +122,7 @@ K_COL_DRIFT, K_COL_DRIFT_PHASE = S["col_drift"], S["col_drift_phase"]
 K_ROW_REPEAT, K_BANK_NOISE = S["row_repeat"], S["bank_noise"]
 K_DCLUS_WHERE, K_DCLUS_SIZE = S["dclus_where"], S["dclus_size"]
 K_BURST_ROW, K_BURST_NOISE = S["burst_row"], S["burst_noise"]
+K_RSPIKE_WHERE, K_RSPIKE_SIZE = S["rspike_where"], S["rspike_size"]
 K_ROW_MAP = S["row_map"]
 K_HOT_TILE_WHERE, K_HOT_TILE_SIZE = S["hot_tile_where"], S["hot_tile_size"]
 K_COL_BAND = S["col_band"]
@@ -606,6 +608,12 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         by = tl.minimum((y + _col(v, C_RWOY).to(tl.int64)) * NB // rwh, NB - 1)
         line += (tl.load(v + C_RWY0 + by, mask=live, other=0.0)
                  * _normal(draw(_key(keys_ptr, K_ROW_MAP), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64))))
+    if FLAGS_HIGH & 64:  # (word 1) row glitches: the whole sensor row offset in this frame
+        q = b.to(tl.int64) * 2 * H + 2 * y + row_set
+        kw = _key(keys_ptr, K_RSPIKE_WHERE)
+        size = _col(v, C_RSM) * tl.exp(_col(v, C_RSL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_RSPIKE_SIZE), q.to(tl.uint64))))
+        size = tl.where(unit(draw(kw, (2 * q + 1).to(tl.uint64))) < _col(v, C_RSN), -size, size)
+        line += tl.where(unit(draw(kw, (2 * q).to(tl.uint64))) < _col(v, C_RSD), size, 0.0)
     if FLAGS & 4194304:  # banding: tones along the sensor rows, a phase per frame and tone
         ry = 2 * y + row_set
         kb = _key(keys_ptr, K_BAND)
