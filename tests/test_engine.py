@@ -135,6 +135,16 @@ def test_numba_and_triton_draw_the_same_noise(model, ratio):
     assert_same_noise(a, b, aug.profile.span_dn / ratio)
 
 
+def test_column_noise_wanders_alike_on_both_backends_in_a_sequence():
+    # Col's AR(1) over a sequence's frames (the loop's syntheses of a stack): both kernels sum
+    # the same frames' draws
+    prof = NoiseProfile.load("SonyA7S2").with_effect("Col", {"seed": 7, "k": [1.0], "sigma_dn": [2.0], "fixed_dn": [0.5],
+                                                             "rho": [0.8]})
+    aug = RawNoiseAugment(prof, model="G", ratio=1.0, fixed={"k": 1.0, "sigma_g": 0.5, "sequence": 1, "sensor": 0})
+    a, b = both(aug, torch.zeros(5, 4, 16, 24))
+    assert_same_noise(a, b, prof.span_dn)
+
+
 def assert_same_noise(a, b, dn_per_unit):
     """Equal within 1e-5 relative (near zero within 1e-6 of white: cancellation in float32),
     but for values the ADC rounds (``CodeMap``): a pre-rounding value that lies within float32

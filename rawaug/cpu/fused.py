@@ -25,7 +25,7 @@ from .quantile_table import symmetric
 
 _K, _PRNU = L.COLUMN["k"], L.COLUMN["prnu_sigma"]
 _TL, _G, _R = L.COLUMN["sigma_tl"], L.COLUMN["sigma_g"], L.COLUMN["sigma_r"]
-_CS, _CF = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"]
+_CS, _CF, _CRHO = L.COLUMN["col_sigma"], L.COLUMN["col_fixed"], L.COLUMN["col_rho"]
 _FS, _FR = L.COLUMN["fpn_sigma"], L.COLUMN["fpn_record"]
 _SENSOR = L.COLUMN["sensor"]
 _FOY, _FOX, _FH, _FW = L.COLUMN["fpn_oy"], L.COLUMN["fpn_ox"], L.COLUMN["fpn_h"], L.COLUMN["fpn_w"]
@@ -754,8 +754,15 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
         if stages & L.COL:
             if col_of != r // h:  # a column's offsets are the same in every row of a channel: drawn once for them
                 col_of = r // h
+                rho = v[_CRHO]
                 for x in range(w):
-                    col_frame[x] = v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
+                    if rho > 0.0:  # a sequence's frames: an AR(1) over the frames 0 .. b of the batch
+                        z = rho**b * symmetric(normal, draw(keys[_COL], col_set * w + x))
+                        for m in range(1, b + 1):
+                            z += math.sqrt(1.0 - rho * rho) * rho ** (b - m) * symmetric(normal, draw(keys[_COL], (m * 2 + col_set) * w + x))
+                        col_frame[x] = v[_CS] * z
+                    else:
+                        col_frame[x] = v[_CS] * symmetric(normal, draw(keys[_COL], (b * 2 + col_set) * w + x))
                     col_fixed[x] = v[_CF] * symmetric(normal, draw(keys[_COL_PATTERN], (sensor * 2 + col_set) * w + x))
             for x in range(w):
                 s = sig[x]

@@ -187,6 +187,7 @@ COLUMNS = (
     "dsnu_col_log",  # dark current: log-normal sigma of the sensor columns' factors on the rate (column DSNU)
     "rmap_cell_record",  # read-noise map: grids record of its cells' extra variance (row block x column block, DN^2; -1: none)
     "rspike_density", "rspike_median", "rspike_log_std", "rspike_negative",  # row glitches: share of a frame's sensor rows, median offset (DN), log spread, share negative
+    "col_rho",  # column noise: correlation of a column's offsets in consecutive frames of a sequence (0: new in every frame)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

@@ -33,6 +33,7 @@ C_LRD, C_LCD, C_LM, C_LLS, C_LNEG = (_column("lines_row_density"), _column("line
 Z_MAX = tl.constexpr(L.READ_TABLE_Z)
 C_TL, C_LAM, C_G, C_R = _column("sigma_tl"), _column("lambda"), _column("sigma_g"), _column("sigma_r")
 C_CS, C_CF, C_FS, C_FR = _column("col_sigma"), _column("col_fixed"), _column("fpn_sigma"), _column("fpn_record")
+C_CRHO = _column("col_rho")
 C_FOY, C_FOX, C_FH, C_FW = _column("fpn_oy"), _column("fpn_ox"), _column("fpn_h"), _column("fpn_w")
 C_FGH, C_FGW = _column("fpn_gh"), _column("fpn_gw")
 C_GLS, C_GLR, C_GLOY, C_GLOX = _column("glow_s"), _column("glow_record"), _column("glow_oy"), _column("glow_ox")
@@ -558,7 +559,15 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         step = _col(v, C_RRM) * tl.exp(_col(v, C_RRL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_RRTS_SIZE), q)))
         s += tl.where(flick, step, 0.0)
     if FLAGS & 256:  # column noise: per frame and fixed
-        s += _col(v, C_CS) * _normal(draw(_key(keys_ptr, K_COL), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
+        rho = _col(v, C_CRHO)
+        kc = _key(keys_ptr, K_COL)
+        z = _normal(draw(kc, ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
+        if rho > 0.0:  # a sequence's frames: an AR(1) over the frames 0 .. b of the batch
+            z = tl.exp(b.to(tl.float64) * tl.log(rho)) * _normal(draw(kc, (col_set.to(tl.int64) * W + x).to(tl.uint64)))
+            for m in range(1, b + 1):
+                z += (tl.sqrt(1.0 - rho * rho) * tl.exp((b - m).to(tl.float64) * tl.log(rho))
+                      * _normal(draw(kc, ((m * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64))))
+        s += _col(v, C_CS) * z
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
     if FLAGS_HIGH & 1:  # (word 1) column drift: octaves of interpolated per-frame column offsets
         rx = 2 * x + col_set
