@@ -183,6 +183,32 @@ def test_amp_glow_estimate_round_trip_and_far_field():
         amp_glow.estimate(meas, base, K, exposure_s=None)
 
 
+def test_amp_glow_grid_is_as_fine_as_the_dark_frames_support():
+    # a dark rate that varies over a few pixels (a 64 x 64 grid smoothed over 2 of its cells, on
+    # 128 x 128 packed pixels) gets the finest grid, cells of 4 pixels, in 3 of 3 stacks of 4
+    # frames; no glow at all gets one of the two coarsest (4 x 4 or 5 x 5) in 10 of 10: the grid
+    # that predicts the odd frames from the even ones best (``split_half_error``)
+    from scipy.ndimage import gaussian_filter
+
+    t = 4.0
+    z = gaussian_filter(np.random.default_rng(5).standard_normal((64, 64)), 2.0, mode="wrap")
+    glow = {"k": [K], "rate_e_per_s": [(2.0 * np.exp(0.6 * z / z.std())).tolist()]}
+    base = [synth({}, model="G+P*", seed=s, exposure_s=t, size=128, batch=4) for s in (2, 3)]
+    assert amp_glow.glow_grid_shapes(128, 128)[0] == (32, 32)
+    for s in range(3):
+        est = amp_glow.estimate(synth({"Glow": glow}, model="G+P*", seed=10 + s, exposure_s=t, size=128, batch=4), base, K,
+                                exposure_s=t)
+        assert np.asarray(est["rate_e_per_s"][0]).shape == (32, 32), np.asarray(est["rate_e_per_s"][0]).shape
+    for s in range(10):
+        est = amp_glow.estimate(synth({}, model="G+P*", seed=30 + s, exposure_s=t, size=128, batch=4), base, K, exposure_s=t)
+        assert np.asarray(est["rate_e_per_s"][0]).shape in ((4, 4), (5, 5)), np.asarray(est["rate_e_per_s"][0]).shape
+    # combine takes the grid whose split-half errors summed over the stacks are least
+    one = {"k": [K], "exposure_s": [t], "frame_h": 8, "frame_w": 8, "split_half_error": {(2, 2): 1.0, (1, 1): 2.0},
+           "grids": {(2, 2): [[1.0, 1.0], [1.0, 1.0]], (1, 1): [[5.0]]}, "rate_e_per_s": [[[1.0, 1.0], [1.0, 1.0]]]}
+    two = {**one, "split_half_error": {(2, 2): 3.0, (1, 1): 1.5}}
+    assert np.asarray(amp_glow.combine([one, two])["rate_e_per_s"][0]).shape == (1, 1)
+
+
 def test_amp_glow_combine_fits_the_rate_through_the_origin():
     # grids at 1 s and 4 s, weighted by t^2: (1 * 1 * a + 16 * b) / 17
     a, b = np.full((2, 2), 2.0), np.full((2, 2), 3.0)

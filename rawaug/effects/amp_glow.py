@@ -52,9 +52,13 @@ def glow_grid_shapes(h: int, w: int) -> list[tuple[int, int]]:
     return sorted({(max(1, min(MAX_GRID, h // c)), max(1, min(MAX_GRID, w // c))) for c in CELLS}, reverse=True)
 
 
+SINGLE_GRID = 16  # cells per axis at most where one frame cannot choose (cells of 4 pixels or more)
+
+
 def glow_grid_shape(h: int, w: int) -> tuple[int, int]:
-    """The finest glow grid over a packed frame of h x w."""
-    return glow_grid_shapes(h, w)[0]
+    """The glow grid over a packed frame of h x w where a single frame gives no split-half
+    error: cells of 4 pixels or more, at most SINGLE_GRID per axis."""
+    return max(1, min(SINGLE_GRID, h // CELLS[0])), max(1, min(SINGLE_GRID, w // CELLS[0]))
 
 
 def _mean_map(frames) -> np.ndarray:
