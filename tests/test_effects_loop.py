@@ -724,6 +724,39 @@ def test_defect_lines_estimate_round_trip():
     assert none["row_density"] == 0.0 and none["col_density"] == 0.0
 
 
+def test_defect_lines_over_a_part_are_synthesized_and_found():
+    # half the lines offset from a break in [0.2, 0.8] of the line to its end (to_end 1): on a
+    # 4 x 256 x 256 stack of 2 frames (512 sensor lines each way) each such column reads its
+    # 40 DN below the break and nothing above, both packed channels alike; the estimate finds
+    # the partial share within 5 binomial sd, every found break within [0.2, 0.8] widened by
+    # 2 % (a break within a few pixels), to_end 1, and the part's offset (not the diluted mean)
+    p = {"seed": 5, "row_density": 0.0, "col_density": 0.04, "log_std": 0.0, "negative": 0.0, "k": [K], "median_dn": [40.0],
+         "partial": 0.5, "to_end": 1.0, "cut_lo": 0.2, "cut_hi": 0.8}
+    f = synth({"Lines": p}, batch=2, size=256)
+    base = synth({}, batch=2, size=256)  # the same frames without the lines
+    moved = (f - base).mean(axis=0)  # (4, 256, 256) the lines' offsets
+    col = np.zeros((512, 512))  # sensor (row, column)
+    for c in range(4):
+        col[ROW_SET[c]::2, COLUMN_SET[c]::2] = moved[c]
+    hit = np.flatnonzero(np.abs(col).max(axis=0) > 1.0)
+    parts = [(col[:, j] > 1.0).mean() for j in hit]
+    assert all(np.allclose(col[col[:, j] > 1.0, j], 40.0) for j in hit)
+    partial = [q for q in parts if q < 1.0]
+    assert all(0.2 - 1 / 512 <= 1 - q <= 0.8 + 1 / 512 for q in partial), partial  # the offset runs from the break to the end
+    n = len(hit)
+    assert abs(len(partial) / n - 0.5) < 5 * math.sqrt(0.25 / n), (len(partial), n)
+    est = defect_lines.estimate(f, [synth({}, batch=2, size=256, seed=9)], K)
+    assert abs(est["partial"] - len(partial) / n) < 5 * math.sqrt(0.25 / n), est
+    assert est["to_end"] == 1.0 and 0.2 - 0.02 - est["cut_lo"] < 0.1 and est["cut_hi"] - 0.8 - 0.02 < 0.1, est
+    assert est["cut_lo"] >= 0.2 - 0.1 and est["cut_hi"] <= 0.8 + 0.1, est
+    assert abs(math.log(est["median_dn"][0] / 40.0)) < 0.05, est
+    # whole lines stay whole: no partial share on the round trip's lines
+    whole = defect_lines.estimate(synth({"Lines": dict(p, partial=0.0)}, batch=2, size=256), [synth({}, batch=2, size=256, seed=9)], K)
+    assert "partial" not in whole, whole
+    with pytest.raises(ValueError, match="cut_lo"):
+        BASE.with_effect("Lines", dict(p, cut_lo=0.9))
+
+
 def test_black_clip_piles_up_at_the_floor():
     f = synth({"Clip": {"floor_dn": -1.0}}, sigma_g=2.0)
     assert f.min() == -1.0

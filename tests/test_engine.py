@@ -56,7 +56,7 @@ LOOP_EFFECTS = {
     "LowFreq": {"grid": [3, 4], "k": [1.0], "sigma_dn": [0.8], "frame_h": 12, "frame_w": 20},  # smaller: more cells
     "FixedField": {"seed": 29, "grid": [5, 7], "k": [1.0, 3.0], "sigma_dn": [0.6, 1.1], "frame_h": 12, "frame_w": 20},  # a sensor's own grid
     "Lines": {"seed": 23, "row_density": 0.05, "col_density": 0.08, "log_std": 0.5, "negative": 0.3, "k": [1.0, 3.0],
-              "median_dn": [20.0, 40.0]},
+              "median_dn": [20.0, 40.0], "partial": 0.5, "to_end": 0.6, "cut_lo": 0.2, "cut_hi": 0.8},  # some over a part
     "RowFix": {"seed": 31, "k": [1.0, 3.0], "fixed_dn": [0.8, 1.4]},
     "RowCh": {"k": [1.0, 3.0], "sigma_dn": [0.7, 1.3]},
     "RowTail": {"k": [1.0, 3.0], "h": [0.15, 0.05]},  # heavy-tailed row draws

@@ -42,6 +42,8 @@ _RQ_REC, _RQ_SCALE = L.COLUMN["readq_record"], L.COLUMN["readq_scale"]
 _LRD, _LCD, _LM, _LLS, _LNEG = (L.COLUMN["lines_row_density"], L.COLUMN["lines_col_density"], L.COLUMN["lines_median"],
                                 L.COLUMN["lines_log_std"], L.COLUMN["lines_negative"])
 _LINES_ROW, _LINES_COL = L.STREAM["lines_row"], L.STREAM["lines_col"]
+_LPART, _LEND, _LCLO, _LCHI = L.COLUMN["lines_partial"], L.COLUMN["lines_to_end"], L.COLUMN["lines_cut_lo"], L.COLUMN["lines_cut_hi"]
+_LINES_ROW_CUT, _LINES_COL_CUT = L.STREAM["lines_row_cut"], L.STREAM["lines_col_cut"]
 _FGH, _FGW = L.COLUMN["fpn_gh"], L.COLUMN["fpn_gw"]
 _GLS, _GLR, _GLOY, _GLOX = L.COLUMN["glow_s"], L.COLUMN["glow_record"], L.COLUMN["glow_oy"], L.COLUMN["glow_ox"]
 _GLH, _GLW, _GLGH, _GLGW = L.COLUMN["glow_h"], L.COLUMN["glow_w"], L.COLUMN["glow_gh"], L.COLUMN["glow_gw"]
@@ -280,6 +282,21 @@ def defect_line_at(normal, key, line, density, median, log_std, negative):
 
 
 @njit(inline="always")
+def line_part(key, line, partial, to_end, cut_lo, cut_hi, pos, n):
+    """1 where the element at sensor position ``pos`` of the ``n`` along sensor line ``line``
+    lies in the line's defect, else 0: with probability ``partial`` the defect holds only from a
+    break at U(cut_lo, cut_hi) x n to the line's end (with probability ``to_end``) or from its
+    start to there; else the whole line."""
+    if partial <= 0.0 or unit(draw(key, 3 * line)) >= partial:
+        return 1.0
+    cut = (cut_lo + (cut_hi - cut_lo) * unit(draw(key, 3 * line + 2))) * n
+    along = pos + 0.5
+    if unit(draw(key, 3 * line + 1)) < to_end:
+        return 1.0 if along >= cut else 0.0
+    return 1.0 if along < cut else 0.0
+
+
+@njit(inline="always")
 def dead_line_slot(key, line, density, partial, to_end, cut_lo, cut_hi, pos, n):
     """Level slot (0 .. DEAD_LEVELS - 1) of the element at sensor position ``pos`` of the ``n``
     along sensor line ``line`` where the line is dead there, else -1: the line is dead where its
@@ -407,8 +424,12 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             line += drift_at(normal, keys[_ROW_DRIFT], keys[_ROW_DRIFT_PHASE], v, _DR0, 1, b, 2 * y + row_set)
         if stages & L.ROW_FIX:
             line += v[_RF] * symmetric(normal, draw(keys[_ROW_PATTERN], (sensor * 2 + row_set) * h + y))
+        row_defect = 0.0  # a defect row over a part: added along the row below
         if stages & L.LINES:
-            line += defect_line_at(normal, keys[_LINES_ROW], (sensor * 2 + row_set) * h + y, v[_LRD], v[_LM], v[_LLS], v[_LNEG])
+            row_defect = defect_line_at(normal, keys[_LINES_ROW], (sensor * 2 + row_set) * h + y, v[_LRD], v[_LM], v[_LLS], v[_LNEG])
+            if v[_LPART] <= 0.0:
+                line += row_defect
+                row_defect = 0.0
         if stages & L.BANK_OFFSET:  # the sensor row's bank offset
             line += v[_BKR0 + (2 * y + row_set) % int(v[_BKRP])]
         lmrec, lmox, lmlw = 0, 0, 1
@@ -791,7 +812,11 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
         if stages & L.LINES:
             for x in range(w):
                 s = sig[x]
-                s += defect_line_at(normal, keys[_LINES_COL], (sensor * 2 + col_set) * w + x, v[_LCD], v[_LM], v[_LLS], v[_LNEG])
+                cline = (sensor * 2 + col_set) * w + x
+                off = defect_line_at(normal, keys[_LINES_COL], cline, v[_LCD], v[_LM], v[_LLS], v[_LNEG])
+                if off != 0.0 and v[_LPART] > 0.0:
+                    off *= line_part(keys[_LINES_COL_CUT], cline, v[_LPART], v[_LEND], v[_LCLO], v[_LCHI], 2 * y + row_set, 2 * h)
+                s += off
                 sig[x] = s
         if stages & L.LINE_MAP:
             for x in range(w):
@@ -830,8 +855,14 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 s = sig[x]
                 s *= grids[tg_rec, tg_row, tap_at(2 * (x + tg_ox) + col_set, v, _TGC0, tg_cols)]
                 sig[x] = s
-        for x in range(w):
-            sig[x] += line
+        if row_defect != 0.0:  # the row's offsets, its defect over a part where it is one
+            rline = (sensor * 2 + row_set) * h + y
+            for x in range(w):
+                sig[x] += line + row_defect * line_part(keys[_LINES_ROW_CUT], rline, v[_LPART], v[_LEND], v[_LCLO], v[_LCHI],
+                                                        2 * x + col_set, 2 * w)
+        else:
+            for x in range(w):
+                sig[x] += line
         if stages & L.TAP_BLACK:  # this frame's offset of the pixel's tap
             for x in range(w):
                 s = sig[x]

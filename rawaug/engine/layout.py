@@ -188,6 +188,7 @@ COLUMNS = (
     "rmap_cell_record",  # read-noise map: grids record of its cells' extra variance (row block x column block, DN^2; -1: none)
     "rspike_density", "rspike_median", "rspike_log_std", "rspike_negative",  # row glitches: share of a frame's sensor rows, median offset (DN), log spread, share negative
     "col_rho",  # column noise: correlation of a column's offsets in consecutive frames of a sequence (0: new in every frame)
+    "lines_partial", "lines_to_end", "lines_cut_lo", "lines_cut_hi",  # defect lines: share offset over a part, of those the share reaching the end, range of the break (fractions)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -208,7 +209,7 @@ STREAMS = (
     "rrts_where", "rrts_size", "rrts_state", "tap", "lgain_row", "lgain_col", "dark_noise", "gain_noise", "pgain", "ffield",
     "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
     "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
-    "hot_tile_where", "hot_tile_size", "dsnu_col_pattern", "rspike_where", "rspike_size",
+    "hot_tile_where", "hot_tile_size", "dsnu_col_pattern", "rspike_where", "rspike_size", "lines_row_cut", "lines_col_cut",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

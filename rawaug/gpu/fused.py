@@ -112,6 +112,8 @@ K_SHOT, K_SHOT_REST, K_SHOT_COARSE, K_READ = S["shot"], S["shot_rest"], S["shot_
 K_ROW, K_COL, K_QUANT, K_BLE = S["row"], S["col"], S["quant"], S["ble"]
 K_DSNU, K_LOWFREQ = S["dsnu_pattern"], S["lowfreq"]
 K_LINES_ROW, K_LINES_COL = S["lines_row"], S["lines_col"]
+K_LINES_ROW_CUT, K_LINES_COL_CUT = S["lines_row_cut"], S["lines_col_cut"]
+C_LPART, C_LEND, C_LCLO, C_LCHI = _column("lines_partial"), _column("lines_to_end"), _column("lines_cut_lo"), _column("lines_cut_hi")
 K_LGAIN_ROW, K_LGAIN_COL = S["lgain_row"], S["lgain_col"]
 K_XTALK, K_BAND, K_ROW_PATTERN, K_ROW_CHANNEL = S["xtalk"], S["band"], S["row_pattern"], S["row_channel"]
 K_READ_MAP, K_SHARED = S["read_map"], S["shared"]
@@ -185,6 +187,17 @@ def _defect_line(normal_ptr, key, line, density, median, log_std, negative):
     size = median * tl.exp(log_std * symmetric_table(normal_ptr, draw(key, 3 * line + 1)))
     size = tl.where(unit(draw(key, 3 * line + 2)) < negative, -size, size)
     return tl.where(unit(draw(key, 3 * line)) < density, size, 0.0)
+
+
+@triton.jit
+def _line_part(key, line, partial, to_end, cut_lo, cut_hi, pos, n):
+    """As ``rawaug.cpu.fused.line_part``: 1.0 where sensor position ``pos`` of the ``n`` along
+    sensor lines ``line`` (uint64) lies in the line's defect, else 0.0."""
+    along = pos.to(tl.float64) + 0.5
+    cut = (cut_lo + (cut_hi - cut_lo) * unit(draw(key, 3 * line + 2))) * n
+    inside = tl.where(unit(draw(key, 3 * line + 1)) < to_end, along >= cut, along < cut)
+    whole = unit(draw(key, 3 * line)) >= partial  # always where partial is 0
+    return tl.where(whole, 1.0, tl.where(inside, 1.0, 0.0))
 
 
 @triton.jit
@@ -587,8 +600,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         kd = _key(keys_ptr, K_DIAG_BAND)
         s += _diag_tone(kd, v, 0, b, sensor, ry, rx) + _diag_tone(kd, v, 1, b, sensor, ry, rx) + _diag_tone(kd, v, 2, b, sensor, ry, rx)
     if FLAGS & 262144:  # defect lines: the sensor column's offset here, the row's below
-        s += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64),
-                          _col(v, C_LCD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
+        cline = ((sensor * 2 + col_set) * W + x).to(tl.uint64)
+        s += (_defect_line(normal_ptr, _key(keys_ptr, K_LINES_COL), cline, _col(v, C_LCD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
+              * _line_part(_key(keys_ptr, K_LINES_COL_CUT), cline, _col(v, C_LPART), _col(v, C_LEND), _col(v, C_LCLO),
+                           _col(v, C_LCHI), 2 * y + row_set, 2.0 * H))
     if FLAGS & 1099511627776:  # measured line profiles: the column's offset here, the row's below (a larger input repeats them)
         lm = grids_ptr + _col(v, C_LMR).to(tl.int64) * GH.to(tl.int64) * GW.to(tl.int64)
         lx = (x + _col(v, C_LMOX).to(tl.int64)) % _col(v, C_LMLW).to(tl.int64)
@@ -638,8 +653,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 8388608:  # fixed row pattern: the sensor row's offset, the same in every frame
         line += _col(v, C_RF) * _normal(draw(_key(keys_ptr, K_ROW_PATTERN), ((sensor * 2 + row_set) * H + y).to(tl.uint64)))
     if FLAGS & 262144:  # defect lines: the sensor row's offset
-        line += _defect_line(normal_ptr, _key(keys_ptr, K_LINES_ROW), ((sensor * 2 + row_set) * H + y).to(tl.uint64),
-                             _col(v, C_LRD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
+        rline = ((sensor * 2 + row_set) * H + y).to(tl.uint64)
+        line += (_defect_line(normal_ptr, _key(keys_ptr, K_LINES_ROW), rline, _col(v, C_LRD), _col(v, C_LM), _col(v, C_LLS), _col(v, C_LNEG))
+                 * _line_part(_key(keys_ptr, K_LINES_ROW_CUT), rline, _col(v, C_LPART), _col(v, C_LEND), _col(v, C_LCLO),
+                              _col(v, C_LCHI), 2 * x + col_set, 2.0 * W))
     if FLAGS & 1099511627776:  # measured line profiles: the row's offset
         lm = grids_ptr + _col(v, C_LMR).to(tl.int64) * GH.to(tl.int64) * GW.to(tl.int64)
         ly = (y + _col(v, C_LMOY).to(tl.int64)) % _col(v, C_LMLH).to(tl.int64)
