@@ -3,13 +3,12 @@ its statistic and its estimator."""
 import math
 
 import numpy as np
-import torch
 
-from rawaug import NoiseProfile, RawNoiseAugment
+from rawaug import NoiseProfile
 from rawaug.effects import row_spikes
 from rawaug.statistics import row_spike_fraction, sensor_row_means
 
-from base_camera import base_fixed
+from base_camera import bias_stack
 
 BASE = NoiseProfile.load("SonyA7S2")
 K = 1.0
@@ -18,13 +17,7 @@ SPIKES = {"density": 0.004, "log_std": 0.3, "negative": 0.5, "k": [K], "median_d
 
 def stack(effects, seed, n=8, size=96, sensor=0):
     """(n, 4, size, size) bias frames (DN) at gain K with ``effects`` (token: entry)."""
-    profile = BASE
-    for token, entry in effects.items():
-        profile = profile.with_effect(token, entry)
-    aug = RawNoiseAugment(profile, model="G+R", ratio=1.0, fixed=base_fixed(BASE, K, sensor=sensor),
-                          generator=torch.Generator().manual_seed(seed), rank_seeding=False)
-    with torch.no_grad():
-        return aug(torch.zeros(n, 4, size, size, dtype=torch.float64)).numpy() * BASE.span_dn
+    return bias_stack(BASE, effects, K, seed, n=n, size=size, sensor=sensor)
 
 
 def test_row_spikes_offset_whole_sensor_rows_of_one_frame_at_the_density():

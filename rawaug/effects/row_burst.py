@@ -72,11 +72,18 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
     base = float(np.mean([burst_rows(s) for s in synthesized])) * hit.size if synthesized else 0.0
     record = {"density": 0.0, "k": [float(k)], "sigma_dn": [0.0], "rows": [int(hit.size)]}
     count = int(hit.sum())
-    if count <= base or stats.poisson.sf(count - 1, max(base, MIN_BASE)) > P_VALUE:
+    if not beyond_model(count, base):
         return record
     excess = (ratio - 1.0) * row_var[None, :]  # DN^2 above the row's own
     sigma2 = float(np.median(excess[hit])) / (1.0 - 1.0 / frames.shape[0]) ** 2
     return record | {"density": min((count - base) / hit.size, MAX_DENSITY), "sigma_dn": [float(np.sqrt(max(sigma2, 0.0)))]}
+
+
+def beyond_model(count: int, base: float) -> bool:
+    """Do ``count`` events of a stack exceed the model's mean count ``base`` by more than chance
+    (as many or more with a chance under ``P_VALUE`` for a Poisson count of mean ``base``, at
+    least ``MIN_BASE``)?"""
+    return count > base and stats.poisson.sf(count - 1, max(base, MIN_BASE)) <= P_VALUE
 
 
 def combine(records: list[dict]) -> dict:

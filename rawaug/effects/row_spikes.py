@@ -20,7 +20,7 @@ Detected on bias and dark stacks of >= 3 frames by ``row_spike_fraction`` (rows 
 ``ROW_SPIKE_Z`` robust sigmas from the same row in the other frames, in one frame only; on
 the frames as measured, since the line repair takes such a row out) and ``defect_lines``.
 Estimated by ``estimate``: the events beyond the model's count (kept where the count has a
-chance under ``P_VALUE`` under the model's), their sizes by a log-normal truncated at the
+chance under 1e-3 under the model's: ``row_burst.beyond_model``), their sizes by a log-normal truncated at the
 detection threshold (``impulses.truncated_log_normal``), the density as that excess over the
 share the threshold lets through; ``combine`` pools the stacks (an event in time: one density
 and one spread for the camera, the size per gain).
@@ -36,12 +36,11 @@ from ..engine import layout as L
 from ..statistics import ROW_SPIKE_Z, row_spike_events
 from .base import READ, NoiseEffect, register
 from .impulses import truncated_log_normal
+from .row_burst import beyond_model
 from .k_records import _number, validate_records, value_at_k
 
 STATISTICS = ("row_spike_fraction", "defect_lines")  # a row far off in one frame raises its stack mean's line
 RAW_FRAMES = True  # the events are what the line repair takes out
-P_VALUE = 1e-3  # events count where as many or more have this chance under the model's count
-MIN_BASE = 0.5  # the model's events per stack taken as at least this
 MAX_DENSITY = 0.1
 
 
@@ -83,7 +82,7 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
     count = int(hit.sum())
     record = {"density": 0.0, "log_std": 0.0, "negative": 0.0, "k": [float(k)], "median_dn": [0.0], "rows": [int(hit.size)],
               "events": [0.0]}
-    if count <= base or stats.poisson.sf(count - 1, max(base, MIN_BASE)) > P_VALUE:
+    if not beyond_model(count, base):
         return record
     size = np.abs(d[hit])
     mu, s = truncated_log_normal(np.log(size), np.full(size.size, math.log(ROW_SPIKE_Z * scale)))
