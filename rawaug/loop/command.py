@@ -243,9 +243,22 @@ class _Collected:
             self.bias_exposure[frame.iso] = min(self.bias_exposure.get(frame.iso, math.inf), float(frame.exposure_s or 0.0))
 
 
+def light_on_live_pixels(stack) -> np.ndarray:
+    """(4,) mean of a flat stack (N, 4, h, w; DN before black) over the pixels whose value moves
+    from frame to frame: a dead pixel or line, stuck at one code, carries no light, while a
+    line of pixels that collect less light (phase-detection rows) or read an offset does
+    (repairing every defect line had taken those out, and a gain grid of mean 1 then fell
+    short of the flat). A stack of one frame, or with most pixels constant: its plain mean."""
+    stack = np.asarray(stack, dtype=np.float64)
+    live = stack.min(axis=0) != stack.max(axis=0)  # (4, h, w)
+    if stack.shape[0] < 2 or live.mean() < 0.5:
+        return stack.mean(axis=(0, 2, 3))
+    return np.array([stack[:, c][:, live[c]].mean() for c in range(4)])
+
+
 def _run_manifest(args, path):
     from ..calibration.stage1 import bias_frame_noise
-    from ..statistics import repaired, spike_outliers, stuck_outliers
+    from ..statistics import spike_outliers, stuck_outliers
     from .diagnose import FrameStack, channel_offsets
     from ..calibration.command import calibrate, options_from, visit_frames
     from .frames_loop import run_frame_loop
@@ -296,8 +309,7 @@ def _run_manifest(args, path):
             continue  # calibration reports flats it cannot use
         base, offsets, k, bias_stack = measured[iso]
         stack = np.stack([f for f, _ in frames]).astype(np.float64)
-        # the light on the live pixels: dead pixels and lines, impulses left out (what the statistics read)
-        level = repaired(stack).mean(axis=(0, 2, 3)) - np.asarray(offsets)
+        level = light_on_live_pixels(stack) - np.asarray(offsets)
         headroom = min(float(np.min(room)) for _, room in frames)
         if level.min() < 20 * k or stack.max() >= 0.98 * headroom:
             continue  # too dark to carry shot noise, or clipped at white
