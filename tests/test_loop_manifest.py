@@ -635,3 +635,23 @@ def test_a_camera_clipped_at_code_zero_gets_nothing_added_rate_over_seeds(tmp_pa
         clean += not [s for s in data["steps"] if s.get("accepted")] and not data.get("unexplained")
     print(f"clipped at code 0: nothing added and nothing left in {clean} of 20 sessions")
     assert clean >= 19, f"{clean} of 20"
+
+
+def test_the_flat_light_leaves_out_stuck_pixels_and_keeps_dim_rows():
+    # a flat pair at 1000 DN with Poisson-like noise: a dead column stuck at code 3 and a row of
+    # pixels that collect half the light (phase-detection rows). The light is the mean over the
+    # pixels that move: the dead column left out, the dim row kept (a gain grid of mean 1 holds it)
+    from rawaug.loop.command import light_on_live_pixels
+
+    rng = np.random.default_rng(0)
+    stack = 1000.0 + 30.0 * rng.standard_normal((2, 4, 32, 32))
+    stack[:, :, 5, :] *= 0.5  # the dim row
+    stack[:, 1, :, 7] = 3.0  # the dead column of G1
+    light = light_on_live_pixels(stack)
+    live = np.ones((4, 32, 32), dtype=bool)
+    live[1, :, 7] = False
+    want = np.array([stack[:, c][:, live[c]].mean() for c in range(4)])
+    # each channel's mean holds the dim row alike; two channels' means differ by noise (sd ~0.7 DN)
+    assert np.allclose(light, want) and abs(light[1] - light[0]) < 5.0, light
+    assert stack.mean(axis=(0, 2, 3))[1] < light[1] - 25.0  # the plain mean: ~31 DN low from the dead column
+    assert np.allclose(light_on_live_pixels(stack[:1]), stack[:1].mean(axis=(0, 2, 3)))  # one frame: its plain mean
