@@ -187,7 +187,7 @@ def test_amp_glow_grid_is_as_fine_as_the_dark_frames_support():
     # a dark rate that varies over a few pixels (a 64 x 64 grid smoothed over 2 of its cells, on
     # 128 x 128 packed pixels) gets the finest grid, cells of 4 pixels, in 3 of 3 stacks of 4
     # frames; no glow at all gets one of the two coarsest (4 x 4 or 5 x 5) in 10 of 10: the grid
-    # that predicts the odd frames from the even ones best (``split_half_error``)
+    # that predicts the odd frames from the even ones best (``split_half_errors``)
     from scipy.ndimage import gaussian_filter
 
     t = 4.0

@@ -27,7 +27,7 @@ uniform dark signal the model lacks is ``Dark``'s; where the model's uniform dar
 already holds the glow's mean, the grid keeps its zero mean. Over ``K * exposure_s``;
 ``combine`` fits one grid per gain through the origin over every exposure. The grid's cells
 (4 to 32 pixels) are the ones that predict each stack's odd frames from its even ones and
-back best, summed over the stacks (``split_half_error``): a glow that falls off within a
+back best, summed over the stacks (``split_half_errors``): a glow that falls off within a
 tenth of the frame and a dark signal that varies over a few pixels need fine cells, a
 faint one coarse cells that average the noise.
 """
@@ -38,12 +38,12 @@ import torch
 
 from ..engine import layout as L
 from .base import PHOTON, NoiseEffect, register
-from .dark_shading import fixed_shading_grid, shading_grid, upsample_grid
+from .dark_shading import fit_grid, fixed_shading_grids, shading_map, upsample_grid
 from .k_records import frame_size, grid_columns, validate_records
 
 STATISTICS = ("psd2d_lowfreq", "row_lowfreq", "col_lowfreq")
 MAX_GRID = 64  # cells per axis at most (the profile's limit)
-CELLS = (4, 6, 8, 12, 16, 24, 32)  # packed pixels per cell the grid is tried at; the data choose (``split_half_error``)
+CELLS = (4, 6, 8, 12, 16, 24, 32)  # packed pixels per cell the grid is tried at; the data choose (``split_half_errors``)
 
 
 def glow_grid_shapes(h: int, w: int) -> list[tuple[int, int]]:
@@ -67,17 +67,16 @@ def _mean_map(frames) -> np.ndarray:
     return (m - m.mean(axis=(1, 2), keepdims=True)).mean(axis=0)
 
 
-def split_half_error(frames, shape) -> float:
-    """Mean squared error (DN^2 per pixel) with which the grid of ``shape`` fitted to the even
-    frames' mean map predicts the odd frames', and back: the finer grid follows the glow closer
-    and the noise more, and the grid that predicts frames it was not fitted to best is the one
-    the data support."""
+def split_half_errors(frames, shapes) -> list[float]:
+    """Per grid of ``shapes``: the mean squared error (DN^2 per pixel) with which the grid
+    fitted to the even frames' mean map predicts the odd frames', and back: the finer grid
+    follows the glow closer and the noise more, and the grid that predicts frames it was not
+    fitted to best is the one the data support. Each half's maps are made once."""
     h, w = frames.shape[2:]
     halves = (frames[0::2], frames[1::2])
-    err = 0.0
-    for fit, test in (halves, halves[::-1]):
-        err += float(np.mean((upsample_grid(shading_grid(fit, shape), h, w) - _mean_map(test)) ** 2))
-    return err / 2.0
+    fits, tests = [shading_map(f) for f in halves], [_mean_map(f) for f in halves]
+    return [sum(float(np.mean((upsample_grid(fit_grid(fit, shape), h, w) - test) ** 2))
+                for fit, test in zip(fits, tests[::-1])) / 2.0 for shape in shapes]
 
 
 @register
@@ -120,15 +119,17 @@ def estimate(frames, synthesized, k: float, exposure_s=None, kind: str = "dark",
         raise ValueError("Glow needs a dark stack and its exposure_s")
     base = [np.asarray(s, dtype=np.float64) for s in synthesized]
     shapes = glow_grid_shapes(*frames.shape[2:]) if frames.shape[0] >= 2 else [glow_grid_shape(*frames.shape[2:])]
-    grids, errors = {}, {}
-    for shape in shapes:
-        smooth = fixed_shading_grid(frames, shape) - np.mean([fixed_shading_grid(s, shape) for s in base], axis=0)  # zero mean
-        excess_dn = smooth + float(frames.mean() - np.mean([s.mean() for s in base]))
+    measured = fixed_shading_grids(frames, shapes)  # each stack's maps made once for every grid
+    model = [np.mean(g, axis=0) for g in zip(*(fixed_shading_grids(s, shapes) for s in base))]
+    offset = float(frames.mean() - np.mean([s.mean() for s in base]))
+    errors = dict(zip(shapes, split_half_errors(frames, shapes) if len(shapes) > 1 else [0.0]))
+    grids = {}
+    for shape, meas, mod in zip(shapes, measured, model):
+        excess_dn = meas - mod + offset  # the smooth grids' difference has zero mean
         # the glow is what rises above the far field: a uniform dark signal the model lacks is
         # Dark's (left out), one the model has in excess is the glow's mean it already counts
         excess_dn = excess_dn - max(float(excess_dn.min()), 0.0)
         grids[shape] = (excess_dn / (k * float(exposure_s))).tolist()
-        errors[shape] = split_half_error(frames, shape) if len(shapes) > 1 else 0.0
     best = min(shapes, key=lambda sh: errors[sh])
     return {"k": [float(k)], "rate_e_per_s": [grids[best]], "grids": grids, "split_half_error": errors,
             "exposure_s": [float(exposure_s)], "frame_h": int(frames.shape[2]), "frame_w": int(frames.shape[3])}
@@ -137,7 +138,7 @@ def estimate(frames, synthesized, k: float, exposure_s=None, kind: str = "dark",
 def combine(records: list[dict]) -> dict:
     """One grid per gain from the dark stacks of every exposure: the least-squares rate
     through the origin (each exposure's grid weighted by its exposure squared), at the grid
-    whose split-half error summed over the stacks is least (``split_half_error``)."""
+    whose split-half error summed over the stacks is least (``split_half_errors``)."""
     shared = [r for r in records if "split_half_error" in r and (r["frame_h"], r["frame_w"]) == (records[0]["frame_h"], records[0]["frame_w"])]
     if len(shared) == len(records):
         shapes = list(shared[0]["split_half_error"])

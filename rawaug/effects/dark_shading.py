@@ -104,14 +104,44 @@ def _upsampling_matrix(n_out, n_grid):
     return up.T.numpy().astype(np.float64)
 
 
+def shading_map(frames) -> np.ndarray:
+    """(h, w) channel-averaged, zero-mean stack-mean map of the repaired frames, DN: what a
+    shading grid is fitted to."""
+    m = repaired(frames).mean(axis=0)  # a stuck column is a defect, not shading
+    return (m - m.mean(axis=(1, 2), keepdims=True)).mean(axis=0)
+
+
+def fit_grid(m, shape: tuple) -> np.ndarray:
+    """(gh, gw) grid whose bilinear upsampling best fits (least squares) the (h, w) map ``m``."""
+    uy, ux = _upsampling_matrix(m.shape[0], shape[0]), _upsampling_matrix(m.shape[1], shape[1])
+    return np.linalg.pinv(uy) @ m @ np.linalg.pinv(ux).T
+
+
 def shading_grid(frames, shape: tuple | None = None) -> np.ndarray:
     """(gh, gw) grid (``shape``, default ``_grid_shape``) whose bilinear upsampling best fits
     (least squares) the channel-averaged, zero-mean stack-mean map, DN."""
-    m = repaired(frames).mean(axis=0)  # a stuck column is a defect, not shading
-    m = (m - m.mean(axis=(1, 2), keepdims=True)).mean(axis=0)  # (h, w)
-    gh, gw = shape or _grid_shape(*m.shape)
-    uy, ux = _upsampling_matrix(m.shape[0], gh), _upsampling_matrix(m.shape[1], gw)
-    return np.linalg.pinv(uy) @ m @ np.linalg.pinv(ux).T
+    m = shading_map(frames)
+    return fit_grid(m, shape or _grid_shape(*m.shape))
+
+
+def fixed_shading_grids(frames, shapes) -> list[np.ndarray]:
+    """``fixed_shading_grid`` at each of ``shapes`` (None: the default), the stack's maps
+    repaired and averaged once for them all."""
+    m = shading_map(frames)
+    shapes = [shape or _grid_shape(*m.shape) for shape in shapes]
+    n = frames.shape[0]
+    if n < 2:
+        return [fit_grid(m, shape) for shape in shapes]
+    mean = frames.mean(axis=0)
+    deviations = [shading_map((f - mean)[None]) for f in frames]
+    out = []
+    for shape in shapes:
+        grid = fit_grid(m, shape)
+        temporal = np.mean([np.sum(fit_grid(d, shape) ** 2) for d in deviations]) * n / (n - 1)
+        power = float(np.sum(grid**2))
+        shrink = max(0.0, 1.0 - temporal / n / power) if power > 0 else 0.0
+        out.append(grid * shrink)
+    return out
 
 
 def fixed_shading_grid(frames, shape: tuple | None = None) -> np.ndarray:
@@ -122,15 +152,7 @@ def fixed_shading_grid(frames, shape: tuple | None = None) -> np.ndarray:
     from each frame's grid about the mean and the grid is shrunk by it, so a smooth field
     new in every frame is not taken for fixed shading (as ``Col`` subtracts temporal / N).
     """
-    grid = shading_grid(frames, shape)
-    n = frames.shape[0]
-    if n < 2:
-        return grid
-    mean = frames.mean(axis=0)
-    temporal = np.mean([np.sum(shading_grid((f - mean)[None], shape) ** 2) for f in frames]) * n / (n - 1)
-    power = float(np.sum(grid**2))
-    shrink = max(0.0, 1.0 - temporal / n / power) if power > 0 else 0.0
-    return grid * shrink
+    return fixed_shading_grids(frames, [shape])[0]
 
 
 def estimate(frames, synthesized, k: float, seed: int = 11, kind: str = "bias", **_) -> dict:

@@ -38,7 +38,7 @@ import math
 import numpy as np
 
 from ..engine import layout as L
-from ..statistics import defect_line_residuals, without_outliers
+from ..statistics import MAD_TO_SIGMA, defect_line_residuals, without_outliers
 from .base import BANDING, NoiseEffect, pattern_key, register
 from .k_records import _number, check_seed, validate_records, value_at_k
 
@@ -126,7 +126,7 @@ def line_part(profile) -> tuple[bool, bool, float, float]:
     if n < 2 * MIN_PART + 1:
         return whole
     d = np.diff(r)
-    noise = (1.482602218505602 * float(np.median(np.abs(d - np.median(d))))) ** 2 / 2.0
+    noise = (MAD_TO_SIGMA * float(np.median(np.abs(d - np.median(d))))) ** 2 / 2.0
     c = np.cumsum(r)
     total = c[-1]
     cut = np.arange(MIN_PART, n - MIN_PART + 1)

@@ -158,24 +158,25 @@ def estimate(frames, synthesized, k: float, level_dn=None, kind: str = "bias", *
     lines_measured = variance_lines(*white[0])
     lines_synth = [variance_lines(*w) for w in white[1:]]
     for axis, (_, _, excess_key, noise_key, keep_key) in enumerate(LINES):
-        parts = np.array([ls[axis] for ls in lines_synth])  # (S, n)
-        model = parts.mean(axis=0)
-        level = model.mean() / gain
-        ratio = lines_measured[axis] / np.maximum(model, 1e-12)
-        spread = parts / np.maximum(model, 1e-12) - 1.0  # each synthesis's own, about the model
-        # a line's relative noise is the model's (a mean variance over its pixels); a noisier line's is as much larger
-        noise = level * ratio * np.sqrt(spread.var(axis=0, ddof=1).mean() * (1.0 + 1.0 / len(parts)))
-        out[excess_key], out[noise_key] = [(level * (ratio - 1.0)).tolist()], [noise.tolist()]
+        excess, noise = excess_over_model(lines_measured[axis], np.array([ls[axis] for ls in lines_synth]), gain)
+        out[excess_key], out[noise_key] = [excess.tolist()], [noise.tolist()]
         out[keep_key] = [bool(keep[axis + 1])]
-    tiles = tile_variance(*white[0])
-    parts = np.array([tile_variance(*w) for w in white[1:]])
+    excess, noise = excess_over_model(tile_variance(*white[0]), np.array([tile_variance(*w) for w in white[1:]]), gain)
+    out["tile_excess"], out["tile_noise"] = [excess], [noise]  # (h // TILE, w // TILE) DN^2: for the cells at the edges combine finds
+    return out
+
+
+def excess_over_model(measured, parts, gain: float) -> tuple[np.ndarray, np.ndarray]:
+    """(excess, its noise), DN^2, of the white variance per line or tile ``measured`` over the
+    model's, from its syntheses' ``parts`` (S, ...): the measured over the model's times the
+    model's mean level (the high pass kept ``gain`` of it), less that level. A unit's relative
+    noise is the model's (a mean variance over its pixels); a noisier unit's is as much larger."""
     model = parts.mean(axis=0)
     level = model.mean() / gain
-    ratio = tiles / np.maximum(model, 1e-12)
-    spread = parts / np.maximum(model, 1e-12) - 1.0
-    out["tile_excess"] = [level * (ratio - 1.0)]  # (h // TILE, w // TILE) DN^2: for the cells at the edges combine finds
-    out["tile_noise"] = [level * ratio * np.sqrt(spread.var(axis=0, ddof=1).mean() * (1.0 + 1.0 / len(parts)))]
-    return out
+    ratio = measured / np.maximum(model, 1e-12)
+    spread = parts / np.maximum(model, 1e-12) - 1.0  # each synthesis's own, about the model
+    noise = level * ratio * np.sqrt(spread.var(axis=0, ddof=1).mean() * (1.0 + 1.0 / len(parts)))
+    return level * (ratio - 1.0), noise
 
 
 TILE = MIN_RUN  # packed lines per side of a tile of the excess map
