@@ -928,6 +928,47 @@ def smooth_dsnu(dn, rng, exposure=0.0, k=1.0, **_):
     return dn + k * rng.poisson(rate * exposure)
 
 
+# the eleventh fresh batch (twenty-ninth session), written and committed before the loop ran on it
+def column_bank_flicker(dn, rng, **_):
+    """Column ADC banks with a reference of their own: each group of 16 adjacent sensor columns shares an offset of 1.2 DN rms, new in every frame, in every kind of frame."""
+    _, h, w = dn.shape
+    c = np.repeat(rng.normal(0.0, 1.2, -(-2 * w // 16)), 16)[: 2 * w]
+    return dn + _raw_to_packed(np.broadcast_to(c, (2 * h, 2 * w)))
+
+
+def full_well(dn, rng, k=1.0, **_):
+    """Pixel saturation below the ADC's range: each pixel holds at most its full well, 17000 e- times (1 + 0.03 z), z fixed per pixel, so at K 0.375 DN/e- the 40 % flats (6350 DN) clip about half their pixels (a saturated pixel reads its full well, without read noise); other frames untouched."""
+    well = k * 17000.0 * (1.0 + 0.03 * _fixed(191, dn.shape))
+    return np.minimum(dn, well)
+
+
+def row_wander(dn, rng, k=1.0, **_):
+    """Row offsets that wander from frame to frame: each sensor row's offset is 0.8 of its offset in the frame before plus a new draw (AR(1), 1 DN rms stationary), in the order the frames were taken at each ISO, in every kind of frame."""
+    key = ("row_wander", id(rng), k)
+    prev = _WALK.get(key)
+    _, h, w = dn.shape
+    r = rng.standard_normal(2 * h) if prev is None else 0.8 * prev + 0.6 * rng.standard_normal(2 * h)
+    _WALK[key] = r
+    return dn + _raw_to_packed(np.broadcast_to(r[:, None], (2 * h, 2 * w)))
+
+
+def digital_iso(dn, rng, k=1.0, **_):
+    """The top ISO is a digital gain: at K 3.0 DN/e- the camera converts at half the gain and doubles the codes, so every code of those frames is even (black-subtracted; the black level is even); the other ISOs untouched."""
+    return 2.0 * np.rint(dn / 2.0) if k >= 3.0 else dn
+
+
+def burst_columns(dn, rng, **_):
+    """Column readout bursts: in every frame 1 % of the sensor columns (new ones each frame) read with 3 DN of extra white noise, pixel by pixel."""
+    _, h, w = dn.shape
+    hit = rng.random(2 * w) < 0.01
+    return dn + _raw_to_packed(3.0 * hit[None, :] * rng.standard_normal((2 * h, 2 * w)))
+
+
+def bimodal_read_noise(dn, rng, **_):
+    """Two-level read noise (a trap in every source follower switching faster than a frame): each reading, new at every pixel and frame, 1.2 DN up or down with equal odds, on top of the model's read noise."""
+    return dn + np.where(rng.random(dn.shape) < 0.5, 1.2, -1.2)
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -948,7 +989,9 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  partial_dead_columns, noisy_row_bank, wandering_tone, paired_columns, row_noise_ramp,
                                  noisy_edge_columns, hot_tiles, red_compression, ar_row_noise, skewed_read_noise,
                                  checker_tiles, partial_hot_columns, bimodal_black, column_dark_current, noisy_patch,
-                                 row_spikes, first_frame_black, exposure_black_shift, column_wander, smooth_dsnu)}
+                                 row_spikes, first_frame_black, exposure_black_shift, column_wander, smooth_dsnu,
+                                 column_bank_flicker, full_well, row_wander, digital_iso, burst_columns,
+                                 bimodal_read_noise)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
