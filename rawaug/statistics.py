@@ -635,6 +635,25 @@ def temporal_std(frames, level_dn=None):
     return float(np.sqrt(temporal_moments(frames)[1].mean()))
 
 
+QUIET = 1.0 / 16.0  # a quiet pixel's temporal variance, at most this share of the stack's median
+
+
+def quiet_pixels(frames) -> np.ndarray:
+    """(4, h, w) mask of a stack's pixels (N >= 2; DN) whose temporal variance is below ``QUIET``
+    of the stack's median: pixels that hold their value while the others carry the noise."""
+    var = temporal_moments(frames)[1]
+    return var < QUIET * float(np.median(var))
+
+
+def quiet_fraction(frames, level_dn=None):
+    """Share of a flat stack's pixels that hold their value from frame to frame while the
+    others carry the shot noise (``quiet_pixels``): pixels saturated at their full well; for
+    Gaussian noise a fixed share (0.13 for two frames)."""
+    if np.asarray(frames).shape[0] < 2:
+        return 0.0
+    return float(quiet_pixels(frames).mean())
+
+
 def _mean_map(frames):
     m = temporal_moments(frames)[0]
     return m - m.mean(axis=(1, 2), keepdims=True)
@@ -1442,14 +1461,15 @@ BURST_Z = 8.0  # sds of a row's variance ratio by which a burst row stands out
 BURST_CLIP = 8.0  # robust sigmas a residual counts up to in its row's variance
 
 
-def burst_row_ratios(frames) -> tuple[np.ndarray, float, np.ndarray]:
+def burst_row_ratios(frames, columns: bool = False) -> tuple[np.ndarray, float, np.ndarray]:
     """((N, 2h) ratios, threshold, (2h,) each row's median variance in DN^2) of a stack (N >= 3;
     DN): each frame's sensor row's variance (its pixels' temporal residuals, both packed
     channels, clipped at ``BURST_CLIP`` robust sigma of the stack's residuals: a pixel's spike
     moves a row's little) over that row's median over the frames (a row noisier in every frame,
     a glow's shot noise, is its own reference), and the ratio a burst row exceeds: 1 +
     ``BURST_Z`` sds of that ratio for Gaussian noise (a variance of n values: sqrt(2 / n); a
-    median of N variances: sqrt(pi / 2N) of that more)."""
+    median of N variances: sqrt(pi / 2N) of that more). With ``columns``, the same of the
+    sensor columns ((N, 2w) ratios)."""
     f = np.asarray(frames, dtype=np.float64)
     n_frames, _, h, w = f.shape
     resid = f - temporal_moments(f)[0]
@@ -1457,13 +1477,15 @@ def burst_row_ratios(frames) -> tuple[np.ndarray, float, np.ndarray]:
     scale = 1.482602218505602 * float(np.median(np.abs(sub - np.median(sub))))
     if scale > 0:
         resid = np.clip(resid, -BURST_CLIP * scale, BURST_CLIP * scale)
-    var = np.empty((n_frames, 2 * h))
-    for row_set in (0, 1):
-        var[:, row_set::2] = resid[:, [c for c in range(4) if ROW_SET[c] == row_set]].var(axis=(1, 3), ddof=1)
-    row = np.median(var, axis=0)
-    ratio = var / np.maximum(row, 1e-30)[None, :]
-    sd = np.sqrt(2.0 / (2 * w)) * np.sqrt(1.0 + np.pi / (2.0 * n_frames))
-    return ratio, 1.0 + BURST_Z * sd, row
+    sets, along, across = (COLUMN_SET, (1, 2), w) if columns else (ROW_SET, (1, 3), h)
+    var = np.empty((n_frames, 2 * across))
+    for line_set in (0, 1):
+        var[:, line_set::2] = resid[:, [c for c in range(4) if sets[c] == line_set]].var(axis=along, ddof=1)
+    line = np.median(var, axis=0)
+    ratio = var / np.maximum(line, 1e-30)[None, :]
+    n = 2 * (h if columns else w)  # values in one sensor line's variance
+    sd = np.sqrt(2.0 / n) * np.sqrt(1.0 + np.pi / (2.0 * n_frames))
+    return ratio, 1.0 + BURST_Z * sd, line
 
 
 def burst_rows(frames, level_dn=None):
@@ -1473,6 +1495,16 @@ def burst_rows(frames, level_dn=None):
     if np.asarray(frames).shape[0] < 3:
         return 0.0
     ratio, threshold, _ = burst_row_ratios(frames)
+    return float((ratio > threshold).mean())
+
+
+def burst_cols(frames, level_dn=None):
+    """Fraction of a stack's frames' sensor columns much noisier than the same column in the
+    other frames (``burst_row_ratios`` of the columns): a column amplifier's noise bursts; 0
+    without them."""
+    if np.asarray(frames).shape[0] < 3:
+        return 0.0
+    ratio, threshold, _ = burst_row_ratios(frames, columns=True)
     return float((ratio > threshold).mean())
 
 
@@ -2078,6 +2110,7 @@ class Statistic:
     line_fraction: bool = False  # resolution: one line of the stack
     column_fraction: bool = False  # resolution: one sensor column
     row_fraction: bool = False  # resolution: one sensor row of the stack
+    stack_column_fraction: bool = False  # resolution: one sensor column of the stack
     base: str = ""  # the base-model parameter it checks ("" when only effects explain it)
     floor: float = 0.0  # resolution of the measurement itself (e.g. the light's stability)
     fixed_variance: bool = False  # a fixed pattern's variance over pixels: its realization spread is a floor
@@ -2108,6 +2141,9 @@ class Statistic:
             return float(np.sqrt(max(value * n, 1.0)) / n)
         if self.row_fraction:  # counts the stack's sensor rows
             n = frames.shape[0] * 2 * frames.shape[2]
+            return float(np.sqrt(max(value * n, 1.0)) / n)
+        if self.stack_column_fraction:  # counts the stack's sensor columns
+            n = frames.shape[0] * 2 * frames.shape[3]
             return float(np.sqrt(max(value * n, 1.0)) / n)
         if self.column_fraction:  # counts sensor columns
             n = 2 * frames.shape[3]
@@ -2155,6 +2191,8 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
         Statistic("repeated_rows", repeated_rows, row_fraction=True, view="raw"),
         Statistic("burst_rows", burst_rows, min_frames=3, kind="bias", row_fraction=True),
+        Statistic("burst_cols", burst_cols, min_frames=3, kind="bias", stack_column_fraction=True),
+        Statistic("quiet_fraction", quiet_fraction, min_frames=2, kind="flat", pixel_fraction=True, view="raw"),
         Statistic("row_spike_fraction", row_spike_fraction, min_frames=3, kind="bias", row_fraction=True, view="raw"),
         Statistic("row_tail_mass", row_tail_mass, min_frames=2, kind="bias", view="lines", line_fraction=True,
                   base="row noise shape (Gaussian)"),

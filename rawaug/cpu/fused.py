@@ -145,6 +145,9 @@ _DCLUS_WHERE, _DCLUS_SIZE = L.STREAM["dclus_where"], L.STREAM["dclus_size"]
 _DARK_CLUSTER_HIGH = L.DARK_CLUSTER >> L.WORD_BITS
 _BRD, _BRS, _BURST_ROW, _BURST_NOISE = L.COLUMN["burst_density"], L.COLUMN["burst_sigma"], L.STREAM["burst_row"], L.STREAM["burst_noise"]
 _ROW_BURST_HIGH = L.ROW_BURST >> L.WORD_BITS
+_CBD, _CBS, _BURST_COL, _BURST_COL_NOISE = L.COLUMN["cburst_density"], L.COLUMN["cburst_sigma"], L.STREAM["burst_col"], L.STREAM["burst_col_noise"]
+_COL_BURST_HIGH = L.COL_BURST >> L.WORD_BITS
+_WELL, _WELL_SPREAD, _WELL_PATTERN, _FULL_WELL_HIGH = L.COLUMN["well_e"], L.COLUMN["well_spread"], L.STREAM["well_pattern"], L.FULL_WELL >> L.WORD_BITS
 _ROWMAP_Y0, _ROWMAP_OY, _ROWMAP_H, _ROW_MAP = L.COLUMN["rowmap_y0"], L.COLUMN["rowmap_oy"], L.COLUMN["rowmap_h"], L.STREAM["row_map"]
 _ROW_MAP_HIGH = L.ROW_MAP >> L.WORD_BITS
 _RSD, _RSM, _RSL, _RSN = L.COLUMN["rspike_density"], L.COLUMN["rspike_median"], L.COLUMN["rspike_log_std"], L.COLUMN["rspike_negative"]
@@ -626,6 +629,12 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                     else:
                         s += math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
                 sig[x] = s
+        if stages_high & _FULL_WELL_HIGH:  # a pixel holds at most its full well: K x its electrons (keyed by the sensor's pixel)
+            for x in range(w):
+                s = sig[x]
+                if math.isfinite(s):
+                    s = min(s, k * v[_WELL] * (1.0 + v[_WELL_SPREAD] * symmetric(normal, draw(keys[_WELL_PATTERN], p0 + x))))
+                sig[x] = s
         if stages & L.TRAP:  # traps of q DN (K q electrons) take q (1 - exp(-s / q)) of a charge s > 0
             trap = v[_TRAP]
             if trap > 0.0:
@@ -716,6 +725,10 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             if unit(draw(keys[_BURST_ROW], b * 2 * h + 2 * y + row_set)) < v[_BRD]:
                 for x in range(w):
                     sig[x] += v[_BRS] * symmetric(normal, draw(keys[_BURST_NOISE], g0 + x))
+        if stages_high & _COL_BURST_HIGH:  # a burst column of this frame: extra white noise at every pixel of the sensor column
+            for x in range(w):
+                if unit(draw(keys[_BURST_COL], b * 2 * w + 2 * x + col_set)) < v[_CBD]:
+                    sig[x] += v[_CBS] * symmetric(normal, draw(keys[_BURST_COL_NOISE], g0 + x))
         if stages & L.DARK_NOISE:  # exposure noise: white, new at every pixel and frame
             for x in range(w):
                 sig[x] += v[_DNS] * symmetric(normal, draw(keys[_DARK_NOISE], g0 + x))

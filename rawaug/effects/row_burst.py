@@ -31,7 +31,7 @@ import numpy as np
 from scipy import stats
 
 from ..engine import layout as L
-from ..statistics import burst_row_ratios, burst_rows
+from ..statistics import burst_cols, burst_row_ratios, burst_rows
 from .base import READ, NoiseEffect, register
 from .k_records import _number, validate_records, value_at_k
 
@@ -64,17 +64,25 @@ class RowBurst(NoiseEffect):
 def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
     """RowBurst record at gain ``k`` from a bias or dark stack (N >= 3, 4, h, w) in DN, against
     stacks of the same shape synthesized by the model."""
+    return burst_record("RowBurst", frames, synthesized, k, kind, columns=False)
+
+
+def burst_record(token: str, frames, synthesized, k: float, kind, columns: bool) -> dict:
+    """A burst-line record (RowBurst, or with ``columns`` ColBurst) at gain ``k`` from a bias or
+    dark stack against the model's syntheses: the share of lines beyond the model's count and
+    their extra noise (DN)."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind not in ("bias", "dark") or frames.shape[0] < 3:
-        raise ValueError("RowBurst is measured on bias or dark stacks of >= 3 frames")
-    ratio, threshold, row_var = burst_row_ratios(frames)
+        raise ValueError(f"{token} is measured on bias or dark stacks of >= 3 frames")
+    ratio, threshold, line_var = burst_row_ratios(frames, columns=columns)
     hit = ratio > threshold
-    base = float(np.mean([burst_rows(s) for s in synthesized])) * hit.size if synthesized else 0.0
+    share = burst_cols if columns else burst_rows
+    base = float(np.mean([share(s) for s in synthesized])) * hit.size if synthesized else 0.0
     record = {"density": 0.0, "k": [float(k)], "sigma_dn": [0.0], "rows": [int(hit.size)]}
     count = int(hit.sum())
     if not beyond_model(count, base):
         return record
-    excess = (ratio - 1.0) * row_var[None, :]  # DN^2 above the row's own
+    excess = (ratio - 1.0) * line_var[None, :]  # DN^2 above the line's own
     sigma2 = float(np.median(excess[hit])) / (1.0 - 1.0 / frames.shape[0]) ** 2
     return record | {"density": min((count - base) / hit.size, MAX_DENSITY), "sigma_dn": [float(np.sqrt(max(sigma2, 0.0)))]}
 

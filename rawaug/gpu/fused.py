@@ -95,6 +95,8 @@ C_BNCP, C_BNC0 = _column("bnoise_cp"), _column("bnoise_c0")
 C_CLD, C_CLE, C_CLL, C_CLS = _column("dclus_density"), _column("dclus_e"), _column("dclus_log_std"), _column("dclus_size")
 CLUSTER_MAX = tl.constexpr(L.CLUSTER_MAX)
 C_BRD, C_BRS = _column("burst_density"), _column("burst_sigma")
+C_CBD, C_CBS = _column("cburst_density"), _column("cburst_sigma")
+C_WELL, C_WELLS = _column("well_e"), _column("well_spread")
 C_RSD, C_RSM, C_RSL, C_RSN = _column("rspike_density"), _column("rspike_median"), _column("rspike_log_std"), _column("rspike_negative")
 C_RWY0, C_RWOY, C_RWH = _column("rowmap_y0"), _column("rowmap_oy"), _column("rowmap_h")
 C_HTD = _column("hot_tile_density")
@@ -125,6 +127,8 @@ K_COL_DRIFT, K_COL_DRIFT_PHASE = S["col_drift"], S["col_drift_phase"]
 K_ROW_REPEAT, K_BANK_NOISE = S["row_repeat"], S["bank_noise"]
 K_DCLUS_WHERE, K_DCLUS_SIZE = S["dclus_where"], S["dclus_size"]
 K_BURST_ROW, K_BURST_NOISE = S["burst_row"], S["burst_noise"]
+K_BURST_COL, K_BURST_COL_NOISE = S["burst_col"], S["burst_col_noise"]
+K_WELL_PATTERN = S["well_pattern"]
 K_RSPIKE_WHERE, K_RSPIKE_SIZE = S["rspike_where"], S["rspike_size"]
 K_ROW_MAP = S["row_map"]
 K_HOT_TILE_WHERE, K_HOT_TILE_SIZE = S["hot_tile_where"], S["hot_tile_size"]
@@ -459,6 +463,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s = tl.where((lam == lam) & (tl.abs(lam) < float("inf")), counted, s)  # NaN/Inf pass through
     elif FLAGS & 4:  # P
         s += tl.sqrt(k * tl.maximum(s, 0.0)) * _normal(draw(_key(keys_ptr, K_SHOT), g))
+    if FLAGS_HIGH & 256:  # (word 1) full well: a pixel holds at most K x its full well's electrons (keyed by the sensor's pixel)
+        well = k * _col(v, C_WELL) * (1.0 + _col(v, C_WELLS) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_WELL_PATTERN), p)))
+        s = tl.where((s == s) & (tl.abs(s) < float("inf")), tl.minimum(s, well), s)  # NaN/Inf pass through
     if FLAGS & 72057594037927936:  # charge trapping: traps of q DN take q (1 - exp(-s / q)) of a charge s > 0
         trap = _col(v, C_TRAP)
         s -= tl.where(s > 0.0, trap * (1.0 - tl.exp(-tl.maximum(s, 0.0) / tl.maximum(trap, 1e-30))), 0.0)  # 0 for trap 0
@@ -510,6 +517,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS_HIGH & 16:  # (word 1) burst rows: extra white noise at every pixel of a sensor row that bursts in this frame
         burst = unit(draw(_key(keys_ptr, K_BURST_ROW), (b.to(tl.int64) * 2 * H + 2 * y + row_set).to(tl.uint64))) < _col(v, C_BRD)
         s += tl.where(burst, _col(v, C_BRS) * _normal(draw(_key(keys_ptr, K_BURST_NOISE), g)), 0.0)
+    if FLAGS_HIGH & 128:  # (word 1) burst columns: extra white noise at every pixel of a sensor column that bursts in this frame
+        burst_col = unit(draw(_key(keys_ptr, K_BURST_COL), (b.to(tl.int64) * 2 * W + 2 * x + col_set).to(tl.uint64))) < _col(v, C_CBD)
+        s += tl.where(burst_col, _col(v, C_CBS) * _normal(draw(_key(keys_ptr, K_BURST_COL_NOISE), g)), 0.0)
     if FLAGS & 36028797018963968:  # exposure noise: white, new at every pixel and frame
         s += _col(v, C_DNS) * _normal(draw(_key(keys_ptr, K_DARK_NOISE), g))
     read_gain = 1.0
