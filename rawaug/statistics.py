@@ -1560,6 +1560,32 @@ def sensor_col_means(frames):
     return out
 
 
+def temporal_col_deviations(frames):
+    """(N, 2w) each frame's sensor-column means (``sensor_col_means``) less the column's mean
+    over the stack and less the frame's mean over the columns, DN: the columns' temporal part."""
+    d = sensor_col_means(np.asarray(frames, dtype=np.float64))
+    d = d - d.mean(axis=0, keepdims=True)
+    return d - d.mean(axis=1, keepdims=True)
+
+
+def col_lag_covariances(frames, lags: int) -> np.ndarray:
+    """(lags + 1,) covariance of the columns' temporal parts (``temporal_col_deviations``) of
+    sensor columns j apart, j = 0 .. lags (DN^2)."""
+    d = temporal_col_deviations(frames)
+    n = d.shape[1]
+    return np.array([np.mean(d[:, : n - j] * d[:, j:]) for j in range(min(lags, n - 1) + 1)])
+
+
+def col_neighbour_corr(frames, level_dn=None):
+    """Correlation of neighbouring sensor columns' temporal parts (``col_lag_covariances``):
+    columns whose offsets move together from frame to frame (a group's shared reference); near
+    0 for independent columns."""
+    if np.asarray(frames).shape[0] < 3:
+        return 0.0
+    c = col_lag_covariances(frames, 1)
+    return float(c[1] / c[0]) if c[0] > 0 else 0.0
+
+
 def frame_row_means(frames):
     """Sensor-row means (``sensor_row_means``) of each frame less that frame's mean: (N, 2h) DN."""
     m = sensor_row_means(frames)
@@ -2192,6 +2218,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("repeated_rows", repeated_rows, row_fraction=True, view="raw"),
         Statistic("burst_rows", burst_rows, min_frames=3, kind="bias", row_fraction=True),
         Statistic("burst_cols", burst_cols, min_frames=3, kind="bias", stack_column_fraction=True),
+        Statistic("col_neighbour_corr", col_neighbour_corr, min_frames=3, kind="bias"),
         Statistic("quiet_fraction", quiet_fraction, min_frames=2, kind="flat", pixel_fraction=True, view="raw"),
         Statistic("row_spike_fraction", row_spike_fraction, min_frames=3, kind="bias", row_fraction=True, view="raw"),
         Statistic("row_tail_mass", row_tail_mass, min_frames=2, kind="bias", view="lines", line_fraction=True,

@@ -16,7 +16,7 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 from ..statistics import SPIKE_Z, beyond_dark, far_cut, spike_side, stuck_outliers, written_codes
 from .censored import black_floor, censored_read_noise, clipped_share, hot_under_clip
@@ -368,11 +368,15 @@ def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = N
             ok &= (hi < sat) & ~((hi_same >= sat) & (frac_hi > STUCK_TILE))
         if low is not None:
             ok &= (lo > low) & ~((lo_same <= low) & (frac_lo > STUCK_TILE))
+        clipped = ~ok
+        if read_variance_dn2 is not None:  # pixels held at their full well below the white level
+            ok &= ~held_tiles(a, b, tile, v, read_variance_dn2)
         n_total += m.size
         mean_dn = float(0.5 * (a.mean(dtype=np.float64) + b.mean(dtype=np.float64)))
         pair_means.append(mean_dn)
         if ok.mean() < 0.5:
-            which = "saturated" if sat is not None and np.mean(np.maximum(hi, hi_same) >= sat) >= 0.5 else "black-clipped"
+            which = ("saturated" if sat is not None and np.mean(np.maximum(hi, hi_same) >= sat) >= 0.5
+                     else "black-clipped" if clipped.mean() >= 0.5 else "held at the pixels' full wells")
             rejected.append(f"pair {i} (mean {mean_dn:.1f} DN) is {which}: {100 * (1 - ok.mean()):.0f}% of tiles clipped")
             continue
         pair_var = float(np.median(v[ok]))
@@ -411,6 +415,26 @@ def estimate_gain(flat_pairs, *, tile: int = 32, saturation_dn: float | None = N
     return GainEstimate(k=k, read_variance_dn2=c, k_per_channel=tuple(per_channel), tile_mean_dn=m[keep],
                         tile_variance_dn2=v[keep], n_tiles=int(keep.sum()), n_excluded=int(n_total - keep.sum()),
                         pair_means_dn=tuple(pair_means), curvature_per_dn=curvature)
+
+
+HELD_Z = 5.0  # binomial sds of a tile's share of still pixels above a Gaussian's: pixels held at their wells
+HELD_SLACK = 0.02  # and this share more (whole codes, tails)
+
+
+def held_tiles(a, b, tile: int, variance, read_variance_dn2: float) -> np.ndarray:
+    """Mask over ``pair_tile_stats``' tiles (channel-major) of a flat pair (packed (c, h, w), DN)
+    where more pixels hold still between the two frames (|a - b| within 2 sd of the read
+    noise's difference) than a Gaussian of the tile's own single-frame ``variance`` gives:
+    pixels saturated at their full well, below the white level, which carry read noise only."""
+    c, h, w = a.shape
+    t = np.floor(2.0 * math.sqrt(2.0 * read_variance_dn2)) + 0.5  # whole-code differences
+    ny, nx = h // tile, w // tile
+    d = np.abs(np.asarray(a[:, : ny * tile, : nx * tile], np.float32) - np.asarray(b[:, : ny * tile, : nx * tile], np.float32))
+    share = (d <= t).reshape(c, ny, tile, nx, tile).mean(axis=(2, 4)).ravel()
+    var = np.asarray(variance, dtype=np.float64)
+    expected = np.where(var > 0, special.erf(t / (2.0 * np.sqrt(np.maximum(var, 1e-300)))), 1.0)
+    n = tile * tile
+    return share > expected + HELD_Z * np.sqrt(expected * (1.0 - expected) / n) + HELD_SLACK
 
 
 def _distinct_levels(means, rel=0.1) -> int:

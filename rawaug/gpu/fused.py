@@ -97,6 +97,7 @@ CLUSTER_MAX = tl.constexpr(L.CLUSTER_MAX)
 C_BRD, C_BRS = _column("burst_density"), _column("burst_sigma")
 C_CBD, C_CBS = _column("cburst_density"), _column("cburst_sigma")
 C_WELL, C_WELLS = _column("well_e"), _column("well_spread")
+C_CGS, C_CGW, C_CG0 = _column("cgroup_sigma"), _column("cgroup_width"), _column("cgroup_start")
 C_RSD, C_RSM, C_RSL, C_RSN = _column("rspike_density"), _column("rspike_median"), _column("rspike_log_std"), _column("rspike_negative")
 C_RWY0, C_RWOY, C_RWH = _column("rowmap_y0"), _column("rowmap_oy"), _column("rowmap_h")
 C_HTD = _column("hot_tile_density")
@@ -128,7 +129,7 @@ K_ROW_REPEAT, K_BANK_NOISE = S["row_repeat"], S["bank_noise"]
 K_DCLUS_WHERE, K_DCLUS_SIZE = S["dclus_where"], S["dclus_size"]
 K_BURST_ROW, K_BURST_NOISE = S["burst_row"], S["burst_noise"]
 K_BURST_COL, K_BURST_COL_NOISE = S["burst_col"], S["burst_col_noise"]
-K_WELL_PATTERN = S["well_pattern"]
+K_WELL_PATTERN, K_COL_GROUP = S["well_pattern"], S["col_group"]
 K_RSPIKE_WHERE, K_RSPIKE_SIZE = S["rspike_where"], S["rspike_size"]
 K_ROW_MAP = S["row_map"]
 K_HOT_TILE_WHERE, K_HOT_TILE_SIZE = S["hot_tile_where"], S["hot_tile_size"]
@@ -592,6 +593,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
                       * _normal(draw(kc, ((m * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64))))
         s += _col(v, C_CS) * z
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
+    if FLAGS_HIGH & 512:  # (word 1) column groups: the group's offset of this frame (groups of width sensor columns from start)
+        width = tl.maximum(_col(v, C_CGW).to(tl.int64), 1)
+        group = ((2 * x + col_set).to(tl.int64) + width - _col(v, C_CG0).to(tl.int64)) // width
+        s += _col(v, C_CGS) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_COL_GROUP), (b.to(tl.int64) * 2 * W + group).to(tl.uint64)))
     if FLAGS_HIGH & 1:  # (word 1) column drift: octaves of interpolated per-frame column offsets
         rx = 2 * x + col_set
         kd = _key(keys_ptr, K_COL_DRIFT)
