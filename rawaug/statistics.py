@@ -1461,6 +1461,20 @@ BURST_Z = 8.0  # sds of a row's variance ratio by which a burst row stands out
 BURST_CLIP = 8.0  # robust sigmas a residual counts up to in its row's variance
 
 
+_last_burst = threading.local()  # the last read-only stack's clipped temporal residual on this thread
+
+
+def _clipped_residual(f):
+    """The temporal residual of a stack (DN), clipped at ``BURST_CLIP`` robust sigma of it."""
+    resid = f - temporal_moments(f)[0]
+    sub = resid[:, :, ::7, ::7]
+    scale = 1.482602218505602 * float(np.median(np.abs(sub - np.median(sub))))
+    if scale > 0:
+        np.clip(resid, -BURST_CLIP * scale, BURST_CLIP * scale, out=resid)
+    resid.flags.writeable = False  # shared by the rows' and the columns' ratios
+    return resid
+
+
 def burst_row_ratios(frames, columns: bool = False) -> tuple[np.ndarray, float, np.ndarray]:
     """((N, 2h) ratios, threshold, (2h,) each row's median variance in DN^2) of a stack (N >= 3;
     DN): each frame's sensor row's variance (its pixels' temporal residuals, both packed
@@ -1472,11 +1486,7 @@ def burst_row_ratios(frames, columns: bool = False) -> tuple[np.ndarray, float, 
     sensor columns ((N, 2w) ratios)."""
     f = np.asarray(frames, dtype=np.float64)
     n_frames, _, h, w = f.shape
-    resid = f - temporal_moments(f)[0]
-    sub = resid[:, :, ::7, ::7]
-    scale = 1.482602218505602 * float(np.median(np.abs(sub - np.median(sub))))
-    if scale > 0:
-        resid = np.clip(resid, -BURST_CLIP * scale, BURST_CLIP * scale)
+    resid = _once(_last_burst, frames, lambda: _clipped_residual(f))
     sets, along, across = (COLUMN_SET, (1, 2), w) if columns else (ROW_SET, (1, 3), h)
     var = np.empty((n_frames, 2 * across))
     for line_set in (0, 1):
