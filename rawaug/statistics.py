@@ -1596,6 +1596,31 @@ def col_neighbour_corr(frames, level_dn=None):
     return float(c[1] / c[0]) if c[0] > 0 else 0.0
 
 
+def frame_slopes(frames, columns: bool = False) -> np.ndarray:
+    """(N,) least-squares slope of each frame's sensor-row means (``sensor_row_means``; with
+    ``columns`` its sensor-column means) less the stack's mean profile, DN per sensor line:
+    a black level that ramps across the frame by a new amount in every frame."""
+    m = (sensor_col_means if columns else sensor_row_means)(np.asarray(frames, dtype=np.float64))
+    m = m - m.mean(axis=0, keepdims=True)
+    i = np.arange(m.shape[1]) - 0.5 * (m.shape[1] - 1)
+    return m @ i / float(i @ i)
+
+
+def row_ramp_std(frames, level_dn=None):
+    """Spread over frames (std, ddof 1) of the frames' black ramps down the sensor rows
+    (``frame_slopes``), DN over the frame's height: a clamp that droops during readout."""
+    if np.asarray(frames).shape[0] < 3:
+        return 0.0
+    return float(frame_slopes(frames).std(ddof=1) * 2 * np.asarray(frames).shape[2])
+
+
+def col_ramp_std(frames, level_dn=None):
+    """``row_ramp_std`` across the sensor columns, DN over the frame's width."""
+    if np.asarray(frames).shape[0] < 3:
+        return 0.0
+    return float(frame_slopes(frames, columns=True).std(ddof=1) * 2 * np.asarray(frames).shape[3])
+
+
 def frame_row_means(frames):
     """Sensor-row means (``sensor_row_means``) of each frame less that frame's mean: (N, 2h) DN."""
     m = sensor_row_means(frames)
@@ -2228,6 +2253,8 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("repeated_rows", repeated_rows, row_fraction=True, view="raw"),
         Statistic("burst_rows", burst_rows, min_frames=3, kind="bias", row_fraction=True),
         Statistic("burst_cols", burst_cols, min_frames=3, kind="bias", stack_column_fraction=True),
+        Statistic("row_ramp_std", row_ramp_std, min_frames=3, kind="bias"),
+        Statistic("col_ramp_std", col_ramp_std, min_frames=3, kind="bias"),
         Statistic("col_neighbour_corr", col_neighbour_corr, min_frames=3, kind="bias"),
         Statistic("quiet_fraction", quiet_fraction, min_frames=2, kind="flat", pixel_fraction=True, view="raw"),
         Statistic("row_spike_fraction", row_spike_fraction, min_frames=3, kind="bias", row_fraction=True, view="raw"),
