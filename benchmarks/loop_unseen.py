@@ -969,6 +969,49 @@ def bimodal_read_noise(dn, rng, **_):
     return dn + np.where(rng.random(dn.shape) < 0.5, 1.2, -1.2)
 
 
+# the twelfth fresh batch (twenty-ninth session), written and committed before the loop ran on it
+def row_pairs(dn, rng, **_):
+    """A two-row readout: sensor rows 2j and 2j + 1 (one Bayer row pair) are converted together and share one row offset, 1.0 DN rms, new in every frame, in every kind of frame."""
+    _, h, w = dn.shape
+    r = np.repeat(rng.normal(0.0, 1.0, h), 2)
+    return dn + _raw_to_packed(np.broadcast_to(r[:, None], (2 * h, 2 * w)))
+
+
+def gain_scaled_fpn(dn, rng, k=1.0, **_):
+    """Offsets before the amplifier (source-follower thresholds): each pixel's offset 0.6 e- rms (fixed), so K x 0.6 DN: 0.23 DN at ISO 400, 1.8 DN at ISO 3200, in every kind of frame."""
+    return dn + k * 0.6 * _fixed(201, dn.shape)
+
+
+def blue_prnu(dn, rng, kind="", **_):
+    """A colour filter of uneven thickness: the blue pixels' response to light off by 2 % rms (fixed), the others' by 0.3 %, so flats show a blue pixel pattern in proportion to the signal and bias frames none."""
+    gain = 1.0 + 0.003 * _fixed(211, dn.shape)
+    gain[2] = 1.0 + 0.02 * _fixed(212, dn.shape[1:])  # packed B
+    return dn * gain if kind == "flat" else dn
+
+
+def periodic_rows(dn, rng, **_):
+    """A row driver laid out in blocks of 8: a fixed row offset repeating every 8 sensor rows (8 values drawn once, 1.0 DN rms), the same in every frame."""
+    _, h, w = dn.shape
+    r = np.tile(np.random.default_rng(221).normal(0.0, 1.0, 8), -(-2 * h // 8))[: 2 * h]
+    return dn + _raw_to_packed(np.broadcast_to(r[:, None], (2 * h, 2 * w)))
+
+
+def gain_telegraph(dn, rng, kind="", **_):
+    """Conversion-gain telegraph: 0.5 % of the pixels (fixed) have a floating-diffusion trap that switches their gain between +4 % and -4 % from frame to frame (a state per pixel and frame), so flats show pixels that jump in proportion to the signal and bias frames nothing."""
+    where = np.random.default_rng(231).random(dn.shape) < 0.005
+    state = np.where(rng.random(dn.shape) < 0.5, 1.04, 0.96)
+    return np.where(where, dn * state, dn) if kind == "flat" else dn
+
+
+def dark_row_noise(dn, rng, kind="", **_):
+    """Row noise that grows in long exposures (a reference warmed by the integration): the 4 s darks carry 1.0 DN more row noise (a normal offset per sensor row and frame); bias frames and flats untouched."""
+    if kind != "dark":
+        return dn
+    _, h, w = dn.shape
+    r = rng.normal(0.0, 1.0, 2 * h)
+    return dn + _raw_to_packed(np.broadcast_to(r[:, None], (2 * h, 2 * w)))
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -991,7 +1034,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  checker_tiles, partial_hot_columns, bimodal_black, column_dark_current, noisy_patch,
                                  row_spikes, first_frame_black, exposure_black_shift, column_wander, smooth_dsnu,
                                  column_bank_flicker, full_well, row_wander, digital_iso, burst_columns,
-                                 bimodal_read_noise)}
+                                 bimodal_read_noise, row_pairs, gain_scaled_fpn, blue_prnu, periodic_rows, gain_telegraph,
+                                 dark_row_noise)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
