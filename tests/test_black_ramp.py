@@ -41,4 +41,16 @@ def test_estimate_finds_the_ramps_and_none_without():
         est = black_ramp.estimate(stack({"BlackRamp": ramp}, 10 + session, size=128), base, K, kind="bias")
         assert 0.005 < est["row_dn"][0] < 0.02 and 0.0025 < est["col_dn"][0] < 0.01, est
     none = [black_ramp.estimate(stack({}, 30 + s, size=128), base, K, kind="bias") for s in range(20)]
-    assert all(black_ramp.empty(e) for e in none), none
+    assert all(black_ramp.empty(black_ramp.combine([e])) for e in none), none
+
+
+def test_the_stacks_of_a_gain_are_pooled():
+    """A bias stack of 8 frames and a dark stack of 4 at one gain give one record, their slope
+    variances pooled by degrees of freedom (7 and 3); a gain whose pooled ratio fails the F test
+    gets 0."""
+    seen = {"k": [1.0], "rows": [[4e-4, 1e-6, 7, 28]], "cols": [[1e-6, 1e-6, 7, 28]]}
+    dark = {"k": [1.0], "rows": [[1e-4, 1e-6, 3, 12]], "cols": [[1e-6, 1e-6, 3, 12]]}
+    other = {"k": [3.0], "rows": [[1.1e-6, 1e-6, 7, 28]], "cols": [[1e-6, 1e-6, 7, 28]]}
+    out = black_ramp.combine([seen, dark, other])
+    assert out["k"] == [1.0, 3.0] and out["col_dn"] == [0.0, 0.0] and out["row_dn"][1] == 0.0
+    assert math.isclose(out["row_dn"][0], math.sqrt((7 * 4e-4 + 3 * 1e-4) / 10 - 1e-6)), out

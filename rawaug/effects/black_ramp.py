@@ -18,8 +18,8 @@ Profile entry (per-K records)::
 
 Detected on bias and dark stacks of >= 3 frames by ``row_ramp_std`` and ``col_ramp_std`` (the
 spread over frames of each frame's fitted slope, over the frame). Estimated by ``estimate``:
-the slopes' variance over frames less the model's, kept where the ratio of the two passes an F
-test at ``P_VALUE``.
+the slopes' variance over frames less the model's, the stacks of a gain pooled by their degrees
+of freedom (``combine``), kept where the ratio of the two passes an F test at ``P_VALUE``.
 """
 from __future__ import annotations
 
@@ -51,25 +51,45 @@ class BlackRamp(NoiseEffect):
         validate_records(cls.token, params, ("row_dn", "col_dn"), nonnegative=("row_dn", "col_dn"))
 
 
-def _slope_std(frames, synthesized, columns: bool) -> float:
-    """The slopes' std (DN per sensor line) beyond the model's, 0 where the F test does not pass."""
+def _slope_variances(frames, synthesized, columns: bool) -> list:
+    """[measured variance of the frames' slopes, the model's (mean over its syntheses), degrees
+    of freedom of each], DN^2 per sensor line^2."""
     n = frames.shape[0]
-    measured = float(frame_slopes(frames, columns).var(ddof=1))
     model = [float(frame_slopes(np.asarray(s, dtype=np.float64), columns).var(ddof=1)) for s in synthesized]
-    base = float(np.mean(model)) if model else 0.0
-    dof_model = len(model) * (n - 1)
-    if base > 0 and stats.f.sf(measured / base, n - 1, max(dof_model, 1)) > P_VALUE:
+    return [float(frame_slopes(frames, columns).var(ddof=1)), float(np.mean(model)) if model else 0.0,
+            n - 1, len(model) * (n - 1)]
+
+
+def _beyond_model(parts: list) -> float:
+    """The slopes' std beyond the model's (DN per sensor line) from stacks' ``_slope_variances``
+    pooled by their degrees of freedom; 0 where the F test of the pooled ratio does not pass."""
+    dof, dof_model = sum(p[2] for p in parts), sum(p[3] for p in parts)
+    measured = sum(p[0] * p[2] for p in parts) / dof
+    base = sum(p[1] * p[3] for p in parts) / dof_model if dof_model else 0.0
+    if base > 0 and stats.f.sf(measured / base, dof, dof_model) > P_VALUE:
         return 0.0
     return float(np.sqrt(max(measured - base, 0.0)))
 
 
 def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
     """BlackRamp record at gain ``k`` from a bias or dark stack (N >= 3, 4, h, w; DN) against the
-    model's syntheses of it."""
+    model's syntheses of it, with the variances ``combine`` pools per gain."""
     frames = np.asarray(frames, dtype=np.float64)
-    if kind not in ("bias", "dark") or frames.shape[0] < 3:
+    if kind not in ("bias", "dark") or frames.shape[0] < 3 or not synthesized:
         raise ValueError("BlackRamp is measured on bias or dark stacks of >= 3 frames")
-    return {"k": [float(k)], "row_dn": [_slope_std(frames, synthesized, False)], "col_dn": [_slope_std(frames, synthesized, True)]}
+    rows, cols = _slope_variances(frames, synthesized, False), _slope_variances(frames, synthesized, True)
+    return {"k": [float(k)], "row_dn": [_beyond_model([rows])], "col_dn": [_beyond_model([cols])], "rows": [rows], "cols": [cols]}
+
+
+def combine(records: list[dict]) -> dict:
+    """One record per gain: the stacks at that gain (bias and dark) pooled by their degrees of
+    freedom, each axis kept where the pooled F test passes."""
+    by_k: dict = {}
+    for r in records:
+        by_k.setdefault(float(r["k"][0]), []).append(r)
+    ks = sorted(by_k)
+    return {"k": ks, "row_dn": [_beyond_model([r["rows"][0] for r in by_k[k]]) for k in ks],
+            "col_dn": [_beyond_model([r["cols"][0] for r in by_k[k]]) for k in ks]}
 
 
 def empty(params) -> bool:
