@@ -1621,6 +1621,26 @@ def col_ramp_std(frames, level_dn=None):
     return float(frame_slopes(frames, columns=True).std(ddof=1) * 2 * np.asarray(frames).shape[3])
 
 
+def row_pair_covariances(frames) -> tuple[float, float, float]:
+    """(covariance of the two sensor rows of each Bayer row pair (2y, 2y + 1), of neighbouring
+    rows of adjacent pairs (2y + 1, 2y + 2), variance) of the sensor rows' temporal parts (each
+    frame's sensor-row means less the row's mean over the stack and the frame's mean), DN^2."""
+    d = sensor_row_means(np.asarray(frames, dtype=np.float64))
+    d = d - d.mean(axis=0, keepdims=True)
+    d = d - d.mean(axis=1, keepdims=True)
+    return float(np.mean(d[:, 0::2] * d[:, 1::2])), float(np.mean(d[:, 1:-1:2] * d[:, 2::2])), float(np.mean(d * d))
+
+
+def row_pair_corr(frames, level_dn=None):
+    """The correlation of the two sensor rows of a Bayer row pair beyond that of rows of adjacent
+    pairs (``row_pair_covariances``): rows converted together (a two-row readout) share an
+    offset; near 0 for row noise of one row's own, or one that wanders smoothly."""
+    if np.asarray(frames).shape[0] < 3:
+        return 0.0
+    within, across, var = row_pair_covariances(frames)
+    return (within - across) / var if var > 0 else 0.0
+
+
 def frame_row_means(frames):
     """Sensor-row means (``sensor_row_means``) of each frame less that frame's mean: (N, 2h) DN."""
     m = sensor_row_means(frames)
@@ -2253,6 +2273,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("repeated_rows", repeated_rows, row_fraction=True, view="raw"),
         Statistic("burst_rows", burst_rows, min_frames=3, kind="bias", row_fraction=True),
         Statistic("burst_cols", burst_cols, min_frames=3, kind="bias", stack_column_fraction=True),
+        Statistic("row_pair_corr", row_pair_corr, min_frames=3, kind="bias"),
         Statistic("row_ramp_std", row_ramp_std, min_frames=3, kind="bias"),
         Statistic("col_ramp_std", col_ramp_std, min_frames=3, kind="bias"),
         Statistic("col_neighbour_corr", col_neighbour_corr, min_frames=3, kind="bias"),

@@ -19,7 +19,8 @@ Profile entry (per-K records)::
 Detected on bias and dark stacks of >= 3 frames by ``row_ramp_std`` and ``col_ramp_std`` (the
 spread over frames of each frame's fitted slope, over the frame). Estimated by ``estimate``:
 the slopes' variance over frames less the model's, the stacks of a gain pooled by their degrees
-of freedom (``combine``), kept where the ratio of the two passes an F test at ``P_VALUE``.
+of freedom (``combine``), kept where the ratio of the two passes an F test at ``P_VALUE``;
+judged with ``sigma_r`` re-fitted (calibration counted the rows' ramp as row noise).
 """
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ from .k_records import validate_records, value_at_k
 
 STATISTICS = ("row_ramp_std", "col_ramp_std")
 P_VALUE = 1e-3  # the measured slopes' variance over the model's: an F ratio beyond this chance
+SHARES_ROW_NOISE = True  # calibration's sigma_r holds the rows' ramp: judged with the row noise re-fitted
 
 
 @register

@@ -85,6 +85,7 @@ ROW_SPIKES = 1 << 69  # row glitches: sensor rows offset far in one frame, at ne
 COL_BURST = 1 << 70  # burst columns: sensor columns read with extra white noise, at new columns in every frame
 FULL_WELL = 1 << 71  # full well: a pixel holds at most its own full well of electrons (a seeded spread about the mean)
 COL_GROUP = 1 << 72  # column groups: groups of adjacent sensor columns sharing an offset, new in every frame
+ROW_PAIR = 1 << 74  # row pairs: a row offset shared by the two sensor rows of a Bayer row pair (a two-row readout), new in every frame
 BLACK_RAMP = 1 << 73  # black ramps: the black level a linear ramp down the sensor rows and across the columns, a new slope in every frame
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
@@ -195,6 +196,7 @@ COLUMNS = (
     "lines_partial", "lines_to_end", "lines_cut_lo", "lines_cut_hi",  # defect lines: share offset over a part, of those the share reaching the end, range of the break (fractions)
     "cburst_density", "cburst_sigma",  # burst columns: share of a frame's sensor columns, extra white noise (DN)
     "well_e", "well_spread",  # full well: mean capacity (electrons), relative spread over the pixels
+    "rpair_sigma",  # row pairs: the shared offset's std (DN)
     "ramp_row", "ramp_col",  # black ramps: the slopes' std, DN per sensor row and per sensor column
     "cgroup_sigma", "cgroup_width", "cgroup_start",  # column groups: the offset's std (DN), sensor columns per group, first group's start (< width)
 )
@@ -218,7 +220,7 @@ STREAMS = (
     "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
     "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
     "hot_tile_where", "hot_tile_size", "dsnu_col_pattern", "rspike_where", "rspike_size", "lines_row_cut", "lines_col_cut",
-    "burst_col", "burst_col_noise", "well_pattern", "col_group", "black_ramp",
+    "burst_col", "burst_col_noise", "well_pattern", "col_group", "black_ramp", "row_pair",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)
