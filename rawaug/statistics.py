@@ -1621,6 +1621,14 @@ def col_ramp_std(frames, level_dn=None):
     return float(frame_slopes(frames, columns=True).std(ddof=1) * 2 * np.asarray(frames).shape[3])
 
 
+def temporal_row_variance(frames) -> float:
+    """Variance of the sensor rows' temporal parts (each frame's sensor-row means less the row's
+    mean over the stack and the frame's mean), DN^2: the row noise new in every frame."""
+    d = sensor_row_means(np.asarray(frames, dtype=np.float64))
+    d = d - d.mean(axis=0, keepdims=True)
+    return float(np.mean((d - d.mean(axis=1, keepdims=True)) ** 2))
+
+
 def row_pair_covariances(frames) -> tuple[float, float, float]:
     """(covariance of the two sensor rows of each Bayer row pair (2y, 2y + 1), of neighbouring
     rows of adjacent pairs (2y + 1, 2y + 2), variance) of the sensor rows' temporal parts (each

@@ -147,6 +147,7 @@ _BRD, _BRS, _BURST_ROW, _BURST_NOISE = L.COLUMN["burst_density"], L.COLUMN["burs
 _ROW_BURST_HIGH = L.ROW_BURST >> L.WORD_BITS
 _CBD, _CBS, _BURST_COL, _BURST_COL_NOISE = L.COLUMN["cburst_density"], L.COLUMN["cburst_sigma"], L.STREAM["burst_col"], L.STREAM["burst_col_noise"]
 _COL_BURST_HIGH = L.COL_BURST >> L.WORD_BITS
+_DRN, _DARK_ROW_NOISE, _DARK_ROW_NOISE_HIGH = L.COLUMN["dark_row_sigma"], L.STREAM["dark_row_noise"], L.DARK_ROW_NOISE >> L.WORD_BITS
 _RPAIR, _ROW_PAIR, _ROW_PAIR_HIGH = L.COLUMN["rpair_sigma"], L.STREAM["row_pair"], L.ROW_PAIR >> L.WORD_BITS
 _RAMP_ROW, _RAMP_COL, _BLACK_RAMP, _BLACK_RAMP_HIGH = L.COLUMN["ramp_row"], L.COLUMN["ramp_col"], L.STREAM["black_ramp"], L.BLACK_RAMP >> L.WORD_BITS
 _CGS, _CGW, _CG0, _COL_GROUP, _COL_GROUP_HIGH = L.COLUMN["cgroup_sigma"], L.COLUMN["cgroup_width"], L.COLUMN["cgroup_start"], L.STREAM["col_group"], L.COL_GROUP >> L.WORD_BITS
@@ -413,6 +414,8 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             if unit(draw(keys[_RSPIKE_WHERE], 2 * q)) < v[_RSD]:
                 size = v[_RSM] * math.exp(v[_RSL] * symmetric(normal, draw(keys[_RSPIKE_SIZE], q)))
                 line += -size if unit(draw(keys[_RSPIKE_WHERE], 2 * q + 1)) < v[_RSN] else size
+        if stages_high & _DARK_ROW_NOISE_HIGH:  # exposure row noise: the sensor row's offset of this frame
+            line += v[_DRN] * symmetric(normal, draw(keys[_DARK_ROW_NOISE], (b * 2 + row_set) * h + y))
         if stages_high & _ROW_PAIR_HIGH:  # the row pair's shared offset of this frame: packed row y holds the pair
             line += v[_RPAIR] * symmetric(normal, draw(keys[_ROW_PAIR], b * h + y))
         if stages_high & _BLACK_RAMP_HIGH:  # this frame's black ramp down the sensor rows, about the frame's middle row

@@ -86,6 +86,7 @@ COL_BURST = 1 << 70  # burst columns: sensor columns read with extra white noise
 FULL_WELL = 1 << 71  # full well: a pixel holds at most its own full well of electrons (a seeded spread about the mean)
 COL_GROUP = 1 << 72  # column groups: groups of adjacent sensor columns sharing an offset, new in every frame
 ROW_PAIR = 1 << 74  # row pairs: a row offset shared by the two sensor rows of a Bayer row pair (a two-row readout), new in every frame
+DARK_ROW_NOISE = 1 << 75  # exposure row noise: row offsets whose variance grows with the exposure, new in every frame
 BLACK_RAMP = 1 << 73  # black ramps: the black level a linear ramp down the sensor rows and across the columns, a new slope in every frame
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
@@ -197,6 +198,7 @@ COLUMNS = (
     "cburst_density", "cburst_sigma",  # burst columns: share of a frame's sensor columns, extra white noise (DN)
     "well_e", "well_spread",  # full well: mean capacity (electrons), relative spread over the pixels
     "rpair_sigma",  # row pairs: the shared offset's std (DN)
+    "dark_row_sigma",  # exposure row noise: the row offsets' std at this exposure (DN)
     "ramp_row", "ramp_col",  # black ramps: the slopes' std, DN per sensor row and per sensor column
     "cgroup_sigma", "cgroup_width", "cgroup_start",  # column groups: the offset's std (DN), sensor columns per group, first group's start (< width)
 )
@@ -220,7 +222,7 @@ STREAMS = (
     "col_drift", "col_drift_phase", "row_repeat", "bank_noise", "dclus_where", "dclus_size",
     "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
     "hot_tile_where", "hot_tile_size", "dsnu_col_pattern", "rspike_where", "rspike_size", "lines_row_cut", "lines_col_cut",
-    "burst_col", "burst_col_noise", "well_pattern", "col_group", "black_ramp", "row_pair",
+    "burst_col", "burst_col_noise", "well_pattern", "col_group", "black_ramp", "row_pair", "dark_row_noise",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

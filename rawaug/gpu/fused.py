@@ -97,7 +97,7 @@ CLUSTER_MAX = tl.constexpr(L.CLUSTER_MAX)
 C_BRD, C_BRS = _column("burst_density"), _column("burst_sigma")
 C_CBD, C_CBS = _column("cburst_density"), _column("cburst_sigma")
 C_WELL, C_WELLS = _column("well_e"), _column("well_spread")
-C_RPAIR = _column("rpair_sigma")
+C_RPAIR, C_DRN = _column("rpair_sigma"), _column("dark_row_sigma")
 C_RAMP_ROW, C_RAMP_COL = _column("ramp_row"), _column("ramp_col")
 C_CGS, C_CGW, C_CG0 = _column("cgroup_sigma"), _column("cgroup_width"), _column("cgroup_start")
 C_RSD, C_RSM, C_RSL, C_RSN = _column("rspike_density"), _column("rspike_median"), _column("rspike_log_std"), _column("rspike_negative")
@@ -132,6 +132,7 @@ K_DCLUS_WHERE, K_DCLUS_SIZE = S["dclus_where"], S["dclus_size"]
 K_BURST_ROW, K_BURST_NOISE = S["burst_row"], S["burst_noise"]
 K_BURST_COL, K_BURST_COL_NOISE = S["burst_col"], S["burst_col_noise"]
 K_WELL_PATTERN, K_COL_GROUP, K_BLACK_RAMP, K_ROW_PAIR = S["well_pattern"], S["col_group"], S["black_ramp"], S["row_pair"]
+K_DARK_ROW_NOISE = S["dark_row_noise"]
 K_RSPIKE_WHERE, K_RSPIKE_SIZE = S["rspike_where"], S["rspike_size"]
 K_ROW_MAP = S["row_map"]
 K_HOT_TILE_WHERE, K_HOT_TILE_SIZE = S["hot_tile_where"], S["hot_tile_size"]
@@ -655,6 +656,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         size = _col(v, C_RSM) * tl.exp(_col(v, C_RSL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_RSPIKE_SIZE), q.to(tl.uint64))))
         size = tl.where(unit(draw(kw, (2 * q + 1).to(tl.uint64))) < _col(v, C_RSN), -size, size)
         line += tl.where(unit(draw(kw, (2 * q).to(tl.uint64))) < _col(v, C_RSD), size, 0.0)
+    if FLAGS_HIGH & 4096:  # (word 1) exposure row noise: the sensor row's offset of this frame
+        line += _col(v, C_DRN) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DARK_ROW_NOISE), ((b * 2 + row_set).to(tl.int64) * H + y).to(tl.uint64)))
     if FLAGS_HIGH & 2048:  # (word 1) row pairs: the pair's shared offset of this frame (packed row y holds the pair)
         line += _col(v, C_RPAIR) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_ROW_PAIR), (b.to(tl.int64) * H + y).to(tl.uint64)))
     if FLAGS_HIGH & 1024:  # (word 1) black ramps: this frame's slope down the sensor rows, about the middle row

@@ -363,25 +363,33 @@ def apply_read_shapes(stacks, profile, lambdas: dict):
                                                        float(np.exp(np.log(ks).mean()))))
 
 
-def _row_variance(frames, row_edges=()) -> float:
+def _row_variance(frames, row_edges=(), detrend: bool = False) -> float:
     """Variance over sensor rows of the sensor-row means (each frame's channels centred),
     mean over frames, DN^2: what calibration reads sigma_r from (plus read noise / row length).
     Within the bands of readout taps cut by ``row_edges`` (sensor rows: ``TapBlack``'s), each
     frame's band mean taken out: their per-frame steps are the taps' own, and a handful of
-    taps and frames would make the syntheses' spread too wide to see the row noise under them."""
+    taps and frames would make the syntheses' spread too wide to see the row noise under them.
+    With ``detrend`` (a profile with ``BlackRamp``) each frame's straight line down the rows is
+    taken out first, for the same reason: the ramps' slopes are the ramps' own."""
     f = np.asarray(repaired(np.asarray(frames, dtype=np.float64)))
     m = sensor_row_means(f - f.mean(axis=(2, 3), keepdims=True))
+    if detrend:
+        i = np.arange(m.shape[1]) - 0.5 * (m.shape[1] - 1)
+        m = m - np.outer(m @ i / float(i @ i), i)
     band = np.searchsorted(np.asarray(row_edges, dtype=np.int64), np.arange(m.shape[1]), side="right")
     bands = int(band.max()) + 1  # one band without taps: the plain variance (ddof 1)
     means = np.stack([m[:, band == t].mean(axis=1) for t in range(bands)], axis=1)  # (N, bands)
     r = m - means[:, band]
-    return float((r * r).sum(axis=1).mean() / max(m.shape[1] - bands, 1))
+    return float((r * r).sum(axis=1).mean() / max(m.shape[1] - bands - int(detrend), 1))
 
 
-def _tap_rows(profile) -> list:
-    """The row edges of the profile's readout taps (``TapBlack``), or none."""
+def _tap_rows(profile) -> tuple[list, bool]:
+    """(the row edges of the profile's readout taps (``TapBlack``), or none; whether its black
+    ramps down the rows (``BlackRamp``) are taken out): how ``_row_variance`` reads its rows."""
     taps = profile.effects.get("TapBlack")
-    return list(taps["row_edges"]) if isinstance(taps, dict) else []
+    ramps = profile.effects.get("BlackRamp")
+    return (list(taps["row_edges"]) if isinstance(taps, dict) else [],
+            isinstance(ramps, dict) and any(float(x) > 0 for x in ramps.get("row_dn", [])))
 
 
 def _row_variance_at(stack, profile, factor: float, model, seed: int, edges) -> float:
@@ -390,7 +398,7 @@ def _row_variance_at(stack, profile, factor: float, model, seed: int, edges) -> 
     scaled, prof = stack, profile
     if factor != 1.0:
         [scaled], prof = apply_row_noise_factors([stack], profile, {stack.label: factor})
-    return _mean_over_syntheses(scaled, prof, model, seed, lambda f: _row_variance(f, edges))
+    return _mean_over_syntheses(scaled, prof, model, seed, lambda f: _row_variance(f, *edges))
 
 
 def row_noise_factors(stacks, diags, profile, z_min: float = 6.0, model=None, seed: int = 0) -> dict:
@@ -406,10 +414,10 @@ def row_noise_factors(stacks, diags, profile, z_min: float = 6.0, model=None, se
     for i, stack in enumerate(stacks):
         if stack.kind != "bias":
             continue
-        synth = [_row_variance(s, edges) for s in diags[stack.label][1]]
+        synth = [_row_variance(s, *edges) for s in diags[stack.label][1]]
         if len(synth) < 2:
             continue
-        measured, model_var, spread = _row_variance(stack.frames_dn, edges), float(np.mean(synth)), float(np.std(synth, ddof=1))
+        measured, model_var, spread = _row_variance(stack.frames_dn, *edges), float(np.mean(synth)), float(np.std(synth, ddof=1))
         if model_var - measured <= z_min * spread:
             continue
         sigma_r = float(synthesis_fixed(profile, stack).get("sigma_r", 0.0))
@@ -440,11 +448,11 @@ def row_noise_restore(stacks, before: dict, after: dict, profile, z_min: float =
     for stack in stacks:
         if stack.kind != "bias" or stack.label not in before or stack.label not in after:
             continue
-        old = [_row_variance(s, edges) for s in before[stack.label][1]]
-        new = [_row_variance(s, edges) for s in after[stack.label][1]]
+        old = [_row_variance(s, *edges) for s in before[stack.label][1]]
+        new = [_row_variance(s, *edges) for s in after[stack.label][1]]
         if len(old) < 2 or len(new) < 2:
             continue
-        measured = _row_variance(stack.frames_dn, edges)
+        measured = _row_variance(stack.frames_dn, *edges)
         model, spread = float(np.mean(new)), float(np.std(new, ddof=1))
         if measured - model <= z_min * spread or measured - float(np.mean(old)) > z_min * float(np.std(old, ddof=1)):
             continue
