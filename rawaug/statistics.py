@@ -1552,22 +1552,36 @@ def read_noise_spread(frames, level_dn=None):
     return float(np.sqrt(sum(np.mean(p**2) for p in parts)))
 
 
+_last_row_means = threading.local()  # the last read-only stack's sensor-row means on this thread
+_last_col_means = threading.local()  # ... and sensor-column means
+
+
 def sensor_row_means(frames):
-    """(N, 2h) mean of each sensor row (its two packed channels, all columns), DN."""
-    n, _, h, _ = frames.shape
-    out = np.empty((n, 2 * h))
-    for row_set in (0, 1):
-        out[:, row_set::2] = frames[:, [c for c in range(4) if ROW_SET[c] == row_set]].mean(axis=(1, 3))
-    return out
+    """(N, 2h) mean of each sensor row (its two packed channels, all columns), DN (read-only
+    for a read-only stack: kept for the next statistic of it)."""
+    def compute():
+        n, _, h, _ = frames.shape
+        out = np.empty((n, 2 * h))
+        for row_set in (0, 1):
+            out[:, row_set::2] = frames[:, [c for c in range(4) if ROW_SET[c] == row_set]].mean(axis=(1, 3))
+        out.flags.writeable = False
+        return out
+
+    return _once(_last_row_means, frames, compute)
 
 
 def sensor_col_means(frames):
-    """(N, 2w) mean of each sensor column (its two packed channels, all rows), DN."""
-    n, _, _, w = frames.shape
-    out = np.empty((n, 2 * w))
-    for col_set in (0, 1):
-        out[:, col_set::2] = frames[:, [c for c in range(4) if COLUMN_SET[c] == col_set]].mean(axis=(1, 2))
-    return out
+    """(N, 2w) mean of each sensor column (its two packed channels, all rows), DN (read-only for
+    a read-only stack, as ``sensor_row_means``)."""
+    def compute():
+        n, _, _, w = frames.shape
+        out = np.empty((n, 2 * w))
+        for col_set in (0, 1):
+            out[:, col_set::2] = frames[:, [c for c in range(4) if COLUMN_SET[c] == col_set]].mean(axis=(1, 2))
+        out.flags.writeable = False
+        return out
+
+    return _once(_last_col_means, frames, compute)
 
 
 def temporal_col_deviations(frames):
