@@ -150,7 +150,7 @@ _COL_BURST_HIGH = L.COL_BURST >> L.WORD_BITS
 _DRN, _DARK_ROW_NOISE, _DARK_ROW_NOISE_HIGH = L.COLUMN["dark_row_sigma"], L.STREAM["dark_row_noise"], L.DARK_ROW_NOISE >> L.WORD_BITS
 _RPAIR, _ROW_PAIR, _ROW_PAIR_HIGH = L.COLUMN["rpair_sigma"], L.STREAM["row_pair"], L.ROW_PAIR >> L.WORD_BITS
 _RAMP_ROW, _RAMP_COL, _BLACK_RAMP, _BLACK_RAMP_HIGH = L.COLUMN["ramp_row"], L.COLUMN["ramp_col"], L.STREAM["black_ramp"], L.BLACK_RAMP >> L.WORD_BITS
-_CGS, _CGW, _CG0, _COL_GROUP, _COL_GROUP_HIGH = L.COLUMN["cgroup_sigma"], L.COLUMN["cgroup_width"], L.COLUMN["cgroup_start"], L.STREAM["col_group"], L.COL_GROUP >> L.WORD_BITS
+_CGRS, _CGRW, _CGR0, _COL_GROUP, _COL_GROUP_HIGH = L.COLUMN["cgroup_sigma"], L.COLUMN["cgroup_width"], L.COLUMN["cgroup_start"], L.STREAM["col_group"], L.COL_GROUP >> L.WORD_BITS
 _WELL, _WELL_SPREAD, _WELL_PATTERN, _FULL_WELL_HIGH = L.COLUMN["well_e"], L.COLUMN["well_spread"], L.STREAM["well_pattern"], L.FULL_WELL >> L.WORD_BITS
 _ROWMAP_Y0, _ROWMAP_OY, _ROWMAP_H, _ROW_MAP = L.COLUMN["rowmap_y0"], L.COLUMN["rowmap_oy"], L.COLUMN["rowmap_h"], L.STREAM["row_map"]
 _ROW_MAP_HIGH = L.ROW_MAP >> L.WORD_BITS
@@ -814,10 +814,10 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 s += col_fixed[x]
                 sig[x] = s
         if stages_high & _COL_GROUP_HIGH:  # a column group's offset of this frame: groups of width sensor columns from start
-            width = max(int(v[_CGW]), 1)
-            shift = width - int(v[_CG0])
+            width = max(int(v[_CGRW]), 1)
+            shift = width - int(v[_CGR0])
             for x in range(w):
-                sig[x] += v[_CGS] * symmetric(normal, draw(keys[_COL_GROUP], b * 2 * w + (2 * x + col_set + shift) // width))
+                sig[x] += v[_CGRS] * symmetric(normal, draw(keys[_COL_GROUP], b * 2 * w + (2 * x + col_set + shift) // width))
         if stages_high & _COL_DRIFT_HIGH:  # column drift: octaves of interpolated per-frame column offsets
             if col_drift_of != r // h:  # the same in every row of a channel: made once for them
                 col_drift_of = r // h

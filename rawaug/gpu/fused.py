@@ -99,7 +99,7 @@ C_CBD, C_CBS = _column("cburst_density"), _column("cburst_sigma")
 C_WELL, C_WELLS = _column("well_e"), _column("well_spread")
 C_RPAIR, C_DRN = _column("rpair_sigma"), _column("dark_row_sigma")
 C_RAMP_ROW, C_RAMP_COL = _column("ramp_row"), _column("ramp_col")
-C_CGS, C_CGW, C_CG0 = _column("cgroup_sigma"), _column("cgroup_width"), _column("cgroup_start")
+C_CGRS, C_CGRW, C_CGR0 = _column("cgroup_sigma"), _column("cgroup_width"), _column("cgroup_start")
 C_RSD, C_RSM, C_RSL, C_RSN = _column("rspike_density"), _column("rspike_median"), _column("rspike_log_std"), _column("rspike_negative")
 C_RWY0, C_RWOY, C_RWH = _column("rowmap_y0"), _column("rowmap_oy"), _column("rowmap_h")
 C_HTD = _column("hot_tile_density")
@@ -597,9 +597,9 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s += _col(v, C_CS) * z
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
     if FLAGS_HIGH & 512:  # (word 1) column groups: the group's offset of this frame (groups of width sensor columns from start)
-        width = tl.maximum(_col(v, C_CGW).to(tl.int64), 1)
-        group = ((2 * x + col_set).to(tl.int64) + width - _col(v, C_CG0).to(tl.int64)) // width
-        s += _col(v, C_CGS) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_COL_GROUP), (b.to(tl.int64) * 2 * W + group).to(tl.uint64)))
+        width = tl.maximum(_col(v, C_CGRW).to(tl.int64), 1)
+        group = ((2 * x + col_set).to(tl.int64) + width - _col(v, C_CGR0).to(tl.int64)) // width
+        s += _col(v, C_CGRS) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_COL_GROUP), (b.to(tl.int64) * 2 * W + group).to(tl.uint64)))
     if FLAGS_HIGH & 1:  # (word 1) column drift: octaves of interpolated per-frame column offsets
         rx = 2 * x + col_set
         kd = _key(keys_ptr, K_COL_DRIFT)
