@@ -2,7 +2,6 @@
 real stage and its estimator."""
 import math
 
-import numpy as np
 
 from rawaug import NoiseProfile
 from rawaug.effects import black_ramp

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 from ..engine import layout as L
 from .base import READ, NoiseEffect, register
-from .k_records import _number, validate_records, value_at_k
-from .row_burst import MAX_DENSITY, burst_record, combine, empty  # noqa: F401  (combine, empty: the loop's per-effect hooks)
+from .k_records import value_at_k
+from .row_burst import burst_record, combine, empty, validate_bursts  # noqa: F401  (combine, empty: the loop's per-effect hooks)
 
 STATISTICS = ("burst_cols", "read_noise_spread")
 SHARES_READ_NOISE = True  # calibration's read noise holds the bursts' share of the variance
@@ -43,10 +43,7 @@ class ColBurst(NoiseEffect):
 
     @classmethod
     def validate_params(cls, params):
-        validate_records(cls.token, params, ("sigma_dn",), nonnegative=("sigma_dn",))
-        density = _number(params.get("density"), f"{cls.token}.density")
-        if not 0.0 <= density <= MAX_DENSITY:
-            raise ValueError(f"effect {cls.token!r}: density (share of a frame's sensor columns) must be in [0, {MAX_DENSITY}], got {density}")
+        validate_bursts(cls.token, params, "columns")
 
 
 def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:

@@ -28,7 +28,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import col_lag_covariances, temporal_col_deviations
 from .base import BANDING, NoiseEffect, register
-from .k_records import _number, validate_records, value_at_k
+from .k_records import _number, combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("col_neighbour_corr", "col_excess")
 MAX_WIDTH = 64  # the widest group looked for (sensor columns)
@@ -107,11 +107,7 @@ def combine(records: list[dict]) -> dict:
         return {"width": 1, "start": 0, "k": [float(records[0]["k"][0])], "sigma_dn": [0.0]}
     layouts = [(r["width"], r["start"]) for r in found]
     width, start = max(set(layouts), key=lambda w: (layouts.count(w), -w[0], -w[1]))
-    by_k: dict = {}
-    for r in found:
-        by_k.setdefault(float(r["k"][0]), []).append(r["sigma_dn"][0] ** 2)
-    ks = sorted(by_k)
-    return {"width": int(width), "start": int(start), "k": ks, "sigma_dn": [float(np.sqrt(np.mean(by_k[k]))) for k in ks]}
+    return {"width": int(width), "start": int(start), **combine_sigma(found)}
 
 
 def empty(params) -> bool:

@@ -55,10 +55,16 @@ class RowBurst(NoiseEffect):
 
     @classmethod
     def validate_params(cls, params):
-        validate_records(cls.token, params, ("sigma_dn",), nonnegative=("sigma_dn",))
-        density = _number(params.get("density"), f"{cls.token}.density")
-        if not 0.0 <= density <= MAX_DENSITY:
-            raise ValueError(f"effect {cls.token!r}: density (share of a frame's sensor rows) must be in [0, {MAX_DENSITY}], got {density}")
+        validate_bursts(cls.token, params, "rows")
+
+
+def validate_bursts(token: str, params, lines: str):
+    """Per-K ``sigma_dn`` records and a ``density`` (share of a frame's sensor ``lines``) in [0,
+    ``MAX_DENSITY``]; ValueError naming the value otherwise."""
+    validate_records(token, params, ("sigma_dn",), nonnegative=("sigma_dn",))
+    density = _number(params.get("density"), f"{token}.density")
+    if not 0.0 <= density <= MAX_DENSITY:
+        raise ValueError(f"effect {token!r}: density (share of a frame's sensor {lines}) must be in [0, {MAX_DENSITY}], got {density}")
 
 
 def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:

@@ -24,7 +24,7 @@ import numpy as np
 from ..engine import layout as L
 from ..statistics import row_pair_covariances
 from .base import BANDING, NoiseEffect, register
-from .k_records import validate_records, value_at_k
+from .k_records import combine_sigma, validate_records, value_at_k
 
 STATISTICS = ("row_pair_corr",)
 SHARES_ROW_NOISE = True  # calibration gave the shared offsets to sigma_r
@@ -64,11 +64,7 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
 
 def combine(records: list[dict]) -> dict:
     """One record per gain: the rms of its stacks' offsets."""
-    by_k: dict = {}
-    for r in records:
-        by_k.setdefault(float(r["k"][0]), []).append(r["sigma_dn"][0] ** 2)
-    ks = sorted(by_k)
-    return {"k": ks, "sigma_dn": [float(np.sqrt(np.mean(by_k[k]))) for k in ks]}
+    return combine_sigma(records)
 
 
 def empty(params) -> bool:
