@@ -1584,10 +1584,11 @@ def sensor_col_means(frames):
     return _once(_last_col_means, frames, compute)
 
 
-def temporal_col_deviations(frames):
+def temporal_col_deviations(frames, rows: bool = False):
     """(N, 2w) each frame's sensor-column means (``sensor_col_means``) less the column's mean
-    over the stack and less the frame's mean over the columns, DN: the columns' temporal part."""
-    d = sensor_col_means(np.asarray(frames, dtype=np.float64))
+    over the stack and less the frame's mean over the columns, DN: the columns' temporal part;
+    with ``rows``, the same of the sensor rows ((N, 2h), ``sensor_row_means``)."""
+    d = (sensor_row_means if rows else sensor_col_means)(np.asarray(frames, dtype=np.float64))
     d = d - d.mean(axis=0, keepdims=True)
     return d - d.mean(axis=1, keepdims=True)
 
@@ -1638,18 +1639,14 @@ def col_ramp_std(frames, level_dn=None):
 def temporal_row_variance(frames) -> float:
     """Variance of the sensor rows' temporal parts (each frame's sensor-row means less the row's
     mean over the stack and the frame's mean), DN^2: the row noise new in every frame."""
-    d = sensor_row_means(np.asarray(frames, dtype=np.float64))
-    d = d - d.mean(axis=0, keepdims=True)
-    return float(np.mean((d - d.mean(axis=1, keepdims=True)) ** 2))
+    return float(np.mean(temporal_col_deviations(frames, rows=True) ** 2))
 
 
 def row_pair_covariances(frames) -> tuple[float, float, float]:
     """(covariance of the two sensor rows of each Bayer row pair (2y, 2y + 1), of neighbouring
     rows of adjacent pairs (2y + 1, 2y + 2), variance) of the sensor rows' temporal parts (each
     frame's sensor-row means less the row's mean over the stack and the frame's mean), DN^2."""
-    d = sensor_row_means(np.asarray(frames, dtype=np.float64))
-    d = d - d.mean(axis=0, keepdims=True)
-    d = d - d.mean(axis=1, keepdims=True)
+    d = temporal_col_deviations(frames, rows=True)
     return float(np.mean(d[:, 0::2] * d[:, 1::2])), float(np.mean(d[:, 1:-1:2] * d[:, 2::2])), float(np.mean(d * d))
 
 
