@@ -1012,6 +1012,54 @@ def dark_row_noise(dn, rng, kind="", **_):
     return dn + _raw_to_packed(np.broadcast_to(r[:, None], (2 * h, 2 * w)))
 
 
+# the thirteenth fresh batch (thirtieth session), written and committed before the loop ran on it
+def channel_digital_gain(dn, rng, **_):
+    """White-balance pre-gain in the raw: the red and blue channels are converted at the greens' gain, rounded, then multiplied by 1.25 in the camera, so those channels miss one code in five and carry 25 % more signal and noise; the greens untouched."""
+    out = dn.copy()
+    out[[0, 2]] = 1.25 * np.rint(dn[[0, 2]])  # packed R, B
+    return out
+
+
+def masked_rows(dn, rng, kind="", k=1.0, **_):
+    """Optically masked rows left in the raw: the top 8 sensor rows are covered, so in flats they read black with the noise of a bias frame at that ISO (normal, its rms); bias and dark frames as the other rows."""
+    if kind == "bias":
+        _WALK[("masked_rows", k)] = float(np.std(dn))
+    if kind != "flat":
+        return dn
+    raw = np.zeros((2 * dn.shape[1], 2 * dn.shape[2]))
+    raw[0::2, 0::2], raw[0::2, 1::2], raw[1::2, 1::2], raw[1::2, 0::2] = dn
+    raw[:8] = rng.normal(0.0, _WALK[("masked_rows", k)], raw[:8].shape)
+    return _raw_to_packed(raw)
+
+
+def dual_gain_codes(dn, rng, **_):
+    """Dual conversion gain: readings above 800 DN come from the low-gain path, converted at a quarter of the gain and scaled by 4 in the camera, so they carry codes in steps of 4 DN and 2 DN more read noise; lower readings untouched."""
+    low = 4.0 * np.rint((dn + rng.normal(0.0, 2.0, dn.shape)) / 4.0)
+    return np.where(dn > 800.0, low, dn)
+
+
+def raw_smoothing(dn, rng, k=1.0, **_):
+    """In-camera raw noise reduction at the top ISO: at K 3.0 DN/e- each pixel becomes 0.6 of itself plus 0.2 of each same-colour horizontal neighbour (edges reflected), in every kind of frame; the other ISOs untouched."""
+    if k < 3.0:
+        return dn
+    p = np.pad(dn, ((0, 0), (0, 0), (1, 1)), mode="reflect")
+    return 0.6 * dn + 0.2 * p[:, :, :-2] + 0.2 * p[:, :, 2:]
+
+
+def split_row_noise(dn, rng, **_):
+    """Row noise from two readout sides: the left and the right half of each sensor row take independent row offsets, 1.0 DN rms each, new in every frame, in every kind of frame."""
+    _, h, w = dn.shape
+    r = np.repeat(rng.normal(0.0, 1.0, (2 * h, 2)), w, axis=1)  # (2h, 2w): left half r[:, 0], right half r[:, 1]
+    return dn + _raw_to_packed(r)
+
+
+def column_pairs(dn, rng, **_):
+    """Columns read in pairs: sensor columns 2j and 2j + 1 share a column amplifier whose offset is 1.0 DN rms, new in every frame, in every kind of frame."""
+    _, h, w = dn.shape
+    c = np.repeat(rng.normal(0.0, 1.0, w), 2)
+    return dn + _raw_to_packed(np.broadcast_to(c, (2 * h, 2 * w)))
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -1035,7 +1083,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  row_spikes, first_frame_black, exposure_black_shift, column_wander, smooth_dsnu,
                                  column_bank_flicker, full_well, row_wander, digital_iso, burst_columns,
                                  bimodal_read_noise, row_pairs, gain_scaled_fpn, blue_prnu, periodic_rows, gain_telegraph,
-                                 dark_row_noise)}
+                                 dark_row_noise, channel_digital_gain, masked_rows, dual_gain_codes, raw_smoothing,
+                                 split_row_noise, column_pairs)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
