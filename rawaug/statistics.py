@@ -1660,6 +1660,49 @@ def row_pair_corr(frames, level_dn=None):
     return (within - across) / var if var > 0 else 0.0
 
 
+ROW_TAP_ROWS = 512  # sensor rows the row-tap steps read (evenly strided): their cost stays small on a large frame
+ROW_TAP_NOISY = 4.0  # a column whose temporal variance is this many times the median column's is left out of the levels
+
+
+def row_tap_steps(frames, window: int = TAP_WINDOW) -> np.ndarray:
+    """(2w + 1,) of a stack (N >= 2, 4, h, w; DN): at each gap g between sensor columns (before
+    column g), the variance over frames and sensor rows of the step from the mean of the
+    ``window`` columns before it to that of the ``window`` after it, on each frame's temporal
+    residual (the frame less the stack's mean), each frame's mean step over its rows taken out;
+    NaN within ``window`` columns of an end. Noisy columns (temporal variance beyond
+    ``ROW_TAP_NOISY`` x the median column's) count as 0. Row noise of its own per readout tap (a
+    column-ADC bank with its own reference) steps at the taps' edges in every row; row noise
+    shared by the whole row does not step, nor does a column's or a tap's offset per frame."""
+    f = np.asarray(frames, dtype=np.float64)
+    n, _, h, w = f.shape
+    out = np.full(2 * w + 1, np.nan)
+    if n < 2 or w < window:
+        return out
+    f = f[:, :, :: max(1, -(-2 * h // ROW_TAP_ROWS))]
+    r = frame_mosaic(f - f.mean(axis=0, keepdims=True))  # (N, R, 2w): temporal residual, sensor positions
+    var = (r * r).mean(axis=(0, 1))
+    r[:, :, var > ROW_TAP_NOISY * max(float(np.median(var)), 1e-30)] = 0.0
+    g = np.arange(window, 2 * w - window + 1)
+    total = np.zeros(g.size)
+    for frame in r:  # one frame at a time: (R, gaps) at most
+        c = np.concatenate([np.zeros((frame.shape[0], 1)), np.cumsum(frame, axis=1)], axis=1)
+        step = (2.0 * c[:, g] - c[:, g - window] - c[:, g + window]) / window  # left level less right level
+        step -= step.mean(axis=0, keepdims=True)
+        total += (step * step).sum(axis=0)
+    out[g] = total / ((n - 1) * (r.shape[1] - 1))  # the stack's mean took 1 / N, the rows' mean one row
+    return out
+
+
+def row_tap_ratio(frames, level_dn=None):
+    """The largest ``row_tap_steps`` over their median: about 1 where a row's offset is shared
+    by all its columns, more at the edge of readout taps with row noise of their own."""
+    s = row_tap_steps(frames)
+    ok = np.isfinite(s)
+    if ok.sum() < 3:
+        return 1.0
+    return float(s[ok].max() / max(float(np.median(s[ok])), 1e-30))
+
+
 def frame_row_means(frames):
     """Sensor-row means (``sensor_row_means``) of each frame less that frame's mean: (N, 2h) DN."""
     m = sensor_row_means(frames)
@@ -2293,6 +2336,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("burst_rows", burst_rows, min_frames=3, kind="bias", row_fraction=True),
         Statistic("burst_cols", burst_cols, min_frames=3, kind="bias", stack_column_fraction=True),
         Statistic("row_pair_corr", row_pair_corr, min_frames=3, kind="bias"),
+        Statistic("row_tap_ratio", row_tap_ratio, min_frames=3, kind="bias"),
         Statistic("row_ramp_std", row_ramp_std, min_frames=3, kind="bias"),
         Statistic("col_ramp_std", col_ramp_std, min_frames=3, kind="bias"),
         Statistic("col_neighbour_corr", col_neighbour_corr, min_frames=3, kind="bias"),

@@ -145,3 +145,55 @@ def test_a_missing_codes_inputs_split_between_both_neighbours():
         assert shares[3] == 0.0
         assert abs(shares[2] - 0.375) < 0.02 and abs(shares[0] - 0.375) < 0.02, (level, shares)
         assert abs(codes.mean() - level) < 0.5
+
+
+def _wb_stack(rng, n=400_000):
+    """A stack (1, 4, 500, 200) whose red and blue channels were multiplied by 1.25 after the
+    ADC (codes rounded first: one code in five is never written there); the greens untouched."""
+    v = np.rint(rng.normal(0.0, 8.0, n)).reshape(1, 4, 500, 200)
+    v[:, [0, 2]] = np.rint(1.25 * v[:, [0, 2]])
+    return v
+
+
+def test_a_comb_in_some_channels_gets_a_map_per_channel(samplers):
+    # white-balance gain after the ADC on R and B: one map each for them, none for the greens;
+    # through the stage (either kernel) R and B miss the codes the camera never writes, inside
+    # the measured range and, by the comb's period, far beyond it; the greens keep every code
+    rng = np.random.default_rng(13)
+    frames = _wb_stack(rng)
+    m = estimate(frames, np.rint(rng.normal(0.0, 9.0, (2, 1, 4, 500, 200))), k=1.0)
+    assert m["channel"] == [0, 1, 2, 3]
+    assert len(m["map_dn"][1]) == 1 and len(m["map_dn"][3]) == 1  # G1, G2: rounded only
+    assert m["period_dn"][0] == m["period_dn"][2] == 10.0  # 1.25 x n rounded half to even: 2 codes of 10 missing
+    joined = combine([m, estimate(_wb_stack(rng) + 400.0 * np.array([1.25, 1, 1.25, 1])[:, None, None],
+                                  np.rint(rng.normal(400.0, 9.0, (2, 1, 4, 500, 200))), k=1.0)])
+    assert joined["channel"] == [0, 1, 2, 3] and joined["k"] == [1.0] * 4
+    profile = NoiseProfile.load("SonyA7S2").with_effect("CodeMap", m)
+    aug = RawNoiseAugment(profile, model="G", ratio=1.0, fixed={"k": 1.0, "sigma_g": 6.0}, include_profile_effects=True,
+                          generator=torch.Generator().manual_seed(0), rank_seeding=False)
+    written = np.unique(frames[:, 0])
+    for level in (0.0, 2000.0):
+        codes = np.rint(aug(torch.full((1, 4, 48, 64), level / profile.span_dn)).double().numpy()[0] * profile.span_dn)
+        for c in (0, 2):  # the comb: 1.25 n rounded writes these codes of each ten
+            assert np.all(np.isin(codes[c] % 10, written[(written >= 0) & (written < 10)])), (level, c)
+        for c in (1, 3):
+            assert np.all(np.isin(np.arange(level - 10, level + 10), codes[c])), (level, c)
+        assert abs(codes.mean() - level) < 0.5
+
+
+def test_a_comb_in_every_channel_stays_one_map():
+    rng = np.random.default_rng(17)
+    v = np.rint(1.5 * np.rint(rng.normal(0.0, 8.0, 400_000))).reshape(1, 4, 500, 200)
+    m = estimate(v, np.rint(rng.normal(0.0, 12.0, (2, 1, 4, 500, 200))), k=1.0)
+    assert "channel" not in m and len(m["k"]) == 1 and m["period_dn"] == [6.0]  # 1.5 n rounded half to even
+
+
+def test_channel_records_are_checked():
+    import pytest
+
+    base = NoiseProfile.load("SonyA7S2")
+    one = {"lo_dn": [0.0], "map_dn": [[0.0]]}
+    with pytest.raises(ValueError, match=r"must be \[-1\]"):
+        base.with_effect("CodeMap", {"k": [1.0, 1.0], "lo_dn": [0.0, 0.0], "map_dn": [[0.0], [0.0]], "channel": [0, 2]})
+    with pytest.raises(ValueError, match="one packed channel per record"):
+        base.with_effect("CodeMap", {"k": [1.0], **one, "channel": [4]})

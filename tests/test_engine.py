@@ -90,6 +90,7 @@ LOOP_EFFECTS = {
     "BlackRamp": {"k": [1.0, 3.0], "row_dn": [0.05, 0.1], "col_dn": [0.03, 0.0]},  # flag word 1: a black ramp per frame
     "RowPair": {"k": [1.0, 3.0], "sigma_dn": [1.0, 2.0]},  # flag word 1: a row offset per Bayer row pair and frame
     "DarkRowNoise": {"k": [1.0, 3.0], "rate_dn2_per_s": [0.5, 1.0]},  # flag word 1: row noise growing with the exposure
+    "RowTap": {"col_edges": [30, 61], "frame_h": 24, "frame_w": 40, "k": [1.0, 3.0], "sigma_dn": [1.0, 2.0]},  # flag word 1: row noise per column tap
     "DNL": {"period": 5, "threshold_dn": [0.0, 0.3, -0.2, 0.25, -0.35]},  # codes 0.4 to 1.45 wide, then the code map
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]],
                 "split_dn": [[0.5, 0.1, 0.5, 0.5, -0.2, 0.5, 0.5, 0.1, 0.5, 0.5, -0.2]],

@@ -36,8 +36,7 @@ _RATIO = L.COLUMN["ratio"]
 _DARK_E, _DSNU_LOG, _DARK_C0 = L.COLUMN["dark_e"], L.COLUMN["dsnu_log"], L.COLUMN["dark_c0"]
 _DSNU_PATTERN = L.STREAM["dsnu_pattern"]
 _LF, _LF_GH, _LF_GW = L.COLUMN["lowfreq_sigma"], L.COLUMN["lowfreq_gh"], L.COLUMN["lowfreq_gw"]
-_CM_REC, _CM_LO, _CM_N = L.COLUMN["codemap_record"], L.COLUMN["codemap_lo"], L.COLUMN["codemap_n"]
-_CM_P = L.COLUMN["codemap_period"]
+_CM_REC0 = L.COLUMN["codemap_record_c0"]  # channel c's record: _CM_REC0 + c
 _RQ_REC, _RQ_SCALE = L.COLUMN["readq_record"], L.COLUMN["readq_scale"]
 _LRD, _LCD, _LM, _LLS, _LNEG = (L.COLUMN["lines_row_density"], L.COLUMN["lines_col_density"], L.COLUMN["lines_median"],
                                 L.COLUMN["lines_log_std"], L.COLUMN["lines_negative"])
@@ -149,6 +148,8 @@ _CBD, _CBS, _BURST_COL, _BURST_COL_NOISE = L.COLUMN["cburst_density"], L.COLUMN[
 _COL_BURST_HIGH = L.COL_BURST >> L.WORD_BITS
 _DRN, _DARK_ROW_NOISE, _DARK_ROW_NOISE_HIGH = L.COLUMN["dark_row_sigma"], L.STREAM["dark_row_noise"], L.DARK_ROW_NOISE >> L.WORD_BITS
 _RPAIR, _ROW_PAIR, _ROW_PAIR_HIGH = L.COLUMN["rpair_sigma"], L.STREAM["row_pair"], L.ROW_PAIR >> L.WORD_BITS
+_RTS, _RTC0, _RTOX, _RTW = L.COLUMN["rtap_sigma"], L.COLUMN["rtap_c0"], L.COLUMN["rtap_ox"], L.COLUMN["rtap_w"]
+_ROW_TAP, _ROW_TAP_HIGH = L.STREAM["row_tap"], L.ROW_TAP >> L.WORD_BITS
 _RAMP_ROW, _RAMP_COL, _BLACK_RAMP, _BLACK_RAMP_HIGH = L.COLUMN["ramp_row"], L.COLUMN["ramp_col"], L.STREAM["black_ramp"], L.BLACK_RAMP >> L.WORD_BITS
 _CGRS, _CGRW, _CGR0, _COL_GROUP, _COL_GROUP_HIGH = L.COLUMN["cgroup_sigma"], L.COLUMN["cgroup_width"], L.COLUMN["cgroup_start"], L.STREAM["col_group"], L.COL_GROUP >> L.WORD_BITS
 _WELL, _WELL_SPREAD, _WELL_PATTERN, _FULL_WELL_HIGH = L.COLUMN["well_e"], L.COLUMN["well_spread"], L.STREAM["well_pattern"], L.FULL_WELL >> L.WORD_BITS
@@ -385,6 +386,7 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
     pixel = np.empty(w)  # ... after them, before the dark signal
     col_frame, col_fixed, col_of = np.empty(w), np.empty(w), -1  # column noise of (sample, channel) col_of: b * 4 + c
     col_drift, col_drift_of = np.empty(w), -1  # column drift of (sample, channel) col_drift_of
+    rt_z = np.empty(_TAPS)  # row noise per tap: this row's offset in each column tap
     for r in range(r0, r1):
         b = r // (4 * h)
         c = (r // h) % 4
@@ -895,6 +897,13 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             slope = v[_RAMP_COL] * symmetric(normal, draw(keys[_BLACK_RAMP], 2 * b + 1))
             for x in range(w):
                 sig[x] += slope * (2 * x + col_set - (2 * w - 1) * 0.5)
+        if stages_high & _ROW_TAP_HIGH:  # row noise of the pixel's column tap: the sensor row's offset of this frame there
+            rt_line = ((b * 2 + row_set) * h + y) * _TAPS
+            for t in range(_TAPS):
+                rt_z[t] = v[_RTS] * symmetric(normal, draw(keys[_ROW_TAP], rt_line + t))
+            rt_cols = 2.0 * (v[_RTW] if v[_RTW] > 0.0 else w)
+            for x in range(w):
+                sig[x] += rt_z[tap_at(2 * (x + int(v[_RTOX])) + col_set, v, _RTC0, rt_cols)]
         if stages & L.TAP_BLACK:  # this frame's offset of the pixel's tap
             for x in range(w):
                 s = sig[x]
@@ -917,18 +926,20 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                     s = code
                 sig[x] = s
         if stages & L.CODE_MAP:
+            rec = int(v[_CM_REC0 + c])  # the channel's map (-1: none, rounded only)
+            cm_lo = code_lut[rec, 3, 0] if rec >= 0 else 0.0
+            cm_n = int(code_lut[rec, 3, 1]) if rec >= 0 else 0
+            period = int(code_lut[rec, 3, 2]) if rec >= 0 else 0
             for x in range(w):
                 s = sig[x]
                 code = math.floor(s + 0.5)
-                i = int(code - v[_CM_LO])
-                period = int(v[_CM_P])
-                rec = int(v[_CM_REC])
-                if 0 <= i < int(v[_CM_N]):  # the code below the split, or the one above
+                i = int(code - cm_lo)
+                if 0 <= i < cm_n:  # the code below the split, or the one above
                     s = code_lut[rec, 0, i] if s - code < code_lut[rec, 2, i] else code_lut[rec, 1, i]
                 elif period > 0:  # a periodic comb goes on beyond the measured range: the first period's shifts
                     j = i % period
                     part = 0 if s - code < code_lut[rec, 2, j] else 1
-                    s = code + code_lut[rec, part, j] - (v[_CM_LO] + j)
+                    s = code + code_lut[rec, part, j] - (cm_lo + j)
                 else:
                     s = code
                 sig[x] = s

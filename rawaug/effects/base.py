@@ -121,7 +121,7 @@ class NoiseEffect:
 
     def tables(self) -> dict[str, torch.Tensor]:
         """Small tables the kernels read, by name: ``grids`` (records, gh, gw; several
-        effects may have them: ``stack_grids`` joins them), ``code_lut`` (records, 3, n) or
+        effects may have them: ``stack_grids`` joins them), ``code_lut`` (records, 4, n) or
         ``read_lut`` (records x 4, n), float64."""
         return {}
 

@@ -14,11 +14,13 @@ one (an ADC's decision level inside a missing code's cell: its inputs go to both
 neighbours); outside it is left rounded, or, with a period ``p``, shifted as the code
 ``p``-periodically equal to it in the map's first period is (a comb over the whole range).
 
-Profile entry (per-K records)::  ``CodeMap: {k: [K, ...], lo_dn: [...], map_dn: [[c, ...], ...], split_dn: [[t, ...], ...], period_dn: [...]}``
+Profile entry (per-K records)::  ``CodeMap: {k: [K, ...], lo_dn: [...], map_dn: [[c, ...], ...], split_dn: [[t, ...], ...], period_dn: [...], channel: [...]}``
 (``map_dn[i]``: the code written for ``lo_dn + i``, DN relative to black, non-decreasing;
 ``split_dn``, optional: per code, the input (DN from the code, in [-0.5, 0.5]) from which it
 goes up instead, 0.5 (never) by default; ``period_dn``, optional: 0, or the period of a comb
-that repeats beyond the mapped range).
+that repeats beyond the mapped range; ``channel``, optional: the packed channel (0-3: R, G1,
+B, G2) a record maps, -1 (every channel) by default; a gain has one record for every channel
+or one for each).
 
 Estimated by ``estimate`` as the ADC's transfer, not the noise's shape: every code the
 camera writes maps to itself, so a signal keeps its DN (the map is measured on dark frames
@@ -41,10 +43,11 @@ import torch
 from ..engine import layout as L
 from ..statistics import MAX_COMB_GAP, written_codes  # the rule for a missing code (comb_gaps there)
 from .base import CLIP, NoiseEffect, register
-from .k_records import record_index, validate_records, value_at_k
+from .k_records import record_index, validate_records
 
 STATISTICS = ("missing_codes", "code_dnl")  # a missing code widens its neighbours: the code histogram's DNL too
 MEASURED = True
+ALL = -1  # a record's channel: every packed channel
 
 
 @register
@@ -52,27 +55,38 @@ class CodeMap(NoiseEffect):
     token = "CodeMap"
     order = CLIP - 5
     flag = L.CODE_MAP
-    columns = ("codemap_record", "codemap_lo", "codemap_n", "codemap_period")
+    columns = tuple(f"codemap_record_c{c}" for c in range(4))
 
     def draw(self, ctx):
+        """Per packed channel, the record nearest each K among the channel's own and those
+        for every channel (``ALL``)."""
         p = self.profile.effects[self.token]
-        lengths = {"k": p["k"], "n": [float(len(m)) for m in p["map_dn"]],
-                   "period": [float(x) for x in p.get("period_dn", [0.0] * len(p["k"]))]}
-        return {"codemap_record": record_index(p, ctx.k).to(torch.float64), "codemap_lo": value_at_k(p, "lo_dn", ctx.k),
-                "codemap_n": value_at_k(lengths, "n", ctx.k), "codemap_period": value_at_k(lengths, "period", ctx.k)}
+        channels = p.get("channel", [ALL] * len(p["k"]))
+        out = {}
+        for c in range(4):
+            mine = [i for i, ch in enumerate(channels) if ch in (c, ALL)]
+            if not mine:
+                out[f"codemap_record_c{c}"] = ctx.k * 0.0 - 1.0  # no map: rounded only
+                continue
+            j = record_index({"k": [p["k"][i] for i in mine]}, ctx.k)
+            out[f"codemap_record_c{c}"] = torch.tensor(mine, dtype=torch.float64)[j]
+        return out
 
     def tables(self):
-        """``code_lut`` (records, 3, n): per code the code below the split, the code above it
-        (the next the map writes), the split (DN from the code)."""
+        """``code_lut`` (records, 4, n): per code the code below the split, the code above it
+        (the next the map writes), the split (DN from the code); row 3 the record's first code
+        (DN), its length and its period (DN; 0: none)."""
         p = self.profile.effects[self.token]
         luts = [np.asarray(m, dtype=np.float64) for m in p["map_dn"]]
         splits = p.get("split_dn") or [[0.5] * len(t) for t in luts]
-        table = np.zeros((len(luts), 3, max(len(t) for t in luts)))
+        periods = p.get("period_dn", [0.0] * len(luts))
+        table = np.zeros((len(luts), 4, max(3, max(len(t) for t in luts))))
         table[:, 2] = 0.5
         for i, (t, split) in enumerate(zip(luts, splits)):
             table[i, 0, : t.size] = t
             table[i, 1, : t.size] = next_above(t)
             table[i, 2, : t.size] = split
+            table[i, 3, :3] = (p["lo_dn"][i], t.size, periods[i])
         return {"code_lut": torch.from_numpy(table)}
 
     @classmethod
@@ -101,6 +115,16 @@ class CodeMap(NoiseEffect):
             if isinstance(per, bool) or not isinstance(per, (int, float)) or per != int(per) or not 0 <= per <= len(codes):
                 raise ValueError(f"effect 'CodeMap': period_dn[{i}] must be 0 (none) or a whole DN up to the map's "
                                  f"length {len(codes)}, got {per!r}")
+        channels = params.get("channel", [ALL] * len(params["k"]))
+        if not isinstance(channels, (list, tuple)) or len(channels) != len(params["k"]) \
+                or any(isinstance(c, bool) or c not in (ALL, 0, 1, 2, 3) for c in channels):
+            raise ValueError(f"effect 'CodeMap': channel must list one packed channel per record (0-3, or -1 for every "
+                             f"channel), got {channels!r:.80}")
+        for k in set(params["k"]):  # a gain's records: one for every channel, or one per channel
+            at = sorted(c for kk, c in zip(params["k"], channels) if kk == k)
+            if at not in ([ALL], [0, 1, 2, 3]):
+                raise ValueError(f"effect 'CodeMap': at k {k} the records' channels must be [-1] (one map for every "
+                                 f"channel) or [0, 1, 2, 3] (one each), got {at}")
 
 
 def next_above(codes) -> np.ndarray:
@@ -126,22 +150,17 @@ def _gap_split(counts, model_counts, a: int, b: int) -> float:
     return float(np.clip(theta, a + 0.5, b - 0.5))
 
 
-def estimate(frames, synthesized, k: float, **_) -> dict:
-    """Code map at gain ``k`` from a stack of whole-DN values (N, 4, h, w) and stacks the
-    current model synthesized for it (rounded): identity on written codes; the inputs of each
-    gap of missing codes split between the written codes bounding it (``_gap_split``). The
-    map spans the gaps only (outside it a value is just rounded)."""
-    v = np.asarray(frames, dtype=np.float64)
-    if not np.all(v == np.rint(v)):
-        raise ValueError("CodeMap needs frames of whole DN (real raw codes)")
-    v = v.ravel()
+def _channel_map(v, model):
+    """(codes r, map, splits, period) of one population of whole-DN values ``v`` and the
+    model's values for it: identity on written codes; the inputs of each gap of missing codes
+    split between the written codes bounding it (``_gap_split``); the map spans the gaps only,
+    with a periodic comb's first period in front."""
     written = written_codes(v)
     missing = np.flatnonzero(~written)
     r = np.arange(v.min(), v.min() + written.size)
     codes, split = r.copy(), np.full(r.size, 0.5)
     if missing.size:
         counts = np.bincount((v - r[0]).astype(np.int64), minlength=r.size).astype(np.float64)
-        model = np.rint(np.asarray(synthesized, dtype=np.float64)).ravel()
         model = model[(model >= r[0]) & (model <= r[-1])]
         model_counts = np.bincount((model - r[0]).astype(np.int64), minlength=r.size).astype(np.float64)
         starts = missing[np.r_[True, np.diff(missing) > 1]]
@@ -162,8 +181,53 @@ def estimate(frames, synthesized, k: float, **_) -> dict:
         r = np.concatenate([r[0] - period + np.arange(period), r])
         codes = np.concatenate([r[:period] + template, codes])
         split = np.concatenate([split_template, split])
-    return {"k": [float(k)], "lo_dn": [float(r[0])], "map_dn": [[float(c) for c in codes]],
-            "split_dn": [[float(t) for t in split]], "period_dn": [float(period)]}
+    return r, codes, split, period
+
+
+def _agree(maps) -> bool:
+    """True when per-channel maps move the same codes between the first and the last code
+    that every one of them moves (one comb in every channel: a digital gain, an ADC shared by
+    all); False where they differ or do not meet (channels at levels apart)."""
+    spans = [m[0][m[1] != m[0]] for m in maps]
+    if any(sp.size == 0 for sp in spans):
+        return False
+    period = maps[0][3]
+    if period and all(m[3] == period for m in maps):  # periodic combs: the same codes moved in a period
+        phases = [tuple(np.roll(m[1][:period] != m[0][:period], int(m[0][0] % period)).tolist()) for m in maps]
+        return len(set(phases)) == 1
+    lo, hi = max(sp[0] for sp in spans), min(sp[-1] for sp in spans)
+    moved = [(m[1] != m[0])[(m[0] >= lo) & (m[0] <= hi)] for m in maps]
+    return hi >= lo and all(np.array_equal(moved[0], m) for m in moved[1:])
+
+
+def _record(k, maps, channels) -> dict:
+    out = {"k": [float(k)] * len(maps), "lo_dn": [float(m[0][0]) for m in maps],
+           "map_dn": [[float(c) for c in m[1]] for m in maps], "split_dn": [[float(t) for t in m[2]] for m in maps],
+           "period_dn": [float(m[3]) for m in maps]}
+    if channels != [ALL]:
+        out["channel"] = channels
+    return out
+
+
+def estimate(frames, synthesized, k: float, **_) -> dict:
+    """Code map at gain ``k`` from a stack of whole-DN values (N, 4, h, w) and stacks the
+    current model synthesized for it (rounded): one map for every channel (``_channel_map``),
+    or, where the channels' combs differ (a white-balance gain on red and blue after the ADC,
+    a converter per colour), one per packed channel, the identity where a channel has none."""
+    v = np.asarray(frames, dtype=np.float64)
+    if not np.all(v == np.rint(v)):
+        raise ValueError("CodeMap needs frames of whole DN (real raw codes)")
+    model = np.rint(np.asarray(synthesized, dtype=np.float64))
+    whole = _channel_map(v.ravel(), model.ravel())
+    if v.ndim < 3 or v.shape[-3] != 4:
+        return _record(k, [whole], [ALL])
+    per_model = model.shape[-3:] == v.shape[-3:]
+    maps = [_channel_map(v[..., c, :, :].ravel(), (model[..., c, :, :] if per_model else model).ravel()) for c in range(4)]
+    combed = [bool(np.any(m[1] != m[0])) for m in maps]
+    if not any(combed) or (all(combed) and _agree(maps)):
+        return _record(k, [whole], [ALL])
+    identity = (np.zeros(1), np.zeros(1), np.full(1, 0.5), 0)  # a channel without a comb: rounded only
+    return _record(k, [m if has else identity for m, has in zip(maps, combed)], list(range(4)))
 
 
 MIN_PERIODS = 3  # a comb is periodic where its pattern repeats this many times over the measured range
@@ -195,46 +259,77 @@ def periodic_comb(r, codes, split=None):
     return 0, None, None
 
 
-def combine(records: list[dict]) -> dict:
-    """One map per gain: the maps of the stacks at one K (bias, dark, flats cover different
-    code ranges) joined over their union; where two overlap the first stack's holds, and
-    codes between them map to themselves, or, where all share one periodic comb, follow the
-    widest map's (its shifts and splits, over every code)."""
-    by_k: dict = {}
+def _single(records):
+    """(K, channel, one-record dict) for every record of ``records``."""
     for r in records:
-        by_k.setdefault(r["k"][0], []).append(r)
-    ks, los, maps, splits, periods = sorted(by_k), [], [], [], []
-    for k in ks:
-        parts = by_k[k]
-        lo = min(p["lo_dn"][0] for p in parts)
-        hi = max(p["lo_dn"][0] + len(p["map_dn"][0]) - 1 for p in parts)
-        joined = np.arange(lo, hi + 1.0)
-        split = np.full(joined.size, 0.5)
-        filled = np.zeros(joined.size, dtype=bool)
-        for p in parts:
-            start = int(p["lo_dn"][0] - lo)
-            m = np.asarray(p["map_dn"][0], dtype=np.float64)
-            t = np.asarray((p.get("split_dn") or [[0.5] * m.size])[0], dtype=np.float64)
-            free = ~filled[start : start + m.size]
-            joined[start : start + m.size][free] = m[free]
-            split[start : start + m.size][free] = t[free]
-            filled[start : start + m.size] = True
-        period = _common_period(parts)
-        if period:  # one periodic comb: its pattern fills the codes between the stacks' ranges too
-            # the widest map's pattern: its splits are medians over the most gaps (a bias stack
-            # of low read noise spans a few, and its model's spread is the least certain there)
-            first = max(parts, key=lambda p: len(p["map_dn"][0]))
-            shift = np.asarray(first["map_dn"][0][:period]) - (first["lo_dn"][0] + np.arange(period))
-            first_split = np.asarray((first.get("split_dn") or [[0.5] * period])[0][:period], dtype=np.float64)
-            codes = np.arange(lo, hi + 1.0)
-            phase = ((codes - first["lo_dn"][0]) % period).astype(np.int64)
-            joined, split = codes + shift[phase], first_split[phase]
-        los.append(float(lo))
-        kept = np.maximum.accumulate(joined)  # non-decreasing where ranges meet
-        maps.append([float(c) for c in kept])
-        splits.append([float(t) if c == j else 0.5 for c, j, t in zip(kept, joined, split)])
-        periods.append(float(period))
-    return {"k": ks, "lo_dn": los, "map_dn": maps, "split_dn": splits, "period_dn": periods}
+        n = len(r["k"])
+        channels = r.get("channel", [ALL] * n)
+        splits = r.get("split_dn") or [[0.5] * len(m) for m in r["map_dn"]]
+        periods = r.get("period_dn", [0.0] * n)
+        for i in range(n):
+            yield float(r["k"][i]), int(channels[i]), {"k": [r["k"][i]], "lo_dn": [r["lo_dn"][i]], "map_dn": [r["map_dn"][i]],
+                                                      "split_dn": [splits[i]], "period_dn": [periods[i]]}
+
+
+def _is_identity(part) -> bool:
+    return len(part["map_dn"][0]) == 1 and part["map_dn"][0][0] == part["lo_dn"][0]
+
+
+def combine(records: list[dict]) -> dict:
+    """One map per gain (and, where the stacks found the channels' combs to differ, one per
+    packed channel, the maps for every channel joined into each): the maps of the stacks at
+    one K (bias, dark, flats cover different code ranges) joined over their union (``_join``)."""
+    by_k: dict = {}
+    for k, channel, part in _single(records):
+        by_k.setdefault(k, {}).setdefault(channel, []).append(part)
+    out: dict = {"k": [], "lo_dn": [], "map_dn": [], "split_dn": [], "period_dn": [], "channel": []}
+    for k in sorted(by_k):
+        groups = by_k[k]
+        wanted = [ALL] if set(groups) == {ALL} else list(range(4))
+        for channel in wanted:
+            parts = groups.get(channel, []) + (groups.get(ALL, []) if channel != ALL else [])
+            combed = [p for p in parts if not _is_identity(p)]
+            lo, codes, split, period = _join(combed or parts[:1] or [{"lo_dn": [0.0], "map_dn": [[0.0]], "split_dn": [[0.5]],
+                                                                       "period_dn": [0.0]}])
+            for key, value in zip(("k", "lo_dn", "map_dn", "split_dn", "period_dn", "channel"),
+                                  (k, lo, codes, split, period, channel)):
+                out[key].append(value)
+    if set(out["channel"]) == {ALL}:
+        del out["channel"]
+    return out
+
+
+def _join(parts):
+    """(lo, map, splits, period) of one gain's (and channel's) maps joined over their union;
+    where two overlap the first stack's holds, and codes between them map to themselves, or,
+    where all share one periodic comb, follow the widest map's (its shifts and splits, over
+    every code)."""
+    lo = min(p["lo_dn"][0] for p in parts)
+    hi = max(p["lo_dn"][0] + len(p["map_dn"][0]) - 1 for p in parts)
+    joined = np.arange(lo, hi + 1.0)
+    split = np.full(joined.size, 0.5)
+    filled = np.zeros(joined.size, dtype=bool)
+    for p in parts:
+        start = int(p["lo_dn"][0] - lo)
+        m = np.asarray(p["map_dn"][0], dtype=np.float64)
+        t = np.asarray((p.get("split_dn") or [[0.5] * m.size])[0], dtype=np.float64)
+        free = ~filled[start : start + m.size]
+        joined[start : start + m.size][free] = m[free]
+        split[start : start + m.size][free] = t[free]
+        filled[start : start + m.size] = True
+    period = _common_period(parts)
+    if period:  # one periodic comb: its pattern fills the codes between the stacks' ranges too
+        # the widest map's pattern: its splits are medians over the most gaps (a bias stack
+        # of low read noise spans a few, and its model's spread is the least certain there)
+        first = max(parts, key=lambda p: len(p["map_dn"][0]))
+        shift = np.asarray(first["map_dn"][0][:period]) - (first["lo_dn"][0] + np.arange(period))
+        first_split = np.asarray((first.get("split_dn") or [[0.5] * period])[0][:period], dtype=np.float64)
+        codes = np.arange(lo, hi + 1.0)
+        phase = ((codes - first["lo_dn"][0]) % period).astype(np.int64)
+        joined, split = codes + shift[phase], first_split[phase]
+    kept = np.maximum.accumulate(joined)  # non-decreasing where ranges meet
+    return (float(lo), [float(c) for c in kept], [float(t) if c == j else 0.5 for c, j, t in zip(kept, joined, split)],
+            float(period))
 
 
 def _common_period(parts) -> int:

@@ -87,6 +87,7 @@ FULL_WELL = 1 << 71  # full well: a pixel holds at most its own full well of ele
 COL_GROUP = 1 << 72  # column groups: groups of adjacent sensor columns sharing an offset, new in every frame
 ROW_PAIR = 1 << 74  # row pairs: a row offset shared by the two sensor rows of a Bayer row pair (a two-row readout), new in every frame
 DARK_ROW_NOISE = 1 << 75  # exposure row noise: row offsets whose variance grows with the exposure, new in every frame
+ROW_TAP = 1 << 76  # row noise per readout tap: each column tap's own offset per sensor row, new in every frame
 BLACK_RAMP = 1 << 73  # black ramps: the black level a linear ramp down the sensor rows and across the columns, a new slope in every frame
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
@@ -118,7 +119,7 @@ COLUMNS = (
     "ble_sigma", "ble_channel_sigma",
     "clip_floor",
     "lowfreq_sigma", "lowfreq_gh", "lowfreq_gw",
-    "codemap_record", "codemap_lo", "codemap_n",
+    "codemap_record_c0", "codemap_record_c1", "codemap_record_c2", "codemap_record_c3",  # code map: record per packed channel (-1: none)
     "fpn_oy", "fpn_ox", "fpn_h", "fpn_w",  # FPN shading window in sensor pixels (fpn_h 0: the input is the sensor)
     "readq_record", "readq_scale",
     "lines_row_density", "lines_col_density", "lines_median", "lines_log_std", "lines_negative",
@@ -137,7 +138,6 @@ COLUMNS = (
     "rts_density", "rts_median", "rts_log_std", "rts_high",  # telegraph pixels: share, step (DN), share of frames high
     "dead_density", *(f"dead_l{i}" for i in range(DEAD_LEVELS)),  # dead pixels: share, stuck levels (DN)
     *(f"drift_a{j}" for j in range(DRIFT_OCTAVES)),  # row drift: std of each octave's nodes (DN)
-    "codemap_period",  # code map: the period (DN) its first codes repeat with beyond its range (0: none)
     "cband_f0", "cband_f1", "cband_f2", "cband_a0", "cband_a1", "cband_a2",  # column banding: cycles per sensor column, amplitude (DN)
     "dhot_density", "dhot_e", "dhot_log_std",  # hot pixels of dark current: share, median electrons this exposure, log-normal spread
     "colgain_sigma",  # column gain non-uniformity: std of the sensor columns' relative gains
@@ -201,6 +201,7 @@ COLUMNS = (
     "dark_row_sigma",  # exposure row noise: the row offsets' std at this exposure (DN)
     "ramp_row", "ramp_col",  # black ramps: the slopes' std, DN per sensor row and per sensor column
     "cgroup_sigma", "cgroup_width", "cgroup_start",  # column groups: the offset's std (DN), sensor columns per group, first group's start (< width)
+    "rtap_sigma", *(f"rtap_c{i}" for i in range(TAP_EDGES)), "rtap_ox", "rtap_w",  # row noise per tap: std (DN), column edges (fractions; 2: none), window
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -223,6 +224,7 @@ STREAMS = (
     "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
     "hot_tile_where", "hot_tile_size", "dsnu_col_pattern", "rspike_where", "rspike_size", "lines_row_cut", "lines_col_cut",
     "burst_col", "burst_col_noise", "well_pattern", "col_group", "black_ramp", "row_pair", "dark_row_noise",
+    "row_tap",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

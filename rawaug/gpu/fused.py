@@ -25,8 +25,7 @@ C_K, C_RATIO, C_PRNU = _column("k"), _column("ratio"), _column("prnu_sigma")
 C_DARK_E, C_DSNU_LOG, C_DARK_C0 = _column("dark_e"), _column("dsnu_log"), _column("dark_c0")
 C_DSNU_COL = _column("dsnu_col_log")
 C_LF, C_LF_GH, C_LF_GW = _column("lowfreq_sigma"), _column("lowfreq_gh"), _column("lowfreq_gw")
-C_CM_REC, C_CM_LO, C_CM_N = _column("codemap_record"), _column("codemap_lo"), _column("codemap_n")
-C_CM_P = _column("codemap_period")
+C_CM_REC0 = _column("codemap_record_c0")  # channel c's record: C_CM_REC0 + c
 C_RQ_REC, C_RQ_SCALE = _column("readq_record"), _column("readq_scale")
 C_LRD, C_LCD, C_LM, C_LLS, C_LNEG = (_column("lines_row_density"), _column("lines_col_density"), _column("lines_median"),
                                      _column("lines_log_std"), _column("lines_negative"))
@@ -99,6 +98,7 @@ C_CBD, C_CBS = _column("cburst_density"), _column("cburst_sigma")
 C_WELL, C_WELLS = _column("well_e"), _column("well_spread")
 C_RPAIR, C_DRN = _column("rpair_sigma"), _column("dark_row_sigma")
 C_RAMP_ROW, C_RAMP_COL = _column("ramp_row"), _column("ramp_col")
+C_RTS, C_RTC0, C_RTOX, C_RTW = _column("rtap_sigma"), _column("rtap_c0"), _column("rtap_ox"), _column("rtap_w")
 C_CGRS, C_CGRW, C_CGR0 = _column("cgroup_sigma"), _column("cgroup_width"), _column("cgroup_start")
 C_RSD, C_RSM, C_RSL, C_RSN = _column("rspike_density"), _column("rspike_median"), _column("rspike_log_std"), _column("rspike_negative")
 C_RWY0, C_RWOY, C_RWH = _column("rowmap_y0"), _column("rowmap_oy"), _column("rowmap_h")
@@ -132,7 +132,7 @@ K_DCLUS_WHERE, K_DCLUS_SIZE = S["dclus_where"], S["dclus_size"]
 K_BURST_ROW, K_BURST_NOISE = S["burst_row"], S["burst_noise"]
 K_BURST_COL, K_BURST_COL_NOISE = S["burst_col"], S["burst_col_noise"]
 K_WELL_PATTERN, K_COL_GROUP, K_BLACK_RAMP, K_ROW_PAIR = S["well_pattern"], S["col_group"], S["black_ramp"], S["row_pair"]
-K_DARK_ROW_NOISE = S["dark_row_noise"]
+K_DARK_ROW_NOISE, K_ROW_TAP = S["dark_row_noise"], S["row_tap"]
 K_RSPIKE_WHERE, K_RSPIKE_SIZE = S["rspike_where"], S["rspike_size"]
 K_ROW_MAP = S["row_map"]
 K_HOT_TILE_WHERE, K_HOT_TILE_SIZE = S["hot_tile_where"], S["hot_tile_size"]
@@ -712,6 +712,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS_HIGH & 1024:  # (word 1) black ramps: this frame's slope across the sensor columns, about the middle column
         rx_mid = (2 * x + col_set).to(tl.float64) - (2 * W - 1) * 0.5
         s += _col(v, C_RAMP_COL) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_BLACK_RAMP), (2 * b + 1).to(tl.uint64))) * rx_mid
+    if FLAGS_HIGH & 8192:  # (word 1) row noise per column tap: the sensor row's offset of this frame in the pixel's tap
+        rtc = _tap(v, C_RTC0, C_RTOX, C_RTW, x, col_set, W)
+        rtq = ((b * 2 + row_set).to(tl.int64) * H + y) * (TPE + 1) + rtc
+        s += _col(v, C_RTS) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_ROW_TAP), rtq.to(tl.uint64)))
     if FLAGS & 1125899906842624:  # readout taps: this frame's offset of the pixel's tap
         tr = _tap(v, C_TPR0, C_TPOY, C_TPH, y, row_set, H)
         tc = _tap(v, C_TPC0, C_TPOX, C_TPW, x, col_set, W)
@@ -728,18 +732,22 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s = tl.where(finite, code, s)
     if FLAGS & 65536:  # measured code map: nearest code the camera uses
         code = tl.floor(s + 0.5)
-        i = (code - _col(v, C_CM_LO)).to(tl.int64)
-        inside = live & (i >= 0) & (i < _col(v, C_CM_N).to(tl.int64))
-        period = _col(v, C_CM_P).to(tl.int64)
+        rec = tl.load(v + C_CM_REC0 + c).to(tl.int64)  # the channel's map (-1: none, rounded only)
+        head = code_ptr + tl.maximum(rec, 0) * (4 * CODE_N) + 3 * CODE_N  # its first code, length, period
+        cm_lo = tl.load(head)
+        cm_n = tl.where(rec >= 0, tl.load(head + 1), 0.0).to(tl.int64)
+        period = tl.where(rec >= 0, tl.load(head + 2), 0.0).to(tl.int64)
+        i = (code - cm_lo).to(tl.int64)
+        inside = live & (i >= 0) & (i < cm_n)
         periodic = live & ~inside & ((tl.zeros_like(i) + period) > 0)  # a periodic comb goes on beyond the measured range
         j = ((i % tl.maximum(period, 1)) + tl.maximum(period, 1)) % tl.maximum(period, 1)
         at = tl.where(inside, i, j)  # the map's entry: the code's own, or its phase's in the first period
-        row = code_ptr + _col(v, C_CM_REC).to(tl.int64) * (3 * CODE_N) + at
+        row = code_ptr + tl.maximum(rec, 0) * (4 * CODE_N) + at
         used = inside | periodic
         split = tl.load(row + 2 * CODE_N, mask=used, other=0.5)
         upper = (s - code) >= split  # the code above the split (an ADC's decision level inside a missing code's cell)
         mapped = tl.where(upper, tl.load(row + CODE_N, mask=used, other=0.0), tl.load(row, mask=used, other=0.0))
-        shift = mapped - (_col(v, C_CM_LO) + j.to(tl.float64))
+        shift = mapped - (cm_lo + j.to(tl.float64))
         s = tl.where(inside, mapped, tl.where(periodic, code + shift, code))
     if FLAGS & 268435456:  # dead pixels: the stuck level, whatever came before
         dead = unit(draw(_key(keys_ptr, K_DEAD_WHERE), p)) < _col(v, C_DD)
