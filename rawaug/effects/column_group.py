@@ -17,9 +17,10 @@ Profile entry (per-K records)::
 Detected on bias and dark stacks of >= 3 frames by ``col_neighbour_corr`` (neighbouring sensor
 columns' temporal parts move together) and ``col_excess``. Estimated by ``estimate``: the
 covariance of the columns' temporal parts at lag 1 less the model's, kept where it stands ``Z``
-standard errors above 0; the width (2 .. ``MAX_WIDTH``) and start of the groups whose frame-by-frame
-means fit the temporal parts best by BIC; the offset's variance, the groups' means' less
-what the columns' own noise gives them.
+standard errors above 0; the width (2 .. ``MAX_WIDTH``) and start of the groups whose offsets
+fit the temporal parts best, by the likelihood of a normal offset per group and frame beside
+each column's own noise (two variances, whatever the width); the offset's variance, the
+groups' means' less what the columns' own noise gives them.
 """
 from __future__ import annotations
 
@@ -58,27 +59,40 @@ class ColumnGroups(NoiseEffect):
             raise ValueError(f"effect {cls.token!r}: start (first group's first sensor column) must be a whole number in [0, width), got {start}")
 
 
+def _group_loglik(cs, cs2, n: int, width: int, start: int):
+    """(log-likelihood, variance of the groups' offsets, columns' own variance) of the columns'
+    temporal parts (cumulative sums ``cs``, ``cs2`` over ``n`` columns, per frame) as groups of
+    ``width`` columns from ``start``, each with a normal offset per frame (a random effect, two
+    variances, not a parameter per group: with many narrow groups a parameter per group and
+    frame costs more than a strong grouping gains); the variances fitted on the full groups."""
+    edges = np.unique(np.r_[0, np.arange(start, n, width), n])
+    sums, m = cs[:, edges[1:]] - cs[:, edges[:-1]], np.diff(edges).astype(np.float64)
+    within = cs2[:, edges[1:]] - cs2[:, edges[:-1]] - sums**2 / m  # (N, groups) sum of squares about each group's mean
+    full = m == width
+    frames = cs.shape[0]
+    own = max(float(within[:, full].sum()) / (frames * full.sum() * (width - 1)), 1e-30)
+    tau = max(float(np.mean(sums[:, full] ** 2 / width)), own)  # own + width x the offsets' variance
+    var = (tau - own) / width
+    total = own + m * var  # each group's mean times its size: variance own + m var, per column
+    loglik = -0.5 * float(np.sum((m - 1) * np.log(own) + within / own + np.log(total) + sums**2 / (m * total)))
+    return loglik, var, own
+
+
 def group_fit(d: np.ndarray) -> tuple[int, int, float]:
-    """(width, start, variance DN^2) of the groups of adjacent columns whose per-frame means fit
-    the columns' temporal parts ``d`` (N, n) best by BIC (every width 2 .. ``MAX_WIDTH`` and
-    start < width); the variance, the full groups' mean squared mean less the columns' own
-    share (their residual variance / width)."""
+    """(width, start, variance DN^2) of the groups of adjacent columns whose per-frame offsets
+    fit the columns' temporal parts ``d`` (N, n) best: every width 2 .. ``MAX_WIDTH`` and
+    start < width, by the likelihood of a normal offset per group and frame beside each
+    column's own noise (``_group_loglik``); the variance, the offsets'."""
     n_frames, n = d.shape
     zero = np.zeros((n_frames, 1))
     cs, cs2 = np.concatenate([zero, np.cumsum(d, axis=1)], axis=1), np.concatenate([zero, np.cumsum(d * d, axis=1)], axis=1)
     best = None
     for width in range(2, min(MAX_WIDTH, n // 2) + 1):
         for start in range(width):
-            edges = np.unique(np.r_[0, np.arange(start, n, width), n])
-            sums, counts = cs[:, edges[1:]] - cs[:, edges[:-1]], np.diff(edges)
-            rss = float(np.sum(cs2[:, -1]) - np.sum(sums**2 / counts))
-            bic = d.size * np.log(max(rss, 1e-300) / d.size) + n_frames * counts.size * np.log(d.size)
-            if best is None or bic < best[0]:
-                best = (bic, width, start, sums, counts, rss)
-    _, width, start, sums, counts, rss = best
-    own = rss / (d.size - n_frames * counts.size)  # a column's own variance about its group
-    full = counts == width
-    var = float(np.mean((sums[:, full] / width) ** 2)) - own / width
+            loglik, var, _ = _group_loglik(cs, cs2, n, width, start)
+            if best is None or loglik > best[0]:
+                best = (loglik, width, start, var)
+    _, width, start, var = best
     return width, start, max(var, 0.0)
 
 
