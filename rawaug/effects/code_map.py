@@ -174,10 +174,11 @@ def _channel_map(v, model):
         r, codes, split = r[first : last + 1], codes[first : last + 1], split[first : last + 1]
     else:
         r, codes, split = r[:1], codes[:1], split[:1]
-    period, template, split_template = periodic_comb(r, codes, split)
+    counts = np.bincount((v - r[0]).astype(np.int64)[(v >= r[0]) & (v <= r[-1])], minlength=r.size).astype(np.float64)
+    period, template, split_template = periodic_comb(r, codes, split, counts)
     if period:  # the comb's period in front: the kernel repeats the map's first period beyond its range
-        moved = codes != r
-        split = np.where(moved, split_template[((r - r[0]) % period).astype(np.int64)], split)
+        phase = ((r - r[0]) % period).astype(np.int64)
+        codes, split = r + template[phase], split_template[phase]  # one comb over the whole range
         r = np.concatenate([r[0] - period + np.arange(period), r])
         codes = np.concatenate([r[:period] + template, codes])
         split = np.concatenate([split_template, split])
@@ -230,17 +231,20 @@ def estimate(frames, synthesized, k: float, **_) -> dict:
     return _record(k, [m if has else identity for m, has in zip(maps, combed)], list(range(4)))
 
 
+SNAP = 0.1  # DN: a code's measured boundary this close to a cell's edge is taken to be on it
 MIN_PERIODS = 3  # a comb is periodic where its pattern repeats this many times over the measured range
 PERIODIC = 0.98  # ... at this share of its codes or more (a sparse tail's gaps do not count as missing)
 
 
-def periodic_comb(r, codes, split=None):
+def periodic_comb(r, codes, split=None, counts=None):
     """(period, shifts of one period, splits of one period) of a code map ``codes`` (with its
     ``split``) over codes ``r``: where the moved (missing) codes repeat with a period p up to
     2 (MAX_COMB_GAP + 1) over PERIODIC of the range, which spans MIN_PERIODS periods or more, p and each
-    phase's most common shift and median split (phase j: the codes r[0] + j + n p); else (0,
-    None, None). A digital gain or an ADC's differential non-linearity makes such a comb over
-    the whole code range, not only where the frames had pixels."""
+    phase's most common shift and median split (phase j: the codes r[0] + j + n p), or, given
+    the measured ``counts`` of the codes ``r``, the shifts and splits of the written codes'
+    measured widths (``code_cells``); else (0, None, None). A digital gain or an ADC's
+    differential non-linearity makes such a comb over the whole code range, not only where the
+    frames had pixels."""
     r = np.asarray(r, dtype=np.float64)
     shift = np.asarray(codes, dtype=np.float64) - r
     split = np.full(r.size, 0.5) if split is None else np.asarray(split, dtype=np.float64)
@@ -251,12 +255,61 @@ def periodic_comb(r, codes, split=None):
         if moved.size >= MIN_PERIODS * p and np.mean(moved[p:] == moved[:-p]) >= PERIODIC:
             template, splits = [], []
             for j in range(p):
-                values, counts = np.unique(shift[j::p], return_counts=True)
-                template.append(values[np.argmax(counts)])
+                values, times = np.unique(shift[j::p], return_counts=True)
+                template.append(values[np.argmax(times)])
                 same = split[j::p][shift[j::p] == template[-1]]
                 splits.append(float(np.median(same)) if template[-1] != 0 else 0.5)
+            if counts is not None:  # the written codes' widths measured: a digital gain's codes are equally wide
+                cells = code_cells(r, np.asarray(counts, dtype=np.float64), np.asarray(template) != 0, p)
+                if cells is not None:
+                    return p, cells[0], cells[1]
             return p, np.asarray(template), np.asarray(splits)
     return 0, None, None
+
+
+def code_cells(r, counts, moved, p: int):
+    """(shifts, splits) of one period (phase j: code r[0] + j) of a periodic comb from the
+    widths of its written codes: each written phase's width (DN of input) is its count over the
+    local count per DN (the counts' mean over the p codes about it), averaged over the periods
+    and scaled to fill the period; the codes' input cells laid end to end and placed so that
+    their centres sit on their codes in the mean (a signal keeps its level). A digital gain of
+    1.25 writes 8 codes in 10, each 1.25 DN of input wide: sending each missing code's inputs
+    to its neighbours made those 1.5 DN wide and the others 1. None where no width is measured
+    or a written code would be narrower than the cell split can hold (0.5 DN)."""
+    written = np.flatnonzero(~moved)
+    if written.size == 0 or r.size < 3 * p:
+        return None
+    density = np.convolve(counts, np.ones(p) / p, mode="same")
+    inner = np.zeros(r.size, dtype=bool)
+    inner[p : r.size - p] = True  # full windows only
+    phase = ((r - r[0]) % p).astype(np.int64)
+    width = np.zeros(p)
+    for j in written:
+        at = inner & (phase == j) & (density > 0)
+        if not at.any() or density[at].sum() <= 0:
+            return None
+        width[j] = counts[at].sum() / density[at].sum()
+    if width[written].min() <= 0:
+        return None
+    width *= p / width.sum()
+    if width[written].min() < 0.5:
+        return None
+    upper = np.cumsum(width[written])  # each written code's upper edge, from the period's first lower edge at 0
+    lower = upper - width[written]
+    anchor = float(np.mean(written - 0.5 * (lower + upper)))  # centres on their codes in the mean
+    codes = np.concatenate([written + q * p for q in (-1, 0, 1)]).astype(np.float64)
+    lo = np.concatenate([lower + q * p for q in (-1, 0, 1)]) + anchor
+    edge = np.floor(lo) + 0.5  # the nearest cell edge at or below (cells [c - 0.5, c + 0.5))
+    edge = np.where(lo - edge > 0.5, edge + 1.0, edge)
+    lo = np.where(np.abs(lo - edge) < SNAP, edge, lo)  # a boundary within SNAP of a cell's edge is on it (the widths' noise)
+    hi = np.r_[lo[1:], lo[-1] + width[written][0]]
+    shifts, splits = np.zeros(p), np.full(p, 0.5)
+    for j in range(p):  # cell j: inputs [j - 0.5, j + 0.5) about code j of the period
+        below = int(np.searchsorted(lo, j - 0.5, side="right") - 1)  # the code whose cell holds the cell's lower end
+        shifts[j] = codes[below] - j
+        if hi[below] < j + 0.5:  # its cell ends inside: the inputs above go to the next code
+            splits[j] = hi[below] - j
+    return shifts, np.clip(splits, -0.5, 0.5)
 
 
 def _single(records):
