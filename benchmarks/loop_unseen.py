@@ -1060,6 +1060,63 @@ def column_pairs(dn, rng, **_):
     return dn + _raw_to_packed(np.broadcast_to(c, (2 * h, 2 * w)))
 
 
+# the fourteenth fresh batch (thirtieth session), written and committed before the loop ran on it
+def block_compression(dn, rng, **_):
+    """Lossy raw compression in blocks (as Sony's): each run of 16 same-colour pixels along a packed row keeps its largest and smallest value, and the others as steps from the smallest in 7 bits, at the finest power-of-two step that spans the block (1 DN where its range is under 128 DN, coarser in bright, noisy flats)."""
+    c, h, w = dn.shape
+    n = w // 16 * 16
+    v = np.rint(dn[:, :, :n]).reshape(c, h, n // 16, 16)
+    lo, hi = v.min(axis=3, keepdims=True), v.max(axis=3, keepdims=True)
+    step = 2.0 ** np.maximum(np.ceil(np.log2(np.maximum(hi - lo, 1.0) / 127.0)), 0.0)
+    q = lo + step * np.floor((v - lo) / step)
+    q = np.where((v == lo) | (v == hi), v, q)
+    out = dn.copy()
+    out[:, :, :n] = q.reshape(c, h, n)
+    return out
+
+
+def column_gain_flicker(dn, rng, kind="", **_):
+    """Column amplifiers whose gain moves from frame to frame: every sensor column's gain on the signal is 1 + 0.5 % x a normal drawn per column and frame, so each flat shows new column stripes in proportion to its signal; bias and dark frames untouched."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    g = 1.0 + 0.005 * rng.standard_normal(2 * w)
+    return dn * _raw_to_packed(np.broadcast_to(g, (2 * h, 2 * w)))
+
+
+def noisy_rows(dn, rng, **_):
+    """Noisy row drivers: 0.5 % of the sensor rows (fixed) read with 4 DN of extra white noise, pixel by pixel, in every frame of every kind."""
+    _, h, w = dn.shape
+    bad = np.random.default_rng(241).random(2 * h) < 0.005
+    return dn + _raw_to_packed(4.0 * bad[:, None] * rng.standard_normal((2 * h, 2 * w)))
+
+
+def black_step(dn, rng, **_):
+    """A clamp that re-triggers during readout: in every frame, from a sensor row drawn anew (uniform over the frame) to the bottom, the black level is 1.5 DN higher, in every kind of frame."""
+    _, h, w = dn.shape
+    start = rng.integers(0, 2 * h)
+    step = np.where(np.arange(2 * h) >= start, 1.5, 0.0)
+    return dn + _raw_to_packed(np.broadcast_to(step[:, None], (2 * h, 2 * w)))
+
+
+def interleaved_row_gain(dn, rng, kind="", **_):
+    """Line-interleaved dual gain (an HDR sensor): every other Bayer row pair (sensor rows 4j + 2 and 4j + 3) converts its photo signal with 1.5 times the gain, read noise unchanged, so flats show alternating bright and dim row pairs and bias frames nothing."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    g = np.where(np.arange(h) % 2 == 1, 1.5, 1.0)  # packed row y holds sensor rows 2y, 2y + 1
+    return dn * g[None, :, None]
+
+
+def frame_row_noise(dn, rng, **_):
+    """Interference in some frames: in about a quarter of the frames (each frame on its own) every sensor row takes 1.5 DN more row noise (a normal offset per row), in every kind of frame."""
+    if rng.random() >= 0.25:
+        return dn
+    _, h, w = dn.shape
+    r = rng.normal(0.0, 1.5, 2 * h)
+    return dn + _raw_to_packed(np.broadcast_to(r[:, None], (2 * h, 2 * w)))
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -1084,7 +1141,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  column_bank_flicker, full_well, row_wander, digital_iso, burst_columns,
                                  bimodal_read_noise, row_pairs, gain_scaled_fpn, blue_prnu, periodic_rows, gain_telegraph,
                                  dark_row_noise, channel_digital_gain, masked_rows, dual_gain_codes, raw_smoothing,
-                                 split_row_noise, column_pairs)}
+                                 split_row_noise, column_pairs, block_compression, column_gain_flicker, noisy_rows,
+                                 black_step, interleaved_row_gain, frame_row_noise)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
