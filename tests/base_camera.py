@@ -8,9 +8,9 @@ def base_fixed(profile, k: float, sensor: int = 0, lam: float = 0.05, **more) ->
             "sigma_r": profile.row_scale.median(k), "sensor": sensor, **more}
 
 
-def bias_stack(profile, effects, k: float, seed: int, n: int = 8, size: int = 96, sensor: int = 0):
-    """(n, 4, size, size) bias frames (DN) of ``profile`` at gain ``k`` with ``effects`` (token:
-    entry), model G+R, one sensor instance."""
+def bias_stack(profile, effects, k: float, seed: int, n: int = 8, size=96, sensor: int = 0):
+    """(n, 4, size, size) bias frames (DN; ``size`` may be (h, w)) of ``profile`` at gain ``k``
+    with ``effects`` (token: entry), model G+R, one sensor instance."""
     import torch
 
     from rawaug import RawNoiseAugment
@@ -20,4 +20,5 @@ def bias_stack(profile, effects, k: float, seed: int, n: int = 8, size: int = 96
     aug = RawNoiseAugment(profile, model="G+R", ratio=1.0, fixed=base_fixed(profile, k, sensor=sensor),
                           generator=torch.Generator().manual_seed(seed), rank_seeding=False)
     with torch.no_grad():
-        return aug(torch.zeros(n, 4, size, size, dtype=torch.float64)).numpy() * profile.span_dn
+        h, w = (size, size) if isinstance(size, int) else size
+        return aug(torch.zeros(n, 4, h, w, dtype=torch.float64)).numpy() * profile.span_dn

@@ -1,13 +1,12 @@
 """RowTap: each column tap's part of a sensor row has a row offset of its own, new in every
 frame, through the real stage and its estimator."""
 import numpy as np
-import torch
 
-from rawaug import NoiseProfile, RawNoiseAugment
+from rawaug import NoiseProfile
 from rawaug.effects import row_tap
 from rawaug.statistics import row_tap_ratio, sensor_row_means
 
-from base_camera import base_fixed
+from base_camera import bias_stack
 
 BASE = NoiseProfile.load("SonyA7S2")
 K = 1.0
@@ -20,13 +19,7 @@ def taps(sigma=1.0, edges=(100,)):
 
 def stack(effects, seed, n=8, sensor=0):
     """(n, 4, H, W) bias frames (DN) at gain K with ``effects`` (token: entry), model G+R."""
-    p = BASE
-    for token, entry in effects.items():
-        p = p.with_effect(token, entry)
-    aug = RawNoiseAugment(p, model="G+R", ratio=1.0, fixed=base_fixed(p, K, sensor=sensor),
-                          generator=torch.Generator().manual_seed(seed), rank_seeding=False)
-    with torch.no_grad():
-        return aug(torch.zeros(n, 4, H, W, dtype=torch.float64)).numpy() * p.span_dn
+    return bias_stack(BASE, effects, K, seed, n=n, size=(H, W), sensor=sensor)
 
 
 def test_each_tap_has_its_own_row_offsets(samplers):
