@@ -31,7 +31,10 @@ spread evenly over their cells, hold the share the lower neighbour has of the fr
 of the gap (histogram matching: a differential non-linearity splits a missing code's inputs
 between both neighbours; sending them all to one doubles its count and shifts the mean). Where the map's shifts repeat with a period (a digital gain, an ADC's
 differential non-linearity; ``periodic_comb``), the period is stored and the comb is applied
-at every signal level, not only over the codes the frames held.
+at every signal level, not only over the codes the frames held; its written codes then take
+their measured widths (``code_cells``: a digital gain of 1.25 writes 8 codes in 10, each 1.25
+DN of input wide). Where the packed channels' combs differ (a white-balance gain on red and
+blue after the ADC), each channel has a map of its own.
 A first version matched the whole histogram: fitted on a real dark frame it mapped 1..107 DN
 onto 4..18 DN and wiped out the signal of the dark scenes it was trained on.
 """
