@@ -218,3 +218,18 @@ def test_a_non_integer_digital_gain_writes_equally_wide_codes(samplers):
         for code in np.arange(level - 8, level + 9):
             a, b = np.sum(out == code), np.sum(truth == code)
             assert abs(a - b) <= 5 * np.sqrt(a + b + 1), (level, code, a, b)
+
+
+def test_a_short_map_joins_the_period_it_is_consistent_with():
+    # a digital gain of 1.25: a bias stack of 3 DN noise spans too few codes to show the period
+    # (none of its own), a flat stack shows it; joined, the gain has the period, and a bias map
+    # of another comb (codes 4k + 3 missing) keeps the two from being joined as one
+    rng = np.random.default_rng(23)
+    bias = estimate(np.rint(1.25 * np.rint(rng.normal(0.0, 2.5, 400_000))).reshape(1, 4, 500, 200),
+                    np.rint(rng.normal(0.0, 3.0, 400_000)), k=1.0)
+    flat = estimate(np.rint(1.25 * np.rint(rng.normal(800.0, 30.0, 400_000))).reshape(1, 4, 500, 200),
+                    np.rint(rng.normal(1000.0, 37.0, 400_000)), k=1.0)
+    assert bias["period_dn"] == [0.0] and flat["period_dn"] == [10.0]
+    assert combine([bias, flat])["period_dn"] == [10.0]
+    other = estimate(_dnl(rng, 0.0, 3.0).reshape(1, 4, 500, 200), np.rint(rng.normal(0, 3, 400_000)), k=1.0)
+    assert combine([other, flat])["period_dn"] == [0.0]

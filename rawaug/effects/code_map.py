@@ -377,7 +377,7 @@ def _join(parts):
     if period:  # one periodic comb: its pattern fills the codes between the stacks' ranges too
         # the widest map's pattern: its splits are medians over the most gaps (a bias stack
         # of low read noise spans a few, and its model's spread is the least certain there)
-        first = max(parts, key=lambda p: len(p["map_dn"][0]))
+        first = max((p for p in parts if int(p.get("period_dn", [0])[0]) == period), key=lambda p: len(p["map_dn"][0]))
         shift = np.asarray(first["map_dn"][0][:period]) - (first["lo_dn"][0] + np.arange(period))
         first_split = np.asarray((first.get("split_dn") or [[0.5] * period])[0][:period], dtype=np.float64)
         codes = np.arange(lo, hi + 1.0)
@@ -388,15 +388,34 @@ def _join(parts):
             float(period))
 
 
+def _missing(part) -> tuple[np.ndarray, np.ndarray]:
+    """(codes, missing) of a map: each code of its range and whether the map never writes it."""
+    m = np.asarray(part["map_dn"][0], dtype=np.float64)
+    r = part["lo_dn"][0] + np.arange(m.size)
+    return r, ~np.isin(r, m)
+
+
 def _common_period(parts) -> int:
-    """The period all of one gain's maps share, with the same missing codes (0 if any is not
-    periodic or they disagree; which neighbour a missing code goes to may differ)."""
-    periods = {int(p.get("period_dn", [0])[0]) for p in parts}
-    if len(periods) != 1 or 0 in periods:
+    """The period of one gain's periodic maps where they all have one and the same missing
+    codes in it, and every map without one (a bias stack's few codes cannot show a period)
+    misses codes only where that pattern does (0 where they disagree or none is periodic)."""
+    periods = {int(p.get("period_dn", [0])[0]) for p in parts} - {0}
+    if len(periods) != 1:
         return 0
     period = periods.pop()
-    pattern = set()
-    for p in parts:
-        lo, m = p["lo_dn"][0], np.asarray(p["map_dn"][0][:period])
-        pattern.add(tuple(np.roll(m != lo + np.arange(period), int(lo % period)).tolist()))
-    return period if len(pattern) == 1 else 0
+    pattern = None
+    for part in parts:
+        if int(part.get("period_dn", [0])[0]) != period:
+            continue
+        r, missing = _missing(part)
+        mine = np.zeros(period, dtype=bool)
+        mine[(r[missing] % period).astype(np.int64)] = True
+        if pattern is not None and not np.array_equal(pattern, mine):
+            return 0
+        pattern = mine
+    for part in parts:  # the maps without a period: inside their range (not its bounding codes), as the pattern
+        r, missing = _missing(part)
+        inner = slice(1, max(r.size - 1, 1))
+        if not np.array_equal(missing[inner], pattern[(r[inner] % period).astype(np.int64)]):
+            return 0
+    return period
