@@ -662,6 +662,23 @@ def test_column_gain_estimate_round_trip_and_white_flats_get_almost_none():
         column_gain.estimate(meas, base, K)
 
 
+def test_column_gain_per_frame_is_found_apart_from_the_fixed_part():
+    """Flats of 8 frames whose columns' gains move 0.5 % per frame (no fixed part): the per-frame
+    part within 25 % and the fixed part under 0.2 % in 10 of 10 sessions (a robust variance of
+    127 column differences x 8 frames per channel: ~5 % in sigma); a fixed 0.5 % alone: the
+    per-frame part under 0.1 % in 10 of 10 (what the shot noise leaves, ~2e-4)."""
+    level = 2000.0
+    flat = {"model": "G+P*", "level_dn": level}
+    base = [synth({}, batch=8, size=128, seed=s, **flat) for s in range(1, 5)]
+    for session in range(10):
+        est = column_gain.estimate(synth({"ColGain": {"seed": 67, "sigma": 0.0, "frame": 0.005}}, batch=8, size=128,
+                                         seed=40 + session, **flat), base, K, level_dn=level)
+        assert abs(est["frame"] / 0.005 - 1.0) < 0.25 and est["sigma"] < 0.002, est
+        est = column_gain.estimate(synth({"ColGain": COLGAIN}, batch=8, size=128, seed=60 + session, **flat), base, K,
+                                   level_dn=level)
+        assert est["frame"] < 0.001, est
+
+
 ROWGAIN = {"seed": 71, "fixed": 0.004, "frame": 0.003}
 
 

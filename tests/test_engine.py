@@ -35,7 +35,7 @@ LOOP_EFFECTS = {
     "BlackDrift": {"k": [1.0, 3.0], "sigma_dn": [0.7, 1.5], "rho": [0.8, 0.8]},
     "PRNU": {"seed": 17, "sigma": 0.02},
     "ChargeShare": {"share_x": 0.04, "share_y": 0.02},  # neighbours' shot draws, through this pixel's gains
-    "ColGain": {"seed": 67, "sigma": 0.01},
+    "ColGain": {"seed": 67, "sigma": 0.01, "frame": 0.004},
     "RowGain": {"seed": 71, "fixed": 0.01, "frame": 0.02},
     "LineGain": {"seed": 37, "row_density": 0.08, "col_density": 0.1, "median": 0.2, "log_std": 0.5, "negative": 0.5},
     "TapGain": {"col_edges": [33, 80], "row_edges": [17], "frame_h": 30, "frame_w": 48,

@@ -69,6 +69,7 @@ _CBF0, _CBA0 = L.COLUMN["cband_f0"], L.COLUMN["cband_a0"]
 _DHD, _DHE, _DHL = L.COLUMN["dhot_density"], L.COLUMN["dhot_e"], L.COLUMN["dhot_log_std"]
 _DHOT_WHERE, _DHOT_SIZE = L.STREAM["dhot_where"], L.STREAM["dhot_size"]
 _CGS, _COLGAIN_PATTERN = L.COLUMN["colgain_sigma"], L.STREAM["colgain_pattern"]
+_CGT, _COLGAIN_FRAME = L.COLUMN["colgain_frame"], L.STREAM["colgain_frame"]
 _DSNU_COL, _DSNU_COL_PATTERN = L.COLUMN["dsnu_col_log"], L.STREAM["dsnu_col_pattern"]
 _RGF, _RGT = L.COLUMN["rowgain_fixed"], L.COLUMN["rowgain_frame"]
 _ROWGAIN_PATTERN, _ROWGAIN_FRAME = L.STREAM["rowgain_pattern"], L.STREAM["rowgain_frame"]
@@ -668,7 +669,8 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
         if stages & L.COL_GAIN:  # the sensor column's amplifier gain on the photo signal and its shot noise
             for x in range(w):
                 s = sig[x]
-                s *= 1.0 + v[_CGS] * symmetric(normal, draw(keys[_COLGAIN_PATTERN], (sensor * 2 + col_set) * w + x))
+                s *= (1.0 + v[_CGS] * symmetric(normal, draw(keys[_COLGAIN_PATTERN], (sensor * 2 + col_set) * w + x))
+                      + v[_CGT] * symmetric(normal, draw(keys[_COLGAIN_FRAME], (b * 2 + col_set) * w + x)))
                 sig[x] = s
         if stages & L.ROW_GAIN:  # the sensor row's gain on the photo signal and its shot noise
             for x in range(w):

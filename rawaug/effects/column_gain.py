@@ -1,22 +1,29 @@
-"""Column gain non-uniformity (ColGain): each sensor column's amplifier has its own gain.
+"""Column gain non-uniformity (ColGain): each sensor column's amplifier has its own gain, fixed
+and from frame to frame.
 
 Physics: a column-parallel readout amplifies (and converts) every column through circuits of
-its own, whose gains differ by a fraction of a per cent. The photo signal and its shot noise
-are multiplied by the column's gain: vertical stripes that grow in proportion to the signal,
-invisible in bias frames. EMVA 1288 (Release 4) splits PRNU into this column part, a row part
-and the pixel part (``PRNU``); ``Col`` is the column offsets, the same at every signal.
+its own, whose gains differ by a fraction of a per cent (fixed); where a column's gain rests on
+a bias or a reference of its own that settles anew for every frame, it also moves from frame to
+frame. The photo signal and its shot noise are multiplied by the column's gain: vertical
+stripes that grow in proportion to the signal, invisible in bias frames. EMVA 1288 (Release 4)
+splits PRNU into this column part, a row part and the pixel part (``PRNU``); ``Col`` is the
+column offsets, the same at every signal; ``RowGain`` the same along the rows.
 
-Stage (DN, after shot noise and ``NonLin``, before read noise): ``s -> s (1 + sigma g[X])``
-with ``g`` a seeded standard normal per sensor column ``X`` (both channels of the column),
-the same in every frame. ``sigma`` does not depend on ISO.
+Stage (DN, after shot noise and ``NonLin``, before read noise): ``s -> s (1 + sigma g[X] +
+frame z[b, X])`` with ``g`` a seeded standard normal per sensor column ``X`` (both channels of
+the column), the same in every frame, and ``z`` one per sensor column and frame. Neither
+depends on ISO.
 
-Profile entry::  ``ColGain: {seed: 67, sigma: 0.005}``  (fraction of the signal)
+Profile entry::  ``ColGain: {seed: 67, sigma: 0.005, frame: 0.002}``  (fractions of the signal;
+``frame`` optional, 0 by default)
 
-Detected by ``fixed_col_excess`` on flat stacks (the stack mean's column means vary more than
-pixels alone make them). Estimated by ``estimate``: the variance of the flat stack mean's
-column means relative to the level (``line_mean_variance``: from neighbouring columns, so a
-smooth illumination does not count) in excess of the model's. Bias and dark frames cannot
-show it.
+Detected by ``fixed_col_excess`` (the stack mean's column means vary more than pixels alone
+make them) and ``col_excess`` (each frame's, less the stack mean) on flat stacks. Estimated by
+``estimate``: the variance of the column means relative to the level (``line_mean_variance``:
+from neighbouring columns, so a smooth illumination does not count) in excess of the model's,
+of the frames less their stack mean (the per-frame part) and of the stack mean (the fixed part,
+less what the per-frame part leaves in a mean of N frames), as ``RowGain``'s along the rows.
+Bias and dark frames cannot show it.
 """
 from __future__ import annotations
 
@@ -27,7 +34,8 @@ from ..statistics import line_mean_variance
 from .base import PHOTON, NoiseEffect, pattern_key, register
 from .k_records import _number, check_gain_pattern
 
-STATISTICS = ("fixed_col_excess",)
+STATISTICS = ("fixed_col_excess", "col_excess")
+KEYS = ("sigma", "frame")
 
 
 @register
@@ -35,10 +43,11 @@ class ColumnGain(NoiseEffect):
     token = "ColGain"
     order = PHOTON + 30  # after shot noise (its column's amplifier), before read noise
     flag = L.COL_GAIN
-    columns = ("colgain_sigma",)
+    columns = ("colgain_sigma", "colgain_frame")
 
     def draw(self, ctx):
-        return {"colgain_sigma": ctx.k.new_full((ctx.k.shape[0],), float(self.profile.effects[self.token]["sigma"]))}
+        p = self.profile.effects[self.token]
+        return {col: ctx.k.new_full((ctx.k.shape[0],), float(p.get(key, 0.0))) for col, key in zip(self.columns, KEYS)}
 
     def pattern_streams(self):
         return {"colgain_pattern": pattern_key(self.profile.effects[self.token]["seed"], self.token)}
@@ -47,33 +56,50 @@ class ColumnGain(NoiseEffect):
     def validate_params(cls, params):
         if isinstance(params, dict):
             _number(params.get("sigma"), f"{cls.token}.sigma")  # required
-        check_gain_pattern(cls.token, params, ("sigma",))
+        check_gain_pattern(cls.token, params, KEYS)
 
 
-def column_rel_var(frames, level_dn) -> float:
-    """Variance of the stack mean's column means relative to each channel's level
-    (``line_mean_variance``, neighbouring columns), mean over the channels: the squared
-    relative column pattern, plus what pixels and temporal noise leave in a column mean."""
-    level = np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,))
-    var = line_mean_variance(np.asarray(frames, dtype=np.float64).mean(axis=0), axis=1)  # (4,) DN^2
-    return float(np.mean(var / np.maximum(level, 1e-12) ** 2))
+def column_rel_parts(frames, level_dn) -> tuple[float, float]:
+    """(per-frame, stack-mean) variance of the column means relative to each channel's level,
+    mean over the channels (``line_mean_variance``, neighbouring columns): the squared relative
+    column patterns, plus what pixels and temporal noise leave in a column mean."""
+    f = np.asarray(frames, dtype=np.float64)
+    n = f.shape[0]
+    level2 = np.maximum(np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,)), 1e-12) ** 2
+    mean_map = f.mean(axis=0)
+    fixed = float(np.mean(line_mean_variance(mean_map, 1) / level2))
+    if n < 2:
+        return 0.0, fixed
+    frame = float(np.mean(line_mean_variance(f - mean_map[None], 2).mean(axis=0) / level2)) * n / (n - 1)
+    return frame, fixed
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, seed: int = 67, **_) -> dict:
     """ColGain from a flat stack (N, 4, h, w) in DN at clean level ``level_dn`` (DN, scalar or
     per channel), against stacks of the same shape synthesized by the current model."""
+    frames = np.asarray(frames, dtype=np.float64)
     if level_dn is None or not synthesized:
         raise ValueError("ColGain needs a flat stack with its clean level level_dn (DN), against syntheses")
-    base = float(np.mean([column_rel_var(s, level_dn) for s in synthesized]))
-    return {"seed": int(seed), "sigma": float(np.sqrt(max(column_rel_var(frames, level_dn) - base, 0.0)))}
+    n = frames.shape[0]
+    t_meas, f_meas = column_rel_parts(frames, level_dn)
+    base = [column_rel_parts(s, level_dn) for s in synthesized]
+    frame2 = max(t_meas - float(np.mean([b[0] for b in base])), 0.0) if n >= 2 else 0.0
+    # a stack mean's column variance holds the fixed part and a 1/N share of the per-frame part
+    fixed2 = max(f_meas - float(np.mean([b[1] for b in base])) - frame2 / n, 0.0)
+    weight = float(np.mean(np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,)))) ** 2
+    return {"seed": int(seed), "sigma": float(np.sqrt(fixed2)), "frame": float(np.sqrt(frame2)), "weight": weight}
 
 
 def combine(records: list[dict]) -> dict:
     """One gain pattern from the flat stacks (every ISO and level: the same columns): their
-    variances averaged."""
-    return {"seed": records[0]["seed"], "sigma": float(np.sqrt(np.mean([r["sigma"] ** 2 for r in records])))}
+    variances averaged with weights ``level^2`` (the relative variance of a brighter flat is the
+    sharper)."""
+    w = np.array([r.get("weight", 1.0) for r in records], dtype=np.float64)
+    w = w / w.sum()
+    return {"seed": records[0]["seed"],
+            **{key: float(np.sqrt(np.sum(w * np.array([r.get(key, 0.0) ** 2 for r in records])))) for key in KEYS}}
 
 
 def empty(params) -> bool:
-    """True when the gains do not vary (sigma 0): it would add nothing."""
-    return float(params["sigma"]) == 0.0
+    """True when the gains do not vary (both parts 0): it would add nothing."""
+    return all(float(params.get(key, 0.0)) == 0.0 for key in KEYS)

@@ -201,7 +201,8 @@ COLUMNS = (
     "dark_row_sigma",  # exposure row noise: the row offsets' std at this exposure (DN)
     "ramp_row", "ramp_col",  # black ramps: the slopes' std, DN per sensor row and per sensor column
     "cgroup_sigma", "cgroup_width", "cgroup_start",  # column groups: the offset's std (DN), sensor columns per group, first group's start (< width)
-    "rtap_sigma", *(f"rtap_c{i}" for i in range(TAP_EDGES)), "rtap_ox", "rtap_w",  # row noise per tap: std (DN), column edges (fractions; 2: none), window
+    "rtap_sigma", *(f"rtap_c{i}" for i in range(TAP_EDGES)), "rtap_ox", "rtap_w",
+    "colgain_frame",  # column gain: std of each sensor column's gain drawn anew in every frame (fraction of the signal)  # row noise per tap: std (DN), column edges (fractions; 2: none), window
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -224,7 +225,7 @@ STREAMS = (
     "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
     "hot_tile_where", "hot_tile_size", "dsnu_col_pattern", "rspike_where", "rspike_size", "lines_row_cut", "lines_col_cut",
     "burst_col", "burst_col_noise", "well_pattern", "col_group", "black_ramp", "row_pair", "dark_row_noise",
-    "row_tap",
+    "row_tap", "colgain_frame",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

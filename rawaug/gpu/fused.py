@@ -42,7 +42,7 @@ C_XT0 = _column("xt_0")
 C_BF0, C_BA0 = _column("band_f0"), _column("band_a0")
 C_CBF0, C_CBA0 = _column("cband_f0"), _column("cband_a0")
 C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_log_std")
-C_CGS = _column("colgain_sigma")
+C_CGS, C_CGT = _column("colgain_sigma"), _column("colgain_frame")
 C_RGF, C_RGT = _column("rowgain_fixed"), _column("rowgain_frame")
 C_GGR, C_GGPY, C_GGPX, C_GGOY, C_GGOX = (_column(n) for n in ("ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox"))
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
@@ -138,7 +138,7 @@ K_ROW_MAP = S["row_map"]
 K_HOT_TILE_WHERE, K_HOT_TILE_SIZE = S["hot_tile_where"], S["hot_tile_size"]
 K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
-K_COLGAIN = S["colgain_pattern"]
+K_COLGAIN, K_COLGAIN_FRAME = S["colgain_pattern"], S["colgain_frame"]
 K_DSNU_COL = S["dsnu_col_pattern"]
 K_ROWGAIN, K_ROWGAIN_FRAME = S["rowgain_pattern"], S["rowgain_frame"]
 K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
@@ -478,7 +478,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 549755813888:  # frame-to-frame gain: this frame's factor on the photo signal and its shot noise
         s *= _col(v, C_FG)
     if FLAGS & 4294967296:  # column gain: the sensor column's amplifier gain on the photo signal and its shot noise
-        s *= 1.0 + _col(v, C_CGS) * _normal(draw(_key(keys_ptr, K_COLGAIN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
+        s *= (1.0 + _col(v, C_CGS) * _normal(draw(_key(keys_ptr, K_COLGAIN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
+              + _col(v, C_CGT) * _normal(draw(_key(keys_ptr, K_COLGAIN_FRAME), ((b.to(tl.int64) * 2 + col_set) * W + x).to(tl.uint64))))
     if FLAGS & 2199023255552:  # row gain: the sensor row's gain on the photo signal and its shot noise, fixed and this frame's
         s *= (1.0 + _col(v, C_RGF) * _normal(draw(_key(keys_ptr, K_ROWGAIN), ((sensor * 2 + row_set) * H + y).to(tl.uint64)))
               + _col(v, C_RGT) * _normal(draw(_key(keys_ptr, K_ROWGAIN_FRAME), ((b.to(tl.int64) * 2 + row_set) * H + y).to(tl.uint64))))
