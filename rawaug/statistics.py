@@ -160,6 +160,22 @@ def line_mean_variance(c, axis):
     return difference_scale(np.diff(c.mean(axis=axis), axis=-1)) ** 2 / 2.0
 
 
+def line_rel_parts(frames, level_dn, rows: bool) -> tuple[float, float]:
+    """(per-frame, stack-mean) variance of a flat stack's (N, 4, h, w; DN) sensor-row (``rows``)
+    or sensor-column means relative to each channel's level ``level_dn``, mean over the channels
+    (``line_mean_variance``, neighbouring lines): the squared relative line gains, plus what
+    pixels and temporal noise leave in a line mean (per-frame 0 for one frame)."""
+    f = np.asarray(frames, dtype=np.float64)
+    n = f.shape[0]
+    level2 = np.maximum(np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,)), 1e-12) ** 2
+    mean_map = f.mean(axis=0)
+    fixed = float(np.mean(line_mean_variance(mean_map, 2 if rows else 1) / level2))
+    if n < 2:
+        return 0.0, fixed
+    frame = float(np.mean(line_mean_variance(f - mean_map[None], 3 if rows else 2).mean(axis=0) / level2)) * n / (n - 1)
+    return frame, fixed
+
+
 def difference_scale(d):
     """1.4826 MAD along the last axis of differences of neighbouring lines' means, about
     their mean (the end lines' difference over the span: no inner defect line moves it), not

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..engine import layout as L
-from ..statistics import line_mean_variance
+from ..statistics import line_rel_parts
 from .base import PHOTON, NoiseEffect, pattern_key, register
 from .k_records import _number, check_gain_pattern
 
@@ -60,18 +60,8 @@ class ColumnGain(NoiseEffect):
 
 
 def column_rel_parts(frames, level_dn) -> tuple[float, float]:
-    """(per-frame, stack-mean) variance of the column means relative to each channel's level,
-    mean over the channels (``line_mean_variance``, neighbouring columns): the squared relative
-    column patterns, plus what pixels and temporal noise leave in a column mean."""
-    f = np.asarray(frames, dtype=np.float64)
-    n = f.shape[0]
-    level2 = np.maximum(np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,)), 1e-12) ** 2
-    mean_map = f.mean(axis=0)
-    fixed = float(np.mean(line_mean_variance(mean_map, 1) / level2))
-    if n < 2:
-        return 0.0, fixed
-    frame = float(np.mean(line_mean_variance(f - mean_map[None], 2).mean(axis=0) / level2)) * n / (n - 1)
-    return frame, fixed
+    """(per-frame, stack-mean) relative variance of the sensor-column means (``line_rel_parts``)."""
+    return line_rel_parts(frames, level_dn, rows=False)
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, seed: int = 67, **_) -> dict:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..engine import layout as L
-from ..statistics import line_mean_variance
+from ..statistics import line_rel_parts
 from .base import PHOTON, NoiseEffect, pattern_key, register
 from .k_records import check_gain_pattern
 
@@ -61,16 +61,8 @@ class RowGain(NoiseEffect):
 
 
 def row_rel_parts(frames, level_dn) -> tuple[float, float]:
-    """(per-frame, stack-mean) variance of the row means relative to each channel's level,
-    mean over the channels (``line_mean_variance``, neighbouring rows): the squared relative
-    row patterns, plus what pixels and temporal noise leave in a row mean."""
-    f = np.asarray(frames, dtype=np.float64)
-    n = f.shape[0]
-    level2 = np.maximum(np.broadcast_to(np.asarray(level_dn, dtype=np.float64), (4,)), 1e-12) ** 2
-    mean_map = f.mean(axis=0)
-    fixed = float(np.mean(line_mean_variance(mean_map, 2) / level2))
-    frame = float(np.mean(line_mean_variance(f - mean_map[None], 3).mean(axis=0) / level2)) * n / (n - 1)
-    return frame, fixed
+    """(per-frame, stack-mean) relative variance of the sensor-row means (``line_rel_parts``)."""
+    return line_rel_parts(frames, level_dn, rows=True)
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, seed: int = 71, **_) -> dict:
