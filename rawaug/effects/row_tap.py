@@ -100,8 +100,7 @@ def edges_of(s, n: int, rows: int, window: int = TAP_WINDOW, p: float = TAP_P) -
     v = np.where(ok, s, -np.inf)
     high = v > max(float(np.median(s[ok])), 1e-30) * ratio
     peaks = [g for g in np.flatnonzero(high) if v[g] >= v[max(g - window, 0) : g + window + 1].max()]
-    return sorted(int(g) for g in peaks)[:MAX_EDGES] if len(peaks) <= MAX_EDGES else \
-        sorted(int(g) for g in sorted(peaks, key=lambda g: -v[g])[:MAX_EDGES])
+    return sorted(int(g) for g in sorted(peaks, key=lambda g: -v[g])[:MAX_EDGES])  # the largest steps
 
 
 def _excess(s, edges) -> float:
@@ -117,9 +116,9 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
     frames = np.asarray(frames, dtype=np.float64)
     if kind not in ("bias", "dark") or frames.shape[0] < 3:
         raise ValueError("RowTap is measured on bias or dark stacks of >= 3 frames")
-    s = row_tap_steps(frames)
-    seen = {"k": float(k), "frame": frames.shape[2:], "steps": s, "n": frames.shape[0], "rows": _rows(frames),
-            "edges": edges_of(s, frames.shape[0], _rows(frames)),
+    s, rows = row_tap_steps(frames), _rows(frames)
+    seen = {"k": float(k), "frame": frames.shape[2:], "steps": s, "n": frames.shape[0], "rows": rows,
+            "edges": edges_of(s, frames.shape[0], rows),
             "synth": [row_tap_steps(np.asarray(x, dtype=np.float64)) for x in synthesized]}
     return {**combine([{"_seen": seen}]), "_seen": seen}
 
