@@ -661,13 +661,67 @@ def quiet_pixels(frames) -> np.ndarray:
     return var < QUIET * float(np.median(var))
 
 
+QUIET_TRIM = 0.995  # the quiet weights' scale: the mean temporal variance of the pixels below this quantile of it
+
+
 def quiet_fraction(frames, level_dn=None):
     """Share of a flat stack's pixels that hold their value from frame to frame while the
-    others carry the shot noise (``quiet_pixels``): pixels saturated at their full well; for
-    Gaussian noise a fixed share (0.13 for two frames)."""
+    others carry the shot noise (pixels saturated at their full well), smooth: the mean over
+    the pixels of exp(-v / (``QUIET`` x m)), v a pixel's temporal variance and m the mean of
+    those below their ``QUIET_TRIM`` quantile. A held pixel weighs 1, a pair of Gaussian values
+    0.17 on average, at any scale. (Since the thirty-first session; before, the share below
+    ``QUIET`` of the median, which jumps with the codes' discreteness: 0.116 to 0.141 for pairs
+    of rounded normals of std 10 to 24, against a spread of 0.0007 over a model's syntheses.)"""
     if np.asarray(frames).shape[0] < 2:
         return 0.0
-    return float(quiet_pixels(frames).mean())
+    var = temporal_moments(frames)[1]
+    scale = float(np.mean(var[var <= np.quantile(var, QUIET_TRIM)]))
+    return float(np.mean(np.exp(-var / max(QUIET * scale, 1e-12))))
+
+
+MASK_LEVEL = 0.1  # a line of a flat without light: its mean at most this share of the median line's
+
+
+def _edge_run(v) -> int:
+    """Lines from the start of ``v`` (line means) below ``MASK_LEVEL`` of their median, in a
+    row; at most a quarter of the lines."""
+    dark = np.asarray(v) < MASK_LEVEL * float(np.median(v))
+    n = int(np.argmin(dark)) if not dark.all() else len(v)
+    return min(n, len(v) // 4)
+
+
+def masked_edges(mean_dn) -> tuple[int, int, int, int]:
+    """(top, bottom, left, right): the sensor lines at each edge of a flat's mean frame (4, h, w;
+    DN above black) that hold no light, optically black lines left in the raw: the runs from
+    each edge of sensor rows (columns) whose mean is below ``MASK_LEVEL`` of the median line's."""
+    m = np.asarray(mean_dn, dtype=np.float64)
+    _, h, w = m.shape
+    rows, cols = np.empty(2 * h), np.empty(2 * w)
+    for line_set in (0, 1):
+        rows[line_set::2] = m[[c for c in range(4) if ROW_SET[c] == line_set]].mean(axis=(0, 2))
+        cols[line_set::2] = m[[c for c in range(4) if COLUMN_SET[c] == line_set]].mean(axis=(0, 1))
+    if not np.median(rows) > 0:
+        return 0, 0, 0, 0
+    return _edge_run(rows), _edge_run(rows[::-1]), _edge_run(cols), _edge_run(cols[::-1])
+
+
+def lit_pixels(mean_dn) -> np.ndarray:
+    """(4, h, w) mask of a flat's pixels outside its lines without light (``masked_edges``)."""
+    m = np.asarray(mean_dn, dtype=np.float64)
+    _, h, w = m.shape
+    top, bottom, left, right = masked_edges(m)
+    sy = 2 * np.arange(h)[None, :, None] + np.array(ROW_SET)[:, None, None]
+    sx = 2 * np.arange(w)[None, None, :] + np.array(COLUMN_SET)[:, None, None]
+    return (sy >= top) & (sy < 2 * h - bottom) & (sx >= left) & (sx < 2 * w - right)
+
+
+def masked_lines(frames, level_dn=None):
+    """Share of a flat stack's sensor lines at the frame's edges that hold no light
+    (``masked_edges`` of its mean): rows over the rows plus columns over the columns; 0 for a
+    sensor lit to its edges."""
+    f = np.asarray(frames, dtype=np.float64)
+    top, bottom, left, right = masked_edges(f.mean(axis=0))
+    return (top + bottom) / (2.0 * f.shape[2]) + (left + right) / (2.0 * f.shape[3])
 
 
 def _mean_map(frames):
@@ -1111,6 +1165,31 @@ def row_noise_spread(frames, level_dn=None):
     settling during readout, a row driver far from its supply)."""
     v = np.log(np.maximum(row_noise_blocks(frames), 1e-12))
     return float(np.sqrt(np.mean((v - v.mean()) ** 2)))
+
+
+def frame_row_variances(frames) -> tuple[np.ndarray, np.ndarray]:
+    """((N,), (N,)) each frame's variance of its sensor rows' temporal means (stack mean and
+    frame mean out), robust (1.4826 MAD, squared: a row glitch does not count), DN^2: of the
+    mean over the whole row, and of half the difference between its even and its odd packed
+    columns' means, which holds the row mean's white noise and none of the row offset."""
+    f = np.asarray(frames, dtype=np.float64)
+    n, _, h, _ = f.shape
+    halves = np.empty((2, n, 2 * h))
+    for parity in (0, 1):
+        for row_set in (0, 1):
+            halves[parity, :, row_set::2] = f[:, [c for c in range(4) if ROW_SET[c] == row_set], :, parity::2].mean(axis=(1, 3))
+    halves -= halves.mean(axis=1, keepdims=True)
+    halves -= halves.mean(axis=2, keepdims=True)
+    whole, white = 0.5 * (halves[0] + halves[1]), 0.5 * (halves[0] - halves[1])
+    return robust_scale(whole, 1)[1][:, 0] ** 2, robust_scale(white, 1)[1][:, 0] ** 2
+
+
+def frame_row_spread(frames, level_dn=None):
+    """Standard deviation over frames (N >= 3) of the log of each frame's row-mean variance
+    (``frame_row_variances``): near 2.3 sqrt(1 / sensor rows) for row noise of one level; more
+    where the row noise of some frames is stronger than of others (interference that comes and
+    goes, a supply that switches mode between frames)."""
+    return float(np.std(np.log(np.maximum(frame_row_variances(frames)[0], 1e-12)), ddof=1))
 
 
 def column_pixel_noise(frames):
@@ -1635,6 +1714,32 @@ def frame_slopes(frames, columns: bool = False) -> np.ndarray:
     m = m - m.mean(axis=0, keepdims=True)
     i = np.arange(m.shape[1]) - 0.5 * (m.shape[1] - 1)
     return m @ i / float(i @ i)
+
+
+STEP_EDGE = 8  # sensor rows at either end where no step is looked for (a change point there is a few rows' noise)
+
+
+def row_step_scan(frames) -> tuple[np.ndarray, np.ndarray]:
+    """((N,), (N,)) each frame's largest standardized step down its sensor rows and the first
+    sensor row after it: the CUSUM of its temporal row means (``temporal_col_deviations(rows=
+    True)``) at each cut, over its standard error under white row noise of the frame's level
+    (1.4826 MAD of successive rows' differences over sqrt(2): a smooth profile does not count)."""
+    e = temporal_col_deviations(frames, rows=True)
+    n = e.shape[1]
+    noise = MAD_TO_SIGMA * median(np.abs(np.diff(e, axis=1)), axis=1) / math.sqrt(2.0) + 1e-12
+    t = np.arange(1, n)
+    z = np.abs(np.cumsum(e, axis=1)[:, :-1]) / np.sqrt(t * (n - t) / n) / noise[:, None]
+    edge = min(STEP_EDGE, max((n - 2) // 4, 0))
+    z[:, :edge] = z[:, n - 1 - edge:] = 0.0
+    at = np.argmax(z, axis=1)
+    return z[np.arange(len(z)), at], t[at]
+
+
+def row_step_z(frames, level_dn=None):
+    """Mean over the frames (N >= 3) of each frame's largest standardized step down its sensor
+    rows (``row_step_scan``): about 3 for white row noise; more where the black level steps at a
+    row of each frame (a clamp that re-triggers during readout, a load switched mid-frame)."""
+    return float(row_step_scan(frames)[0].mean())
 
 
 def row_ramp_std(frames, level_dn=None):
@@ -2339,6 +2444,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("read_noise_spread", read_noise_spread, min_frames=2, kind="bias"),
         Statistic("row_noise_spread", row_noise_spread, min_frames=3, kind="bias"),
         Statistic("frame_noise_spread", frame_noise_spread, min_frames=3, kind="bias"),
+        Statistic("frame_row_spread", frame_row_spread, min_frames=3, kind="bias"),
         Statistic("tile_corr", tile_corr, min_frames=2, kind="bias"),
         Statistic("flicker_fraction", flicker_fraction, min_frames=3, kind="bias", pixel_fraction=True),
         Statistic("noisy_fraction", noisy_fraction, min_frames=4, kind="bias", pixel_fraction=True),
@@ -2354,8 +2460,10 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("row_pair_corr", row_pair_corr, min_frames=3, kind="bias"),
         Statistic("row_tap_ratio", row_tap_ratio, min_frames=3, kind="bias"),
         Statistic("row_ramp_std", row_ramp_std, min_frames=3, kind="bias"),
+        Statistic("row_step_z", row_step_z, min_frames=3, kind="bias"),
         Statistic("col_ramp_std", col_ramp_std, min_frames=3, kind="bias"),
         Statistic("col_neighbour_corr", col_neighbour_corr, min_frames=3, kind="bias"),
+        Statistic("masked_lines", masked_lines, kind="flat", view="raw"),
         Statistic("quiet_fraction", quiet_fraction, min_frames=2, kind="flat", pixel_fraction=True, view="raw"),
         Statistic("row_spike_fraction", row_spike_fraction, min_frames=3, kind="bias", row_fraction=True, view="raw"),
         Statistic("row_tail_mass", row_tail_mass, min_frames=2, kind="bias", view="lines", line_fraction=True,

@@ -101,7 +101,10 @@ LOOP_EFFECTS = {
                 "frame_h": 30, "frame_w": 50},  # a window of 24 x 40 inputs, repeated on 48 x 64 ones
     "GainGrid": {"period": [3, 2], "gain": [[[1.0, 1.0], [1.0, 0.5], [1.0, 1.2]], [[1.0] * 2] * 3, [[0.9, 1.1]] * 3,
                                              [[1.0, 1.0], [0.0, 1.0], [1.0, 1.0]]],
-                 "frame_h": 30, "frame_w": 50},  # a phase per sample on the test inputs; a gain of 0 (a masked pixel)
+                 "frame_h": 30, "frame_w": 50, "conversion": 0.4},  # a phase per sample on the test inputs; a gain of 0 (a masked pixel); 0.4 of the log gain after shot noise
+    "Masked": {"top": 3, "bottom": 2, "left": 1, "right": 4, "frame_h": 24, "frame_w": 40},  # flag word 1: the test inputs' size
+    "BlackStep": {"k": [1.0, 3.0], "share": [0.7, 1.0], "mean_dn": [2.0, -1.0], "sd_dn": [0.5, 1.0]},  # flag word 1: a step per frame from a drawn row
+    "FrameRow": {"k": [1.0, 3.0], "share": [0.3, 0.2], "weak": [0.5, 1.0], "strong": [4.0, 3.0]},  # no stage: R's sigma_r at one of two levels per sample
     "ReadDist": {"k": [1.0, 3.0], "quantiles_dn": (np.linspace(-6, 6, 257)[None, None] ** 3 / 20
                                                   * np.array([1.0, 2.0])[:, None, None] * np.ones((1, 4, 1))).tolist()},
 }

@@ -20,12 +20,12 @@ def planted(masked=0.5):
     return g / g.mean(axis=(1, 2), keepdims=True)
 
 
-def flats(gain=None, n=4, seed=0):
+def flats(gain=None, n=4, seed=0, conversion=0.0):
     """A flat stack (n, 4, h, w) in DN at K 1, shot noise only, through RawNoiseAugment."""
     profile = NoiseProfile.load("SonyA7S2")
     if gain is not None:
-        profile = profile.with_effect("GainGrid", {"period": list(PERIOD), "gain": gain.tolist(),
-                                                   "frame_h": SHAPE[0], "frame_w": SHAPE[1]})
+        profile = profile.with_effect("GainGrid", {"period": list(gain.shape[1:]), "gain": gain.tolist(),
+                                                   "frame_h": SHAPE[0], "frame_w": SHAPE[1], "conversion": conversion})
     aug = RawNoiseAugment(profile, model="P", ratio=1.0, fixed={"k": 1.0}, generator=torch.Generator().manual_seed(seed))
     with torch.no_grad():
         return aug(torch.full((n, 4, *SHAPE), LEVEL)).numpy().astype(np.float64) * profile.span_dn
@@ -72,7 +72,41 @@ def test_the_stage_multiplies_the_photo_signal_at_its_cells():
     assert np.ptp(others) / others.mean() < 0.005
 
 
+ROW_PAIRS = np.array([[[0.8], [1.2]]] * 4)  # every other packed row (Bayer row pair) at 1.5 x the gain: (4, 2, 1)
+
+
+def _phase_moments(out):
+    """(2,) mean and (2,) temporal variance of the even and the odd packed rows, all channels."""
+    mean, var = out.mean(axis=0), out.var(axis=0, ddof=1)
+    return np.array([mean[:, 0::2].mean(), mean[:, 1::2].mean()]), np.array([var[:, 0::2].mean(), var[:, 1::2].mean()])
+
+
+@pytest.mark.parametrize("conversion", [0.0, 1.0])
+def test_a_conversion_gain_scales_the_shot_noise_with_the_square_of_the_gain(conversion):
+    # shot noise only: before the Poisson draw a gain g scales the variance by g, after it by g^2
+    n = 8
+    mean, var = _phase_moments(flats(ROW_PAIRS, n=n, seed=4, conversion=conversion))
+    assert abs(mean[1] / mean[0] - 1.5) < 0.005  # each mean over 8 x 4 x 48 x 128 pixels: ~1e-3 relative
+    # each variance is the mean of 4 x 48 x 128 pixels' variances of 7 degrees of freedom
+    se = np.sqrt(2.0 / ((n - 1) * 4 * 48 * 128)) * np.sqrt(2.0)
+    assert abs(var[1] / var[0] / 1.5 ** (1 + conversion) - 1.0) < 5 * se, var[1] / var[0]
+
+
+@pytest.mark.parametrize("truth", [0.0, 0.5, 1.0])
+def test_the_conversion_share_is_measured_back(truth):
+    # the slope of the cells' log shot variance on their log mean, less 1, within 5 of its
+    # standard errors (clipped to [0, 1] at the ends)
+    est = gain_grid.estimate(flats(ROW_PAIRS, n=4, seed=20, conversion=truth), [flats(n=4, seed=30 + i) for i in range(4)],
+                             1.0, kind="flat")
+    assert est["period"] == [2, 1]
+    assert abs(est["conversion"] - truth) < 5 / np.sqrt(est["conversion_weight"]) + 1e-3, est
+    assert 5 / np.sqrt(est["conversion_weight"]) < 0.1  # the test can tell 0 from 1
+    combined = gain_grid.combine([est, {**est, "conversion": 1.0 - est["conversion"], "conversion_weight": est["conversion_weight"]}])
+    assert abs(combined["conversion"] - 0.5) < 1e-3  # two stacks of one precision: their mean
+
+
 @pytest.mark.parametrize("params, words", [
+    ({"period": [2, 1], "gain": [[[1.0], [1.0]]] * 4, "conversion": 1.5}, "conversion (the share of the log gain applied after shot noise) must be a number in [0, 1], got 1.5"),
     ({"period": [0, 4], "gain": []}, "period must be [py, px]"),
     ({"period": [6, 4], "gain": [[[1.0] * 4] * 6] * 3}, "gain must be 4 channels x 6 x 4"),
     ({"period": [2, 2], "gain": [[[1.0, -0.5], [1.0, 1.0]]] * 4}, "gains >= 0"),

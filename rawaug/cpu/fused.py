@@ -107,6 +107,7 @@ _RG = L.COLUMN["read_gain"]
 _FG = L.COLUMN["frame_gain"]
 _LMR, _LMOY, _LMOX, _LMLH, _LMLW = (L.COLUMN[n] for n in ("lmap_record", "lmap_oy", "lmap_ox", "lmap_lh", "lmap_lw"))
 _GGR, _GGPY, _GGPX, _GGOY, _GGOX = (L.COLUMN[n] for n in ("ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox"))
+_GGCONV = L.COLUMN["ggrid_conv"]
 _SPD, _SPM, _SPL, _SPN = (L.COLUMN[n] for n in ("spike_density", "spike_median", "spike_log_std", "spike_negative"))
 _SPIKE_WHERE, _SPIKE_SIZE = L.STREAM["spike_where"], L.STREAM["spike_size"]
 _CRD, _CRM, _CRL, _CRH = L.COLUMN["crts_density"], L.COLUMN["crts_median"], L.COLUMN["crts_log_std"], L.COLUMN["crts_high"]
@@ -152,6 +153,9 @@ _RPAIR, _ROW_PAIR, _ROW_PAIR_HIGH = L.COLUMN["rpair_sigma"], L.STREAM["row_pair"
 _RTS, _RTC0, _RTOX, _RTW = L.COLUMN["rtap_sigma"], L.COLUMN["rtap_c0"], L.COLUMN["rtap_ox"], L.COLUMN["rtap_w"]
 _ROW_TAP, _ROW_TAP_HIGH = L.STREAM["row_tap"], L.ROW_TAP >> L.WORD_BITS
 _RAMP_ROW, _RAMP_COL, _BLACK_RAMP, _BLACK_RAMP_HIGH = L.COLUMN["ramp_row"], L.COLUMN["ramp_col"], L.STREAM["black_ramp"], L.BLACK_RAMP >> L.WORD_BITS
+_BSTEP_AT, _BSTEP_DN, _BLACK_STEP_HIGH = L.COLUMN["bstep_at"], L.COLUMN["bstep_dn"], L.BLACK_STEP >> L.WORD_BITS
+_MASK_T, _MASK_B, _MASK_L, _MASK_R, _MASKED_HIGH = (L.COLUMN["mask_top"], L.COLUMN["mask_bottom"], L.COLUMN["mask_left"],
+                                                   L.COLUMN["mask_right"], L.MASKED >> L.WORD_BITS)
 _CGRS, _CGRW, _CGR0, _COL_GROUP, _COL_GROUP_HIGH = L.COLUMN["cgroup_sigma"], L.COLUMN["cgroup_width"], L.COLUMN["cgroup_start"], L.STREAM["col_group"], L.COL_GROUP >> L.WORD_BITS
 _WELL, _WELL_SPREAD, _WELL_PATTERN, _FULL_WELL_HIGH = L.COLUMN["well_e"], L.COLUMN["well_spread"], L.STREAM["well_pattern"], L.FULL_WELL >> L.WORD_BITS
 _ROWMAP_Y0, _ROWMAP_OY, _ROWMAP_H, _ROW_MAP = L.COLUMN["rowmap_y0"], L.COLUMN["rowmap_oy"], L.COLUMN["rowmap_h"], L.STREAM["row_map"]
@@ -178,6 +182,17 @@ def _bilinear_at(y, x, h, w, gh, gw):
     sx = min(max((x + 0.5) * gw / w - 0.5, 0.0), gw - 1.0)
     y0, x0 = int(sy), int(sx)
     return y0, x0, min(y0 + 1, gh - 1), min(x0 + 1, gw - 1), sy - y0, sx - x0
+
+
+@njit(inline="always")
+def grid_power(g, e):
+    """``g ** e`` of a gain ``g >= 0``, as exp(e log g) (the Triton kernel's form); ``g`` itself
+    where ``e`` is 1, 1 where ``e`` is 0, 0 for a gain of 0 (a masked pixel) and ``e > 0``."""
+    if e == 1.0:
+        return g
+    if e == 0.0:
+        return 1.0
+    return math.exp(e * math.log(g)) if g > 0.0 else 0.0
 
 
 @njit(inline="always")
@@ -423,6 +438,8 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             line += v[_RPAIR] * symmetric(normal, draw(keys[_ROW_PAIR], b * h + y))
         if stages_high & _BLACK_RAMP_HIGH:  # this frame's black ramp down the sensor rows, about the frame's middle row
             line += v[_RAMP_ROW] * symmetric(normal, draw(keys[_BLACK_RAMP], 2 * b)) * (2 * y + row_set - (2 * h - 1) * 0.5)
+        if stages_high & _BLACK_STEP_HIGH and 2 * y + row_set >= v[_BSTEP_AT] * 2 * h:  # this frame's black step, from its row on
+            line += v[_BSTEP_DN]
         if stages & L.BIAS:
             line += v[_B0 + c]
         if stages & L.BLE:
@@ -514,11 +531,18 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 s = sig[x]
                 s *= 1.0 + v[_PRNU] * symmetric(normal, draw(keys[_PRNU_PATTERN], p))
                 sig[x] = s
-        if stages & L.GAIN_GRID:  # the measured periodic gain at this pixel, before the Poisson draw
+        if stages & L.GAIN_GRID:  # the measured periodic gain at this pixel, before the Poisson draw: its optical share
             for x in range(w):
                 s = sig[x]
-                s *= grids[ggrec, ggy, (x + ggox) % ggpx]
+                s *= grid_power(grids[ggrec, ggy, (x + ggox) % ggpx], 1.0 - v[_GGCONV])
                 sig[x] = s
+        if stages_high & _MASKED_HIGH:  # masked lines: no light at the frame's edges (the dark signal stays)
+            sy = 2 * y + row_set
+            row_dark = sy < v[_MASK_T] or sy >= 2 * h - v[_MASK_B]
+            for x in range(w):
+                sx = 2 * x + col_set
+                if row_dark or sx < v[_MASK_L] or sx >= 2 * w - v[_MASK_R]:
+                    sig[x] = 0.0 * sig[x]  # NaN/Inf pass through
         if stages & (L.DARK_DRIFT | L.CHARGE_SHARE):  # ... and after them: the dark signal is what the stages below add
             for x in range(w):
                 pixel[x] = sig[x]
@@ -665,6 +689,11 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             for x in range(w):
                 s = sig[x]
                 s *= v[_FG]
+                sig[x] = s
+        if stages & L.GAIN_GRID and v[_GGCONV] > 0.0:  # ... and its conversion share, on the photo signal and its shot noise
+            for x in range(w):
+                s = sig[x]
+                s *= grid_power(grids[ggrec, ggy, (x + ggox) % ggpx], v[_GGCONV])
                 sig[x] = s
         if stages & L.COL_GAIN:  # the sensor column's amplifier gain on the photo signal and its shot noise
             for x in range(w):

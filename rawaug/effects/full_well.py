@@ -23,7 +23,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from ..engine import layout as L
-from ..statistics import quiet_fraction, quiet_pixels
+from ..statistics import quiet_pixels
 from .base import SHOT, NoiseEffect, pattern_key, register
 from .k_records import _number
 
@@ -71,7 +71,7 @@ def estimate(frames, synthesized, k: float, kind=None, seed: int = 71, **_) -> d
     none = {"seed": int(seed), "well_e": 0.0, "spread": 0.0, "quiet": [0.0]}
     n = frames[0].size
     quiet = quiet_pixels(frames)
-    base = float(np.mean([quiet_fraction(np.asarray(s, dtype=np.float64)) for s in synthesized]))
+    base = float(np.mean([quiet_pixels(np.asarray(s, dtype=np.float64)).mean() for s in synthesized]))
     count = int(quiet.sum())
     if count <= base * n or stats.binom.sf(count - 1, n, max(base, 1.0 / n)) > P_VALUE:
         return none

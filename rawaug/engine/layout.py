@@ -88,6 +88,8 @@ COL_GROUP = 1 << 72  # column groups: groups of adjacent sensor columns sharing 
 ROW_PAIR = 1 << 74  # row pairs: a row offset shared by the two sensor rows of a Bayer row pair (a two-row readout), new in every frame
 DARK_ROW_NOISE = 1 << 75  # exposure row noise: row offsets whose variance grows with the exposure, new in every frame
 ROW_TAP = 1 << 76  # row noise per readout tap: each column tap's own offset per sensor row, new in every frame
+BLACK_STEP = 1 << 77  # black steps: the black level steps from a row drawn per frame on, by a size drawn per frame
+MASKED = 1 << 78  # masked lines: the sensor lines at the frame's edges get no light (optically black rows and columns)
 BLACK_RAMP = 1 << 73  # black ramps: the black level a linear ramp down the sensor rows and across the columns, a new slope in every frame
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
@@ -202,6 +204,9 @@ COLUMNS = (
     "ramp_row", "ramp_col",  # black ramps: the slopes' std, DN per sensor row and per sensor column
     "cgroup_sigma", "cgroup_width", "cgroup_start",  # column groups: the offset's std (DN), sensor columns per group, first group's start (< width)
     "rtap_sigma", *(f"rtap_c{i}" for i in range(TAP_EDGES)), "rtap_ox", "rtap_w",
+    "mask_top", "mask_bottom", "mask_left", "mask_right",  # masked lines: sensor lines without light at each edge (0: none on this input)
+    "bstep_at", "bstep_dn",  # black step: this frame's first stepped sensor row (fraction of the input's), its size (DN)
+    "ggrid_conv",  # gain grid: share of the log gain applied after shot noise (0: optical, before it; 1: a conversion gain)
     "colgain_frame",  # column gain: std of each sensor column's gain drawn anew in every frame (fraction of the signal)  # row noise per tap: std (DN), column edges (fractions; 2: none), window
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}

@@ -45,6 +45,7 @@ C_DHD, C_DHE, C_DHL = _column("dhot_density"), _column("dhot_e"), _column("dhot_
 C_CGS, C_CGT = _column("colgain_sigma"), _column("colgain_frame")
 C_RGF, C_RGT = _column("rowgain_fixed"), _column("rowgain_frame")
 C_GGR, C_GGPY, C_GGPX, C_GGOY, C_GGOX = (_column(n) for n in ("ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox"))
+C_GGCONV = _column("ggrid_conv")
 C_DCD, C_DCE, C_DCL = _column("dcol_density"), _column("dcol_e"), _column("dcol_log_std")
 C_DRD, C_DRE, C_DRL = _column("drow_density"), _column("drow_e"), _column("drow_log_std")
 C_NZD, C_NZM, C_NZL = _column("noisy_density"), _column("noisy_median"), _column("noisy_log_std")
@@ -98,6 +99,8 @@ C_CBD, C_CBS = _column("cburst_density"), _column("cburst_sigma")
 C_WELL, C_WELLS = _column("well_e"), _column("well_spread")
 C_RPAIR, C_DRN = _column("rpair_sigma"), _column("dark_row_sigma")
 C_RAMP_ROW, C_RAMP_COL = _column("ramp_row"), _column("ramp_col")
+C_BSTEP_AT, C_BSTEP_DN = _column("bstep_at"), _column("bstep_dn")
+C_MASK_T, C_MASK_B, C_MASK_L, C_MASK_R = (_column(n) for n in ("mask_top", "mask_bottom", "mask_left", "mask_right"))
 C_RTS, C_RTC0, C_RTOX, C_RTW = _column("rtap_sigma"), _column("rtap_c0"), _column("rtap_ox"), _column("rtap_w")
 C_CGRS, C_CGRW, C_CGR0 = _column("cgroup_sigma"), _column("cgroup_width"), _column("cgroup_start")
 C_RSD, C_RSM, C_RSL, C_RSN = _column("rspike_density"), _column("rspike_median"), _column("rspike_log_std"), _column("rspike_negative")
@@ -163,6 +166,13 @@ K_PRNU, K_FPN, K_HOT_WHERE, K_HOT_SIZE, K_COL_PATTERN = (S["prnu_pattern"], S["f
 def _normal(z):
     t, sign = tail_of(z)
     return (sign * normal_upper(t)).to(tl.float64)
+
+
+@triton.jit
+def _grid_power(g, e):
+    # g ** e of a gain g >= 0, as exp(e log g): g where e is 1, 1 where e is 0, 0 for g 0 and e > 0
+    p = tl.where(g > 0.0, tl.exp(e * tl.log(tl.maximum(g, 1e-300))), 0.0)
+    return tl.where(e == 1.0, g, tl.where(e == 0.0, 1.0, p))
 
 
 @triton.jit
@@ -379,11 +389,19 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     s_photo = s  # the photo signal before the pixel's gains (charge sharing takes its neighbours' through them)
     if FLAGS & 1:  # PRNU
         s *= 1.0 + _col(v, C_PRNU) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_PRNU), p))
-    if FLAGS & 4398046511104:  # measured gain grid: the periodic gain at this pixel, before the Poisson draw
+    grid_gain = 1.0  # measured gain grid: the periodic gain at this pixel
+    if FLAGS & 4398046511104:  # ... its optical share before the Poisson draw
         gg = grids_ptr + (_col(v, C_GGR).to(tl.int64) + c) * GH.to(tl.int64) * GW.to(tl.int64)
         gy = (y + _col(v, C_GGOY).to(tl.int64)) % _col(v, C_GGPY).to(tl.int64)
         gx = (x + _col(v, C_GGOX).to(tl.int64)) % _col(v, C_GGPX).to(tl.int64)
-        s *= tl.load(gg + gy * GW.to(tl.int64) + gx, mask=live, other=1.0)
+        grid_gain = tl.load(gg + gy * GW.to(tl.int64) + gx, mask=live, other=1.0)
+        s *= _grid_power(grid_gain, 1.0 - _col(v, C_GGCONV))
+    if FLAGS_HIGH & 32768:  # (word 1) masked lines: no light at the frame's edges (the dark signal stays)
+        sy = (2 * y + row_set).to(tl.float64)
+        sx = (2 * x + col_set).to(tl.float64)
+        dark = ((sy < _col(v, C_MASK_T)) | (sy >= 2 * H - _col(v, C_MASK_B)) | (sx < _col(v, C_MASK_L))
+                | (sx >= 2 * W - _col(v, C_MASK_R)))
+        s = tl.where(dark, 0.0 * s, s)
     s_pixel = s  # ... and after them: the dark signal is what the stages below add
     if FLAGS & 16384:  # dark current: K * dark electrons * a log-normal DSNU map of mean 1, before shot noise
         sl = _col(v, C_DSNU_LOG)
@@ -477,6 +495,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         s -= tl.load(v + C_NL + c) * s * tl.maximum(s, 0.0)
     if FLAGS & 549755813888:  # frame-to-frame gain: this frame's factor on the photo signal and its shot noise
         s *= _col(v, C_FG)
+    if FLAGS & 4398046511104:  # measured gain grid: its conversion share, on the photo signal and its shot noise
+        s *= _grid_power(grid_gain, _col(v, C_GGCONV))
     if FLAGS & 4294967296:  # column gain: the sensor column's amplifier gain on the photo signal and its shot noise
         s *= (1.0 + _col(v, C_CGS) * _normal(draw(_key(keys_ptr, K_COLGAIN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
               + _col(v, C_CGT) * _normal(draw(_key(keys_ptr, K_COLGAIN_FRAME), ((b.to(tl.int64) * 2 + col_set) * W + x).to(tl.uint64))))
@@ -664,6 +684,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS_HIGH & 1024:  # (word 1) black ramps: this frame's slope down the sensor rows, about the middle row
         ry_mid = (2 * y + row_set).to(tl.float64) - (2 * H - 1) * 0.5
         line += _col(v, C_RAMP_ROW) * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_BLACK_RAMP), (2 * b).to(tl.uint64))) * ry_mid
+    if FLAGS_HIGH & 16384:  # (word 1) black steps: this frame's step, from its row on
+        line += tl.where((2 * y + row_set).to(tl.float64) >= _col(v, C_BSTEP_AT) * (2 * H), _col(v, C_BSTEP_DN), 0.0)
     if FLAGS & 4194304:  # banding: tones along the sensor rows, a phase per frame and tone
         ry = 2 * y + row_set
         kb = _key(keys_ptr, K_BAND)

@@ -31,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..profile import NoiseProfile
+from ..statistics import lit_pixels
 from . import parameters
 from ..outputs import check_outputs, write_set
 from .report import (curves_table, figure_curves, figure_steps, outcome_summary, residual_table, setting_curves, steps_table,
@@ -248,11 +249,13 @@ def light_on_live_pixels(stack) -> np.ndarray:
     from frame to frame: a dead pixel or line, stuck at one code, carries no light, while a
     line of pixels that collect less light (phase-detection rows) or read an offset does
     (repairing every defect line had taken those out, and a gain grid of mean 1 then fell
-    short of the flat). A stack of one frame, or with most pixels constant: its plain mean."""
+    short of the flat); nor do the lines without light at its edges (``lit_pixels``: a shield).
+    A stack of one frame, or with most pixels constant: its mean over the lit pixels."""
     stack = np.asarray(stack, dtype=np.float64)
-    live = stack.min(axis=0) != stack.max(axis=0)  # (4, h, w)
+    lit = lit_pixels(stack.mean(axis=0))  # optically black lines at the edges get no light
+    live = (stack.min(axis=0) != stack.max(axis=0)) & lit  # (4, h, w)
     if stack.shape[0] < 2 or live.mean() < 0.5:
-        return stack.mean(axis=(0, 2, 3))
+        return np.array([stack[:, c][:, lit[c]].mean() for c in range(4)])
     return np.array([stack[:, c][:, live[c]].mean() for c in range(4)])
 
 

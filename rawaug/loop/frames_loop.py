@@ -11,7 +11,9 @@ battery's mean relative error most is added (greedy model selection: one statist
 points to several effects -- a fixed column pattern also raises the per-pixel fixed-pattern
 spread -- and only trying them tells which one the data hold). A rejected candidate is tried
 again once another effect has been added (its estimate depends on the model); the loop ends
-when no significant residual points to an effect untried in the current model. A pooled
+when no significant residual points to an effect untried in the current model. Physical
+candidates are tried first; the measured fallbacks join them only in a round where none of
+them halves its evidence's error (``EXPLAIN_FACTOR``). A pooled
 statistic (``pool_residuals``: one degree of freedom per flat pair) is one residual over all
 the stacks that have it: screened and confirmed on all of them.
 
@@ -55,6 +57,7 @@ from .signatures import pooled_signature, step_signature
 ACCEPT_FACTOR = 0.8  # an added effect must cut its evidence's error by at least 20 %
 CONFIRM_FACTOR = 3  # a residual that would call for an effect is confirmed on 3x the syntheses, with fresh seeds
 BATTERY_GROWTH = 1.25  # ... and may not raise the battery's mean relative error by more than a quarter
+EXPLAIN_FACTOR = 0.5  # a physical effect explains its evidence where it halves its error; else fallbacks are tried beside it
 SHAPE_STEPS = 4  # read-noise shape re-fits after an added effect, each from the tails of the last ones' syntheses
 
 
@@ -546,7 +549,7 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         before_b = _battery(diags)
         trials = []
         physical = [o for o in options if not _measured(o[0])]
-        # measured fallbacks only once no physical effect explains the residuals left
+        # measured fallbacks only once no physical effect explains the residuals left (halves its evidence's error)
         for batch in (physical, [o for o in options if _measured(o[0])]):
             for token, label, evidence in batch:
                 params = _estimate(token, stacks, diags, estimate_seed(step_no), current, model)
@@ -603,7 +606,9 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                             after_b, round=step_no, kind="measured" if _measured(token) else "physical",
                             evidence_after=after.to_dict())
                 trials.append((step, trial, new_diags, trial_stacks, factors, known.get("lambdas_before", {})))
-            if any(t[0].accepted for t in trials):
+            # a physical effect that explains its evidence keeps the fallbacks out; one that
+            # leaves more than half of it does not: a measured component may explain it all
+            if any(t[0].accepted and t[0].error_after <= EXPLAIN_FACTOR * t[0].error_before for t in trials):
                 break
         acceptable = [t for t in trials if t[0].accepted]
         chosen = min(acceptable, key=lambda t: (t[0].battery_after["mean_rel_error"], t[0].battery_after["n_significant"])) if acceptable else None

@@ -23,10 +23,29 @@ import numpy as np
 from numpy.polynomial import legendre
 
 from ..effects.tap_gain import shown_gains
+from ..statistics import lit_pixels
 
 DEGREE = 6  # total degree of the polynomial: a cos^4 vignetting and a light's falloff are smooth to this order
 TERMS = (DEGREE + 1) * (DEGREE + 2) // 2  # 28
 MIN_PIXELS = 10 * TERMS  # per channel: fewer cannot tell a shape from the noise
+
+
+def _lit_edges(mean_dn) -> np.ndarray:
+    """``mean_dn`` (4, h, w) with the lines without light at the frame's edges (optically black
+    lines left in the raw, ``statistics.lit_pixels``) set to the nearest lit line's values: a
+    shield is neither the light's shape nor a readout tap's step."""
+    lit = lit_pixels(mean_dn)
+    if lit.all():
+        return mean_dn
+    _, h, w = mean_dn.shape
+    out = np.empty_like(mean_dn)
+    for c in range(4):
+        rows, cols = np.flatnonzero(lit[c].any(axis=1)), np.flatnonzero(lit[c].any(axis=0))
+        if not rows.size or not cols.size:
+            out[c] = mean_dn[c]
+            continue
+        out[c] = mean_dn[c][np.clip(np.arange(h), rows[0], rows[-1])][:, np.clip(np.arange(w), cols[0], cols[-1])]
+    return out
 
 
 @functools.lru_cache(maxsize=32)
@@ -50,13 +69,14 @@ def illumination_shape(mean_dn, edges=None, excess=None) -> np.ndarray:
     mean_dn = np.asarray(mean_dn, dtype=np.float64)
     if mean_dn.ndim != 3 or mean_dn.shape[0] != 4:
         raise ValueError(f"mean_dn must be a packed mean frame (4, h, w), got shape {mean_dn.shape}")
-    mean_dn = mean_dn / shown_gains(mean_dn, edges, excess)
+    mean_dn = mean_dn / shown_gains(_lit_edges(mean_dn), edges, excess)
     _, h, w = mean_dn.shape
     out = np.ones_like(mean_dn)
     if h * w < MIN_PIXELS or min(h, w) <= DEGREE:
         return out  # too few pixels to tell a shape from the noise
     q = _basis(h, w)
     p = q.shape[1]
+    mean_dn = _lit_edges(mean_dn)
     for c in range(4):
         m = mean_dn[c].ravel()
         coef = q.T @ m

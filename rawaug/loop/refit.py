@@ -34,6 +34,7 @@ from ..augment import parse_model
 from ..distributions import tukey_lambda_survival, tukey_lambda_variance
 from ..relations import LogLinear
 from ..statistics import MAD_TO_SIGMA, center_scale, frame_statistics, grid_step, repaired, sensor_row_means
+from ..effects.black_step import locate_steps
 from .clip_correction import clipped
 from .diagnose import fitted_offsets, synthesis_fixed, synthesize
 
@@ -363,16 +364,23 @@ def apply_read_shapes(stacks, profile, lambdas: dict):
                                                        float(np.exp(np.log(ks).mean()))))
 
 
-def _row_variance(frames, row_edges=(), detrend: bool = False) -> float:
+def _row_variance(frames, row_edges=(), detrend: bool = False, destep: bool = False) -> float:
     """Variance over sensor rows of the sensor-row means (each frame's channels centred),
     mean over frames, DN^2: what calibration reads sigma_r from (plus read noise / row length).
     Within the bands of readout taps cut by ``row_edges`` (sensor rows: ``TapBlack``'s), each
     frame's band mean taken out: their per-frame steps are the taps' own, and a handful of
     taps and frames would make the syntheses' spread too wide to see the row noise under them.
     With ``detrend`` (a profile with ``BlackRamp``) each frame's straight line down the rows is
-    taken out first, for the same reason: the ramps' slopes are the ramps' own."""
+    taken out first, for the same reason: the ramps' slopes are the ramps' own. With ``destep``
+    (a profile with ``BlackStep``) each frame's step (``black_step.locate_steps``) is taken out:
+    the steps' rows and sizes are the steps' own (at random rows, a few frames' steps alone
+    spread the syntheses' row variance by a third at 1.5 DN)."""
     f = np.asarray(repaired(np.asarray(frames, dtype=np.float64)))
     m = sensor_row_means(f - f.mean(axis=(2, 3), keepdims=True))
+    if destep and m.shape[0] >= 3:
+        _, at, size, _ = locate_steps(f)
+        s = (np.arange(m.shape[1])[None, :] >= at[:, None]).astype(np.float64)
+        m = m - size[:, None] * (s - s.mean(axis=1, keepdims=True))
     if detrend:
         i = np.arange(m.shape[1]) - 0.5 * (m.shape[1] - 1)
         m = m - np.outer(m @ i / float(i @ i), i)
@@ -380,16 +388,18 @@ def _row_variance(frames, row_edges=(), detrend: bool = False) -> float:
     bands = int(band.max()) + 1  # one band without taps: the plain variance (ddof 1)
     means = np.stack([m[:, band == t].mean(axis=1) for t in range(bands)], axis=1)  # (N, bands)
     r = m - means[:, band]
-    return float((r * r).sum(axis=1).mean() / max(m.shape[1] - bands - int(detrend), 1))
+    return float((r * r).sum(axis=1).mean() / max(m.shape[1] - bands - int(detrend) - int(destep), 1))
 
 
-def _tap_rows(profile) -> tuple[list, bool]:
+def _tap_rows(profile) -> tuple[list, bool, bool]:
     """(the row edges of the profile's readout taps (``TapBlack``), or none; whether its black
-    ramps down the rows (``BlackRamp``) are taken out): how ``_row_variance`` reads its rows."""
+    ramps down the rows (``BlackRamp``) are taken out; whether its black steps (``BlackStep``)
+    are): how ``_row_variance`` reads its rows."""
     taps = profile.effects.get("TapBlack")
     ramps = profile.effects.get("BlackRamp")
     return (list(taps["row_edges"]) if isinstance(taps, dict) else [],
-            isinstance(ramps, dict) and any(float(x) > 0 for x in ramps.get("row_dn", [])))
+            isinstance(ramps, dict) and any(float(x) > 0 for x in ramps.get("row_dn", [])),
+            "BlackStep" in profile.effects)
 
 
 def _row_variance_at(stack, profile, factor: float, model, seed: int, edges) -> float:

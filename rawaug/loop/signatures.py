@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..statistics import (CURVE_LAGS, col_tone_spectrum, column_pixel_noise, diag_tone_spectrum, flat_log_mosaic, gain_steps,
+from ..statistics import (CURVE_LAGS, col_tone_spectrum, column_pixel_noise, diag_tone_spectrum, flat_log_mosaic, frame_row_variances,
+                          gain_steps,
                           lag_covariances, read_noise_profile,
-                          row_tone_spectrum, sensor_col_means, sensor_row_means, statistic_view, tap_steps, trimmed_line_means,
+                          row_step_scan, row_tone_spectrum, sensor_col_means, sensor_row_means, statistic_view, tap_steps, trimmed_line_means,
                           tile_pair_covariances)
 
 KIND = {
@@ -42,7 +43,8 @@ KIND = {
     "stuck_fraction": "temporal_histogram", "spike_fraction": "temporal_histogram", "frame_noise_spread": "temporal_histogram",
     "col_flicker_fraction": "col_tone_spectrum", "flat_gain_spread": "frame_means_relative",
     "noisy_col_fraction": "column_noise", "row_flicker_fraction": "row_tone_spectrum", "tap_step_ratio": "tap_steps",
-    "gain_step_z": "gain_steps",
+    "gain_step_z": "gain_steps", "frame_row_spread": "frame_row_levels",
+    "row_step_z": "frame_steps",
 }  # every other statistic: the histogram of the pixel values
 LABEL = {
     "radial_spectrum": ("radial frequency (cycles/pixel)", "power (DN^2)", True),
@@ -56,6 +58,8 @@ LABEL = {
     "frame_means": ("frame (sorted)", "frame mean about the stack's (DN)", False),
     "frame_means_relative": ("frame (sorted within its stack)", "frame mean about the stack's, over it", False),
     "frame_sequence": ("frame (in the order taken)", "frame mean about the stack's (DN)", False),
+    "frame_row_levels": ("frame (sorted)", "variance of its sensor-row means, temporal (DN^2)", True),
+    "frame_steps": ("frame (sorted)", "its largest step down the sensor rows over its standard error", False),
     "code_histogram": ("code (DN), one bin each, about the median", "fraction of pixels", False),
     "line_means": ("sensor line (sorted)", "line mean of the stack mean about the median (DN)", False),
     "column_noise": ("sensor column (sorted)", "its pixels' median temporal variance, column means out (DN^2)", True),
@@ -168,6 +172,12 @@ def curve(kind: str, frames, edges=None):
     if kind == "frame_means_relative":  # a flat's frame means over its level: stacks of any level side by side
         m = frames.mean(axis=(1, 2, 3))
         return np.arange(1, len(m) + 1, dtype=np.float64), np.sort(m - m.mean()) / max(abs(float(m.mean())), 1e-12)
+    if kind == "frame_row_levels":  # a frame of stronger row noise stands out of the sorted curve
+        v = np.sort(frame_row_variances(frames)[0])
+        return np.arange(1, v.size + 1, dtype=np.float64), v
+    if kind == "frame_steps":  # a frame whose black level steps stands out of the sorted curve
+        z = np.sort(row_step_scan(frames)[0])
+        return np.arange(1, z.size + 1, dtype=np.float64), z
     if kind == "frame_sequence":
         m = frames.mean(axis=(1, 2, 3))
         return np.arange(1, len(m) + 1, dtype=np.float64), m - m.mean()
