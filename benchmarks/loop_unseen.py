@@ -1117,6 +1117,54 @@ def frame_row_noise(dn, rng, **_):
     return dn + _raw_to_packed(np.broadcast_to(r[:, None], (2 * h, 2 * w)))
 
 
+# the fifteenth fresh batch (thirty-first session), written and committed before the loop ran on it
+def dark_hot_band(dn, rng, exposure=0.0, k=1.0, **_):
+    """A warm readout under the bottom of the array: the bottom 48 sensor rows collect 3 e-/s more dark current, with its shot noise, in every kind of frame (long darks show a band)."""
+    _, h, w = dn.shape
+    rate = np.where(np.arange(2 * h) >= 2 * h - 48, 3.0, 0.0)[:, None] * np.ones((1, 2 * w))
+    return dn + k * _raw_to_packed(rng.poisson(rate * exposure).astype(np.float64))
+
+
+def adc_white_clip(dn, rng, **_):
+    """An ADC whose range ends below the raw container's: every reading above 8000 DN (black-subtracted) is written as 8000 DN, while the file declares the 14-bit white level; the brightest flats clip."""
+    return np.minimum(dn, 8000.0)
+
+
+def flicker_bands(dn, rng, kind="", **_):
+    """Flats under a flickering lamp with a rolling shutter: the light on each sensor row is 1 + 0.02 sin(2 pi Y / 150 + phase) of its mean, the phase drawn anew in every frame; bias and dark frames untouched."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    y = np.arange(2 * h)[:, None] * np.ones((1, 2 * w))
+    return dn * _raw_to_packed(1.0 + 0.02 * np.sin(2 * np.pi * y / 150.0 + rng.uniform(0.0, 2 * np.pi)))
+
+
+def dust_shadow(dn, rng, kind="", **_):
+    """Dust on the cover glass: two particles cast soft shadows on the flats, Gaussian blobs of 5 sensor pixels (sigma) at 40 % and 25 % depth, at fixed places; bias and dark frames untouched."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    y, x = np.mgrid[0:2 * h, 0:2 * w].astype(np.float64)
+    t = np.ones((2 * h, 2 * w))
+    for cy, cx, depth in ((0.3, 0.6, 0.4), (0.7, 0.25, 0.25)):
+        t *= 1.0 - depth * np.exp(-((y - cy * 2 * h) ** 2 + (x - cx * 2 * w) ** 2) / (2 * 5.0**2))
+    return dn * _raw_to_packed(t)
+
+
+def row_block_black(dn, rng, **_):
+    """A black clamp refreshed every 64 sensor rows during readout: each block of 64 sensor rows takes its own black offset, normal of 0.7 DN, new in every frame, in every kind of frame."""
+    _, h, w = dn.shape
+    off = np.repeat(rng.normal(0.0, 0.7, (2 * h + 63) // 64), 64)[:2 * h]
+    return dn + _raw_to_packed(np.broadcast_to(off[:, None], (2 * h, 2 * w)))
+
+
+def clock_feedthrough(dn, rng, **_):
+    """ADC clock feedthrough: a fixed offset pattern that repeats every 64 sensor columns (64 values drawn once, 0.6 DN rms), the same in every frame of every kind."""
+    _, h, w = dn.shape
+    period = np.random.default_rng(151).normal(0.0, 0.6, 64)
+    return dn + _raw_to_packed(np.broadcast_to(np.resize(period, 2 * w)[None, :], (2 * h, 2 * w)))
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -1142,7 +1190,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  bimodal_read_noise, row_pairs, gain_scaled_fpn, blue_prnu, periodic_rows, gain_telegraph,
                                  dark_row_noise, channel_digital_gain, masked_rows, dual_gain_codes, raw_smoothing,
                                  split_row_noise, column_pairs, block_compression, column_gain_flicker, noisy_rows,
-                                 black_step, interleaved_row_gain, frame_row_noise)}
+                                 black_step, interleaved_row_gain, frame_row_noise, dark_hot_band, adc_white_clip,
+                                 flicker_bands, dust_shadow, row_block_black, clock_feedthrough)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
