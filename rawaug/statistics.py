@@ -2372,6 +2372,7 @@ class Statistic:
     pixel_fraction: bool = False  # resolution: one pixel of the stack
     mad_of_mean: bool = False  # a robust (MAD) scale of the N-frame mean map: a grid of 1/(2N) DN on whole codes
     line_fraction: bool = False  # resolution: one line of the stack
+    frame_line_fraction: bool = False  # resolution: one sensor line of a frame (its rows and columns)
     column_fraction: bool = False  # resolution: one sensor column
     row_fraction: bool = False  # resolution: one sensor row of the stack
     stack_column_fraction: bool = False  # resolution: one sensor column of the stack
@@ -2400,6 +2401,9 @@ class Statistic:
             return step
         if self.fixed_variance:  # two white patterns' double-difference variances differ by 3 v / sqrt(n) rms
             return 3.0 * abs(value) / math.sqrt(frames[0].size) + 1e-9
+        if self.frame_line_fraction:  # counts one frame's sensor lines
+            n = 2 * (frames.shape[2] + frames.shape[3])
+            return float(np.sqrt(max(value * n, 1.0)) / n)
         if self.line_fraction:  # counts lines, as a pixel fraction counts pixels
             n = frames.shape[0] * frames.shape[1] * (frames.shape[2] + frames.shape[3])
             return float(np.sqrt(max(value * n, 1.0)) / n)
@@ -2463,7 +2467,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("row_step_z", row_step_z, min_frames=3, kind="bias"),
         Statistic("col_ramp_std", col_ramp_std, min_frames=3, kind="bias"),
         Statistic("col_neighbour_corr", col_neighbour_corr, min_frames=3, kind="bias"),
-        Statistic("masked_lines", masked_lines, kind="flat", view="raw"),
+        Statistic("masked_lines", masked_lines, kind="flat", view="raw", frame_line_fraction=True),
         Statistic("quiet_fraction", quiet_fraction, min_frames=2, kind="flat", pixel_fraction=True, view="raw"),
         Statistic("row_spike_fraction", row_spike_fraction, min_frames=3, kind="bias", row_fraction=True, view="raw"),
         Statistic("row_tail_mass", row_tail_mass, min_frames=2, kind="bias", view="lines", line_fraction=True,

@@ -493,6 +493,28 @@ def test_an_effect_the_model_overshoots_with_is_taken_out_though_it_shares_no_st
     assert after["n_significant"] <= before["n_significant"] and after["mean_rel_error"] <= before["mean_rel_error"]
 
 
+@pytest.mark.slow  # about 4 minutes each: the issue's geometry
+@pytest.mark.parametrize("case, token", [("frame_row_noise", "FrameRow"), ("black_step", "BlackStep"), ("masked_rows", "Masked"),
+                                         ("interleaved_row_gain", "GainGrid")])
+def test_cameras_of_the_thirty_first_session_are_fixed_by_their_effect(tmp_path, case, token):
+    """Probes of the thirteenth and fourteenth fresh batches (benchmarks/loop_unseen.py, session 0,
+    issue geometry) that no effect fixed before the thirty-first session: each now gets its one
+    effect, its evidence's error at least halved and nothing left. On interleaved_row_gain the
+    physical RowGain (a random gain per row) cut its evidence only to 0.77 and kept GainGrid,
+    which reproduces the period, out; the fallbacks are now tried beside it and GainGrid wins
+    with the gains after shot noise (conversion near 1)."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from loop_unseen import run_case
+
+    row = run_case(case, 0, "issue", keep=tmp_path)
+    assert row["fixed"] and row["added"] == [token], row
+    if token == "GainGrid":
+        profile = NoiseProfile.load(tmp_path / case / "loop.yaml")
+        assert profile.effects["GainGrid"]["conversion"] > 0.9, profile.effects["GainGrid"]
+
+
 @pytest.mark.slow  # the default run checks the glow at one exposure (the manifest case "glow"); 17 s
 def test_glow_grows_with_exposure_over_two_dark_exposures(tmp_path):
     check_glow_two_exposures(tmp_path, seed=0)
