@@ -1719,20 +1719,28 @@ def frame_slopes(frames, columns: bool = False) -> np.ndarray:
 STEP_EDGE = 8  # sensor rows at either end where no step is looked for (a change point there is a few rows' noise)
 
 
-def row_step_scan(frames) -> tuple[np.ndarray, np.ndarray]:
-    """((N,), (N,)) each frame's largest standardized step down its sensor rows and the first
-    sensor row after it: the CUSUM of its temporal row means (``temporal_col_deviations(rows=
-    True)``) at each cut, over its standard error under white row noise of the frame's level
-    (1.4826 MAD of successive rows' differences over sqrt(2): a smooth profile does not count)."""
-    e = temporal_col_deviations(frames, rows=True)
+def step_scan(e) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """((N,), (N,), (N,)) each row profile's of ``e`` (N, rows; DN) largest standardized step,
+    the first row after it and the profile's noise: the CUSUM of the profile (its mean out) at
+    each cut over its standard error under white noise of the profile's level (1.4826 MAD of
+    successive rows' differences over sqrt(2): a smooth profile does not count), the
+    ``STEP_EDGE`` rows at either end left out."""
+    e = np.asarray(e, dtype=np.float64)
     n = e.shape[1]
     noise = MAD_TO_SIGMA * median(np.abs(np.diff(e, axis=1)), axis=1) / math.sqrt(2.0) + 1e-12
     t = np.arange(1, n)
-    z = np.abs(np.cumsum(e, axis=1)[:, :-1]) / np.sqrt(t * (n - t) / n) / noise[:, None]
+    z = np.abs(np.cumsum(e - e.mean(axis=1, keepdims=True), axis=1)[:, :-1]) / np.sqrt(t * (n - t) / n) / noise[:, None]
     edge = min(STEP_EDGE, max((n - 2) // 4, 0))
     z[:, :edge] = z[:, n - 1 - edge:] = 0.0
     at = np.argmax(z, axis=1)
-    return z[np.arange(len(z)), at], t[at]
+    return z[np.arange(len(z)), at], t[at], noise
+
+
+def row_step_scan(frames) -> tuple[np.ndarray, np.ndarray]:
+    """((N,), (N,)) each frame's largest standardized step down its sensor rows and the first
+    sensor row after it: ``step_scan`` of its temporal row means (``temporal_col_deviations(rows=
+    True)``)."""
+    return step_scan(temporal_col_deviations(frames, rows=True))[:2]
 
 
 def row_step_z(frames, level_dn=None):

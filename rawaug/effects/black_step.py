@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import MAD_TO_SIGMA, STEP_EDGE, frame_row_means, median
+from ..statistics import frame_row_means, step_scan
 from .base import OFFSET, NoiseEffect, register
 from .k_records import validate_records, value_at_k
 
@@ -67,31 +67,18 @@ NULL_MARGIN = 1.25  # a frame's step counts where its z passes this times the mo
 LOCATE_ROUNDS = 3  # alternations of the stack's shared row profile and the frames' steps
 
 
-def _scan(e) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(z, first stepped row, row noise) of each row profile of ``e`` (N, rows; each frame's mean
-    out), as ``statistics.row_step_scan`` reads them."""
-    n = e.shape[1]
-    noise = MAD_TO_SIGMA * median(np.abs(np.diff(e, axis=1)), axis=1) / np.sqrt(2.0) + 1e-12
-    t = np.arange(1, n)
-    z = np.abs(np.cumsum(e - e.mean(axis=1, keepdims=True), axis=1)[:, :-1]) / np.sqrt(t * (n - t) / n) / noise[:, None]
-    edge = min(STEP_EDGE, max((n - 2) // 4, 0))
-    z[:, :edge] = z[:, n - 1 - edge:] = 0.0
-    i = np.argmax(z, axis=1)
-    return z[np.arange(len(z)), i], t[i], noise
-
-
 def locate_steps(frames) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(z, first stepped sensor row, step DN, row noise DN) of each frame of a stack (N, 4, h, w;
     DN): each frame's sensor-row means (its mean out) are the stack's shared profile plus a step;
     the profile (the mean of the frames less their steps) and each frame's largest step (its
-    CUSUM scan; the sizes by least squares with the profile, ``joint_sizes``) found in turn,
-    ``LOCATE_ROUNDS`` times."""
+    CUSUM scan, ``statistics.step_scan``; the sizes by least squares with the profile,
+    ``joint_sizes``) found in turn, ``LOCATE_ROUNDS`` times."""
     r = frame_row_means(np.asarray(frames, dtype=np.float64))
     steps = np.zeros_like(r)
     rows = np.arange(r.shape[1])
     for _ in range(LOCATE_ROUNDS):
         e = r - (r - steps).mean(axis=0, keepdims=True)
-        z, at, noise = _scan(e)
+        z, at, noise = step_scan(e)
         s = (rows[None, :] >= at[:, None]).astype(np.float64)
         size = joint_sizes(r, at)
         steps = size[:, None] * (s - s.mean(axis=1, keepdims=True))
