@@ -203,11 +203,11 @@ COLUMNS = (
     "dark_row_sigma",  # exposure row noise: the row offsets' std at this exposure (DN)
     "ramp_row", "ramp_col",  # black ramps: the slopes' std, DN per sensor row and per sensor column
     "cgroup_sigma", "cgroup_width", "cgroup_start",  # column groups: the offset's std (DN), sensor columns per group, first group's start (< width)
-    "rtap_sigma", *(f"rtap_c{i}" for i in range(TAP_EDGES)), "rtap_ox", "rtap_w",
+    "rtap_sigma", *(f"rtap_c{i}" for i in range(TAP_EDGES)), "rtap_ox", "rtap_w",  # row noise per tap: std (DN), column edges (fractions; 2: none), window
     "mask_top", "mask_bottom", "mask_left", "mask_right",  # masked lines: sensor lines without light at each edge (0: none on this input)
     "bstep_at", "bstep_dn",  # black step: this frame's first stepped sensor row (fraction of the input's), its size (DN)
     "ggrid_conv",  # gain grid: share of the log gain applied after shot noise (0: optical, before it; 1: a conversion gain)
-    "colgain_frame",  # column gain: std of each sensor column's gain drawn anew in every frame (fraction of the signal)  # row noise per tap: std (DN), column edges (fractions; 2: none), window
+    "colgain_frame",  # column gain: std of each sensor column's gain drawn anew in every frame (fraction of the signal)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 

@@ -69,14 +69,14 @@ def illumination_shape(mean_dn, edges=None, excess=None) -> np.ndarray:
     mean_dn = np.asarray(mean_dn, dtype=np.float64)
     if mean_dn.ndim != 3 or mean_dn.shape[0] != 4:
         raise ValueError(f"mean_dn must be a packed mean frame (4, h, w), got shape {mean_dn.shape}")
-    mean_dn = mean_dn / shown_gains(_lit_edges(mean_dn), edges, excess)
+    mean_dn = _lit_edges(mean_dn)  # read once: the taps' steps and the light without the dark edge lines
+    mean_dn = mean_dn / shown_gains(mean_dn, edges, excess)
     _, h, w = mean_dn.shape
     out = np.ones_like(mean_dn)
     if h * w < MIN_PIXELS or min(h, w) <= DEGREE:
         return out  # too few pixels to tell a shape from the noise
     q = _basis(h, w)
     p = q.shape[1]
-    mean_dn = _lit_edges(mean_dn)
     for c in range(4):
         m = mean_dn[c].ravel()
         coef = q.T @ m
