@@ -1165,6 +1165,49 @@ def clock_feedthrough(dn, rng, **_):
     return dn + _raw_to_packed(np.broadcast_to(np.resize(period, 2 * w)[None, :], (2 * h, 2 * w)))
 
 
+# the sixteenth fresh batch (thirty-second session), written and committed before the loop ran on it
+def vertical_read_corr(dn, rng, **_):
+    """A column line that settles slowly: each pixel's read noise (1.5 DN) carries 0.6 of the read noise of the same-colour pixel two sensor rows above, new in every frame, in every kind of frame."""
+    c, h, w = dn.shape
+    n = rng.normal(0.0, 1.5, (c, h + 1, w))
+    return dn + n[:, 1:] + 0.6 * n[:, :-1]
+
+
+def column_group_gain(dn, rng, **_):
+    """Column ADCs in groups of 8: the gain of each sensor column follows a fixed pattern that repeats every 8 columns (8 values drawn once, 1 % rms), on the signal and the read noise alike."""
+    g = np.resize(1.0 + np.random.default_rng(161).normal(0.0, 0.01, 8), 2 * dn.shape[2])
+    return dn * np.stack([g[0::2], g[1::2], g[1::2], g[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
+def row_gain_band(dn, rng, **_):
+    """A weak row driver: sensor rows 100 to 139 convert at 3 % less gain, on the signal and the read noise alike, in every kind of frame."""
+    g = np.where((np.arange(2 * dn.shape[1]) >= 100) & (np.arange(2 * dn.shape[1]) < 140), 0.97, 1.0)
+    return dn * np.stack([g[0::2], g[0::2], g[1::2], g[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
+def shared_pair_fpn(dn, rng, **_):
+    """Two pixels share a source follower: each vertical pair of sensor pixels (rows 2i and 2i + 1, one column) has one fixed offset, 1.0 DN rms (drawn once), in every frame of every kind."""
+    _, h, w = dn.shape
+    off = np.random.default_rng(163).normal(0.0, 1.0, (h, 2 * w))  # per tile row, per sensor column
+    return dn + np.stack([off[:, 0::2], off[:, 1::2], off[:, 1::2], off[:, 0::2]])  # R + G2 share, G1 + B share
+
+
+def read_noise_gradient(dn, rng, **_):
+    """Read noise growing along the readout line: white noise whose sd rises from 0 at the left to 2.5 DN at the right sensor column, new in every frame, in every kind of frame."""
+    _, h, w = dn.shape
+    sd = 2.5 * np.arange(2 * w) / (2 * w - 1)
+    sd = np.stack([sd[0::2], sd[1::2], sd[1::2], sd[0::2]])[:, None, :]
+    return dn + sd * rng.standard_normal(dn.shape)
+
+
+def dark_rate_jitter(dn, rng, kind="", exposure=0.0, k=1.0, **_):
+    """A sensor whose temperature wanders between dark frames: each dark frame collects dark current at 1.5 e-/s times its own log-normal factor (30 % sd), with its shot noise; bias frames and flats untouched."""
+    if kind != "dark":
+        return dn
+    rate = 1.5 * np.exp(rng.normal(-0.045, 0.3))
+    return dn + k * rng.poisson(rate * exposure, dn.shape)
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -1191,7 +1234,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  dark_row_noise, channel_digital_gain, masked_rows, dual_gain_codes, raw_smoothing,
                                  split_row_noise, column_pairs, block_compression, column_gain_flicker, noisy_rows,
                                  black_step, interleaved_row_gain, frame_row_noise, dark_hot_band, adc_white_clip,
-                                 flicker_bands, dust_shadow, row_block_black, clock_feedthrough)}
+                                 flicker_bands, dust_shadow, row_block_black, clock_feedthrough, vertical_read_corr,
+                                 column_group_gain, row_gain_band, shared_pair_fpn, read_noise_gradient, dark_rate_jitter)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
