@@ -177,7 +177,7 @@ class RawNoiseAugment(IntensityAugmentationBase2D):
         self._flags = sum(e.flag for e in self.effects) | (L.CLIP_WHITE if clip_white else 0)
         tables = {name: t for e in self.effects for name, t in e.tables().items() if name != "grids"}
         self._grids, self._grid_slots = stack_grids({e.token: e.tables()["grids"] for e in self.effects if "grids" in e.tables()})
-        self._code_lut = tables.get("code_lut", torch.zeros(1, 4, 3, dtype=torch.float64))
+        self._code_lut = tables.get("code_lut", torch.zeros(1, 4, 5, dtype=torch.float64))
         self._read_lut = tables.get("read_lut", torch.zeros(1, 2, dtype=torch.float64))
         self._tables_by_device: dict = {}  # the three tables, float64, moved once per device
         self._device_keys: dict = {}  # device -> (seed, its stream keys there): the last call's, for replays

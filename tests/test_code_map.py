@@ -3,6 +3,7 @@ neighbour, and a signal keeps its DN at every level."""
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from rawaug import NoiseProfile, RawNoiseAugment
@@ -233,3 +234,38 @@ def test_a_short_map_joins_the_period_it_is_consistent_with():
     assert combine([bias, flat])["period_dn"] == [10.0]
     other = estimate(_dnl(rng, 0.0, 3.0).reshape(1, 4, 500, 200), np.rint(rng.normal(0, 3, 400_000)), k=1.0)
     assert combine([other, flat])["period_dn"] == [0.0]
+
+
+def test_a_comb_seen_only_above_a_level_is_not_carried_below_it(samplers):
+    # a dual conversion gain: readings above 800 DN come through a low-gain path in steps of
+    # 4 DN; a bias stack (3 DN of noise about 0) shows every code, a flat about 790 DN every
+    # code below 800 and the comb above. Joined, the comb's map starts at 800 DN and stops
+    # there: at 0 DN the stage writes every code (before, the comb went on below and a bias
+    # synthesis missed 3 codes in 4), and so it does at 780 DN; at 3000 DN only multiples of 4
+    rng = np.random.default_rng(29)
+    bias = estimate(np.rint(rng.normal(0.0, 3.0, 400_000)).reshape(1, 4, 500, 200),
+                    np.rint(rng.normal(0.0, 3.0, 400_000)), k=1.0)
+
+    def flat(mean):
+        x = rng.normal(mean, 40.0, 400_000)
+        return estimate(np.where(x > 800.0, 4.0 * np.rint(x / 4.0), np.rint(x)).reshape(1, 4, 500, 200),
+                        np.rint(rng.normal(mean, 40.0, 400_000)), k=1.0)
+
+    high = flat(1000.0)
+    assert high["period_dn"] == [4.0]
+    joined = combine([bias, high])
+    assert joined["comb_from_dn"] == [bias["clear_dn"][0][0][1] + 1.0] and "comb_to_dn" not in joined
+    assert joined["lo_dn"][0] > joined["comb_from_dn"][0]  # the bound lies below the map: the kernels' extension stops
+    both = combine([bias, flat(790.0), high])
+    assert both["lo_dn"] == [800.0] and both["comb_from_dn"] == [800.0]  # the straddling flat's codes below 800 are clear
+    for m in (joined, both):
+        profile = NoiseProfile.load("SonyA7S2").with_effect("CodeMap", m)
+        aug = RawNoiseAugment(profile, model="G", ratio=1.0, fixed={"k": 1.0, "sigma_g": 3.0}, include_profile_effects=True,
+                              generator=torch.Generator().manual_seed(0), rank_seeding=False)
+        for level in (0.0, 780.0) if m is both else (0.0,):
+            low = np.rint(aug(torch.full((1, 4, 32, 32), level / profile.span_dn)).double().numpy() * profile.span_dn)
+            assert np.all(np.isin(np.arange(level - 4.0, level + 5.0), low)), level  # every code
+        out = np.rint(aug(torch.full((1, 4, 32, 32), 3000.0 / profile.span_dn)).double().numpy() * profile.span_dn)
+        assert np.all(out % 4 == 0) and abs(out.mean() - 3000.0) < 0.5
+    with pytest.raises(ValueError, match=r"comb_from_dn\[0\] must be null \(no bound\) or a whole DN at or below"):
+        NoiseProfile.load("SonyA7S2").with_effect("CodeMap", {**joined, "comb_from_dn": [joined["lo_dn"][0] + 1.0]})

@@ -94,8 +94,8 @@ LOOP_EFFECTS = {
     "DNL": {"period": 5, "threshold_dn": [0.0, 0.3, -0.2, 0.25, -0.35]},  # codes 0.4 to 1.45 wide, then the code map
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]],
                 "split_dn": [[0.5, 0.1, 0.5, 0.5, -0.2, 0.5, 0.5, 0.1, 0.5, 0.5, -0.2]],
-                "period_dn": [3]},  # its shifts (0, -1, 0) go on beyond the map: every code of the input's range;
-                # a missing code's inputs split between both neighbours
+                "period_dn": [3], "comb_from_dn": [-30.0]},  # its shifts (0, -1, 0) go on beyond the map, down to
+                # -30 DN (below, codes rounded only); a missing code's inputs split between both neighbours
     "LineMap": {"k": [1.0, 3.0], "row_dn": (np.sin(np.arange(2 * 4 * 30).reshape(2, 4, 30) * 0.37) * 2.0).tolist(),
                 "col_dn": (np.cos(np.arange(2 * 4 * 50).reshape(2, 4, 50) * 0.29) * 1.5).tolist(),
                 "frame_h": 30, "frame_w": 50},  # a window of 24 x 40 inputs, repeated on 48 x 64 ones

@@ -961,13 +961,15 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             cm_lo = code_lut[rec, 3, 0] if rec >= 0 else 0.0
             cm_n = int(code_lut[rec, 3, 1]) if rec >= 0 else 0
             period = int(code_lut[rec, 3, 2]) if rec >= 0 else 0
+            comb_from = code_lut[rec, 3, 3] if rec >= 0 else 0.0
+            comb_to = code_lut[rec, 3, 4] if rec >= 0 else 0.0
             for x in range(w):
                 s = sig[x]
                 code = math.floor(s + 0.5)
                 i = int(code - cm_lo)
                 if 0 <= i < cm_n:  # the code below the split, or the one above
                     s = code_lut[rec, 0, i] if s - code < code_lut[rec, 2, i] else code_lut[rec, 1, i]
-                elif period > 0:  # a periodic comb goes on beyond the measured range: the first period's shifts
+                elif period > 0 and comb_from <= code <= comb_to:  # a periodic comb goes on beyond the measured range: the first period's shifts
                     j = i % period
                     part = 0 if s - code < code_lut[rec, 2, j] else 1
                     s = code + code_lut[rec, part, j] - (cm_lo + j)

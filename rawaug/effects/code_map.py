@@ -12,13 +12,15 @@ range ``[lo_dn, lo_dn + n)``, replaced by the code the camera writes for it: ``m
 or, where ``s - c`` is at or above ``split[c - lo]``, the next code the map writes above that
 one (an ADC's decision level inside a missing code's cell: its inputs go to both
 neighbours); outside it is left rounded, or, with a period ``p``, shifted as the code
-``p``-periodically equal to it in the map's first period is (a comb over the whole range).
+``p``-periodically equal to it in the map's first period is (a comb over the whole range,
+or, where frames showed codes without it, from ``comb_from_dn`` up to ``comb_to_dn``).
 
-Profile entry (per-K records)::  ``CodeMap: {k: [K, ...], lo_dn: [...], map_dn: [[c, ...], ...], split_dn: [[t, ...], ...], period_dn: [...], channel: [...]}``
+Profile entry (per-K records)::  ``CodeMap: {k: [K, ...], lo_dn: [...], map_dn: [[c, ...], ...], split_dn: [[t, ...], ...], period_dn: [...], comb_from_dn: [...], comb_to_dn: [...], channel: [...]}``
 (``map_dn[i]``: the code written for ``lo_dn + i``, DN relative to black, non-decreasing;
 ``split_dn``, optional: per code, the input (DN from the code, in [-0.5, 0.5]) from which it
 goes up instead, 0.5 (never) by default; ``period_dn``, optional: 0, or the period of a comb
-that repeats beyond the mapped range; ``channel``, optional: the packed channel (0-3: R, G1,
+that repeats beyond the mapped range; ``comb_from_dn`` / ``comb_to_dn``, optional: the
+lowest / highest code that comb reaches beyond the map (null: no bound); ``channel``, optional: the packed channel (0-3: R, G1,
 B, G2) a record maps, -1 (every channel) by default; a gain has one record for every channel
 or one for each).
 
@@ -33,7 +35,9 @@ between both neighbours; sending them all to one doubles its count and shifts th
 differential non-linearity; ``periodic_comb``), the period is stored and the comb is applied
 at every signal level, not only over the codes the frames held; its written codes then take
 their measured widths (``code_cells``: a digital gain of 1.25 writes 8 codes in 10, each 1.25
-DN of input wide). Where the packed channels' combs differ (a white-balance gain on red and
+DN of input wide). A stack that shows codes without the comb, over MIN_PERIODS of its
+periods or more beyond the maps (a bias frame under a dual gain's low-gain comb above 800 DN),
+bounds it there. Where the packed channels' combs differ (a white-balance gain on red and
 blue after the ADC), each channel has a map of its own.
 A first version matched the whole histogram: fitted on a real dark frame it mapped 1..107 DN
 onto 4..18 DN and wiped out the signal of the dark scenes it was trained on.
@@ -44,13 +48,14 @@ import numpy as np
 import torch
 
 from ..engine import layout as L
-from ..statistics import MAX_COMB_GAP, written_codes  # the rule for a missing code (comb_gaps there)
+from ..statistics import MAX_COMB_GAP, MIN_COUNT, written_codes  # the rule for a missing code (comb_gaps there)
 from .base import CLIP, NoiseEffect, register
 from .k_records import record_index, validate_records
 
 STATISTICS = ("missing_codes", "code_dnl")  # a missing code widens its neighbours: the code histogram's DNL too
 MEASURED = True
 ALL = -1  # a record's channel: every packed channel
+UNBOUNDED = 1e30  # DN: a comb's bound where none is stored
 
 
 @register
@@ -78,18 +83,21 @@ class CodeMap(NoiseEffect):
     def tables(self):
         """``code_lut`` (records, 4, n): per code the code below the split, the code above it
         (the next the map writes), the split (DN from the code); row 3 the record's first code
-        (DN), its length and its period (DN; 0: none)."""
+        (DN), its length, its period (DN; 0: none) and the comb's lowest and highest code (DN;
+        +-``UNBOUNDED``: none)."""
         p = self.profile.effects[self.token]
         luts = [np.asarray(m, dtype=np.float64) for m in p["map_dn"]]
         splits = p.get("split_dn") or [[0.5] * len(t) for t in luts]
         periods = p.get("period_dn", [0.0] * len(luts))
-        table = np.zeros((len(luts), 4, max(3, max(len(t) for t in luts))))
+        froms = [-UNBOUNDED if f is None else f for f in p.get("comb_from_dn", [None] * len(luts))]
+        tos = [UNBOUNDED if t is None else t for t in p.get("comb_to_dn", [None] * len(luts))]
+        table = np.zeros((len(luts), 4, max(5, max(len(t) for t in luts))))
         table[:, 2] = 0.5
         for i, (t, split) in enumerate(zip(luts, splits)):
             table[i, 0, : t.size] = t
             table[i, 1, : t.size] = next_above(t)
             table[i, 2, : t.size] = split
-            table[i, 3, :3] = (p["lo_dn"][i], t.size, periods[i])
+            table[i, 3, :5] = (p["lo_dn"][i], t.size, periods[i], froms[i], tos[i])
         return {"code_lut": torch.from_numpy(table)}
 
     @classmethod
@@ -118,6 +126,18 @@ class CodeMap(NoiseEffect):
             if isinstance(per, bool) or not isinstance(per, (int, float)) or per != int(per) or not 0 <= per <= len(codes):
                 raise ValueError(f"effect 'CodeMap': period_dn[{i}] must be 0 (none) or a whole DN up to the map's "
                                  f"length {len(codes)}, got {per!r}")
+        for key, side in (("comb_from_dn", -1), ("comb_to_dn", 1)):
+            bounds = params.get(key, [None] * len(params["k"]))
+            if not isinstance(bounds, (list, tuple)) or len(bounds) != len(params["k"]):
+                raise ValueError(f"effect 'CodeMap': {key} must list one bound (DN, or null for none) per k, got {bounds!r:.80}")
+            for i, (b, codes) in enumerate(zip(bounds, params["map_dn"])):
+                if b is None:
+                    continue
+                edge = params["lo_dn"][i] + (len(codes) - 1 if side > 0 else 0)
+                where = "at or above the map's last" if side > 0 else "at or below the map's first"
+                if isinstance(b, bool) or not isinstance(b, (int, float)) or b != np.rint(b) or (b - edge) * side < 0:
+                    raise ValueError(f"effect 'CodeMap': {key}[{i}] must be null (no bound) or a whole DN {where} "
+                                     f"code {edge:g}, got {b!r}")
         channels = params.get("channel", [ALL] * len(params["k"]))
         if not isinstance(channels, (list, tuple)) or len(channels) != len(params["k"]) \
                 or any(isinstance(c, bool) or c not in (ALL, 0, 1, 2, 3) for c in channels):
@@ -153,11 +173,26 @@ def _gap_split(counts, model_counts, a: int, b: int) -> float:
     return float(np.clip(theta, a + 0.5, b - 0.5))
 
 
+def _clear(v, missing) -> list:
+    """The code ranges [a, b] of whole-DN values ``v`` shown without a missing code: between
+    the lowest and the highest code holding MIN_COUNT pixels or more (where a missing code
+    would show), below the first missing code (``missing``: indices from ``v.min()``) and its
+    written neighbour, and above the last and its neighbour; the whole range where none is."""
+    counts = np.bincount((v - v.min()).astype(np.int64))
+    full = np.flatnonzero(counts >= MIN_COUNT)
+    if full.size == 0:
+        return []
+    a, b = full[0], full[-1]
+    spans = [(a, b)] if missing.size == 0 else [(a, missing[0] - 2), (missing[-1] + 2, b)]
+    return [[float(v.min() + lo), float(v.min() + hi)] for lo, hi in spans if hi >= lo]
+
+
 def _channel_map(v, model):
-    """(codes r, map, splits, period) of one population of whole-DN values ``v`` and the
+    """(codes r, map, splits, period, clear) of one population of whole-DN values ``v`` and the
     model's values for it: identity on written codes; the inputs of each gap of missing codes
     split between the written codes bounding it (``_gap_split``); the map spans the gaps only,
-    with a periodic comb's first period in front."""
+    with a periodic comb's first period in front; ``clear`` the codes shown without a missing
+    one (``_clear``)."""
     written = written_codes(v)
     missing = np.flatnonzero(~written)
     r = np.arange(v.min(), v.min() + written.size)
@@ -185,7 +220,7 @@ def _channel_map(v, model):
         r = np.concatenate([r[0] - period + np.arange(period), r])
         codes = np.concatenate([r[:period] + template, codes])
         split = np.concatenate([split_template, split])
-    return r, codes, split, period
+    return r, codes, split, period, _clear(v, missing)
 
 
 def _agree(maps) -> bool:
@@ -205,9 +240,12 @@ def _agree(maps) -> bool:
 
 
 def _record(k, maps, channels) -> dict:
+    """A stack's record; ``clear_dn`` (per map, the code ranges its values show without a
+    missing code, ``_clear``) is for ``combine``, which bounds a periodic comb by them, and is
+    not a profile entry."""
     out = {"k": [float(k)] * len(maps), "lo_dn": [float(m[0][0]) for m in maps],
            "map_dn": [[float(c) for c in m[1]] for m in maps], "split_dn": [[float(t) for t in m[2]] for m in maps],
-           "period_dn": [float(m[3]) for m in maps]}
+           "period_dn": [float(m[3]) for m in maps], "clear_dn": [m[4] for m in maps]}
     if channels != [ALL]:
         out["channel"] = channels
     return out
@@ -230,8 +268,9 @@ def estimate(frames, synthesized, k: float, **_) -> dict:
     combed = [bool(np.any(m[1] != m[0])) for m in maps]
     if not any(combed) or (all(combed) and _agree(maps)):
         return _record(k, [whole], [ALL])
-    identity = (np.zeros(1), np.zeros(1), np.full(1, 0.5), 0)  # a channel without a comb: rounded only
-    return _record(k, [m if has else identity for m, has in zip(maps, combed)], list(range(4)))
+    # a channel without a comb: rounded only (the codes it showed bound the others' comb)
+    identity = [(np.zeros(1), np.zeros(1), np.full(1, 0.5), 0, m[4]) for m in maps]
+    return _record(k, [m if has else ident for m, ident, has in zip(maps, identity, combed)], list(range(4)))
 
 
 SNAP = 0.1  # DN: a code's measured boundary this close to a cell's edge is taken to be on it
@@ -322,9 +361,10 @@ def _single(records):
         channels = r.get("channel", [ALL] * n)
         splits = r.get("split_dn") or [[0.5] * len(m) for m in r["map_dn"]]
         periods = r.get("period_dn", [0.0] * n)
+        clear = r.get("clear_dn", [[]] * n)
         for i in range(n):
             yield float(r["k"][i]), int(channels[i]), {"k": [r["k"][i]], "lo_dn": [r["lo_dn"][i]], "map_dn": [r["map_dn"][i]],
-                                                      "split_dn": [splits[i]], "period_dn": [periods[i]]}
+                                                      "split_dn": [splits[i]], "period_dn": [periods[i]], "clear_dn": clear[i]}
 
 
 def _is_identity(part) -> bool:
@@ -338,7 +378,8 @@ def combine(records: list[dict]) -> dict:
     by_k: dict = {}
     for k, channel, part in _single(records):
         by_k.setdefault(k, {}).setdefault(channel, []).append(part)
-    out: dict = {"k": [], "lo_dn": [], "map_dn": [], "split_dn": [], "period_dn": [], "channel": []}
+    keys = ("k", "lo_dn", "map_dn", "split_dn", "period_dn", "comb_from_dn", "comb_to_dn", "channel")
+    out: dict = {key: [] for key in keys}
     for k in sorted(by_k):
         groups = by_k[k]
         wanted = [ALL] if set(groups) == {ALL} else list(range(4))
@@ -347,12 +388,46 @@ def combine(records: list[dict]) -> dict:
             combed = [p for p in parts if not _is_identity(p)]
             lo, codes, split, period = _join(combed or parts[:1] or [{"lo_dn": [0.0], "map_dn": [[0.0]], "split_dn": [[0.5]],
                                                                        "period_dn": [0.0]}])
-            for key, value in zip(("k", "lo_dn", "map_dn", "split_dn", "period_dn", "channel"),
-                                  (k, lo, codes, split, period, channel)):
+            if period:  # a periodic comb stops at the codes a stack showed without it
+                lo, codes, split, below, above = bounded(parts, lo, codes, split, period)
+            else:
+                below = above = None
+            for key, value in zip(keys, (k, lo, codes, split, period, below, above, channel)):
                 out[key].append(value)
     if set(out["channel"]) == {ALL}:
         del out["channel"]
+    for key in ("comb_from_dn", "comb_to_dn"):
+        if all(b is None for b in out[key]):
+            del out[key]
     return out
+
+
+def bounded(parts, lo: float, codes, split, period: int):
+    """(lo, map, splits, lowest code, highest code) of a periodic comb mapped over ``lo ..``:
+    its codes in a range a stack showed without a missing code (``clear_dn``, over MIN_PERIODS
+    periods or more: a bias stack under a dual gain's low-gain comb above 800 DN, a flat's
+    codes below it) map to themselves, and its extension beyond the map stops at those ranges
+    (None: it goes on)."""
+    clear = [(a, b) for part in parts for a, b in part.get("clear_dn") or [] if b - a + 1 >= MIN_PERIODS * period]
+    codes, split = np.asarray(codes, dtype=np.float64), np.asarray(split, dtype=np.float64)
+    r = lo + np.arange(codes.size)
+    inside = np.zeros(r.size, dtype=bool)
+    for a, b in clear:
+        inside |= (r >= a) & (r <= b)
+    if inside.all():
+        return lo, [float(c) for c in codes], [float(t) for t in split], lo, lo + codes.size - 1.0
+    # clear codes at the map's ends leave it (its first period stays the comb the kernels repeat);
+    # those inside it map to themselves
+    first, last = np.flatnonzero(~inside)[[0, -1]]
+    r, codes, split, inside = r[first : last + 1], codes[first : last + 1], split[first : last + 1], inside[first : last + 1]
+    codes[inside], split[inside] = r[inside], 0.5
+    codes = np.maximum.accumulate(codes)  # non-decreasing where a clear range ends inside the map
+    lo, hi = float(r[0]), float(r[-1])
+    below = [b for a, b in clear if a < lo]
+    above = [a for a, b in clear if b > hi]
+    lowest = min(max(below) + 1.0, lo) if below else None
+    highest = max(min(above) - 1.0, hi) if above else None
+    return lo, [float(c) for c in codes], [float(t) for t in split], lowest, highest
 
 
 def _join(parts):

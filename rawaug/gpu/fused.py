@@ -756,13 +756,14 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
     if FLAGS & 65536:  # measured code map: nearest code the camera uses
         code = tl.floor(s + 0.5)
         rec = tl.load(v + C_CM_REC0 + c).to(tl.int64)  # the channel's map (-1: none, rounded only)
-        head = code_ptr + tl.maximum(rec, 0) * (4 * CODE_N) + 3 * CODE_N  # its first code, length, period
+        head = code_ptr + tl.maximum(rec, 0) * (4 * CODE_N) + 3 * CODE_N  # its first code, length, period, comb bounds
         cm_lo = tl.load(head)
         cm_n = tl.where(rec >= 0, tl.load(head + 1), 0.0).to(tl.int64)
         period = tl.where(rec >= 0, tl.load(head + 2), 0.0).to(tl.int64)
         i = (code - cm_lo).to(tl.int64)
         inside = live & (i >= 0) & (i < cm_n)
-        periodic = live & ~inside & ((tl.zeros_like(i) + period) > 0)  # a periodic comb goes on beyond the measured range
+        comb = (code >= tl.load(head + 3)) & (code <= tl.load(head + 4))  # its bounds
+        periodic = live & ~inside & comb & ((tl.zeros_like(i) + period) > 0)  # a periodic comb goes on beyond the measured range
         j = ((i % tl.maximum(period, 1)) + tl.maximum(period, 1)) % tl.maximum(period, 1)
         at = tl.where(inside, i, j)  # the map's entry: the code's own, or its phase's in the first period
         row = code_ptr + tl.maximum(rec, 0) * (4 * CODE_N) + at
