@@ -829,3 +829,28 @@ def test_a_flat_is_synthesized_with_its_exposure_dark_signal_and_its_measured_le
     excess = synth.mean(axis=1).var(axis=(1, 2, 3)).mean() - plain.mean(axis=1).var(axis=(1, 2, 3)).mean()
     expected = (k * 10.0 * t * 0.5) ** 2  # the DSNU map's variance, 100 DN^2, plus its shot noise over 2 frames (10)
     assert 0.7 * expected < excess < 1.3 * expected + k * 10.0 * t
+
+
+def test_a_fallback_is_kept_out_only_where_a_physical_effect_explains_its_evidence():
+    # the rule behind fallbacks beside physical effects (frames_loop._explained): a fixed column
+    # gain that repeats every 8 columns is halved on col_excess by ColGain, whose random gains
+    # leave grid_excess; GainGrid is then tried in the same round, not after ColGain is in
+    from rawaug.loop.diagnose import Residual
+    from rawaug.loop.frames_loop import EXPLAIN_FACTOR, Step, _explained
+
+    def res(statistic, rel, significant=True):
+        return Residual(statistic, 1.0, 1.0 - rel, 0.01, 100.0 * rel, rel, significant, [], "")
+
+    def trial(error_after, grid_rel, grid_significant=True, accepted=True):
+        step = Step("ColGain", {}, accepted, {}, "flat", 1.0, error_after, 0.0, {}, {})
+        return (step, None, {"flat": ([res("col_excess", error_after), res("grid_excess", grid_rel, grid_significant)], None)},
+                None, {}, {})
+
+    option = ("GainGrid", "flat", res("grid_excess", 0.9))
+    assert not _explained(option, [trial(0.38, 0.9)])  # halves its own evidence, leaves the fallback's
+    assert _explained(option, [trial(0.38, 0.9 * EXPLAIN_FACTOR)])  # halves both
+    assert _explained(option, [trial(0.38, 0.9, grid_significant=False)])  # the fallback's evidence no longer significant
+    assert not _explained(option, [trial(0.6, 0.1)])  # does not halve its own: fallbacks tried beside it
+    assert not _explained(option, [trial(0.38, 0.1, accepted=False)])  # not acceptable
+    assert not _explained(("GainGrid", "other", res("grid_excess", 0.9)), [trial(0.38, 0.1)])  # another stack's
+    assert _explained(option, [trial(0.6, 0.1), trial(0.38, 0.2)])  # any explaining trial

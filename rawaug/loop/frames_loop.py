@@ -12,8 +12,8 @@ points to several effects -- a fixed column pattern also raises the per-pixel fi
 spread -- and only trying them tells which one the data hold). A rejected candidate is tried
 again once another effect has been added (its estimate depends on the model); the loop ends
 when no significant residual points to an effect untried in the current model. Physical
-candidates are tried first; the measured fallbacks join them only in a round where none of
-them halves its evidence's error (``EXPLAIN_FACTOR``). A pooled
+candidates are tried first; a measured fallback joins them only in a round where none of
+them halves the error of its own evidence and of the fallback's (``EXPLAIN_FACTOR``). A pooled
 statistic (``pool_residuals``: one degree of freedom per flat pair) is one residual over all
 the stacks that have it: screened and confirmed on all of them.
 
@@ -202,6 +202,21 @@ def _options(diags, tried, present, skip=frozenset()):
                 if token not in best or abs(r.z) > abs(best[token][2].z):
                     best[token] = (token, label, r)
     return sorted(best.values(), key=lambda o: -abs(o[2].z))
+
+
+def _explained(option, trials) -> bool:
+    """True where an acceptable physical trial that halves its own evidence's error also
+    halves the error of ``option``'s evidence (or leaves it not significant): that fallback is
+    kept out. A fixed column pattern that repeats every 8 columns: ``ColGain`` halves
+    ``col_excess`` but leaves ``grid_excess``, which ``GainGrid`` reproduces."""
+    _, label, evidence = option
+    for step, _, new_diags, *_ in trials:
+        if not (step.accepted and step.error_after <= EXPLAIN_FACTOR * step.error_before) or label not in (new_diags or {}):
+            continue
+        after = next((r for r in new_diags[label][0] if r.statistic == evidence.statistic), None)
+        if after is None or not after.significant or after.rel_error <= EXPLAIN_FACTOR * evidence.rel_error:
+            return True
+    return False
 
 
 def _signature(evidence: dict, label, by_label, before, after) -> dict:
@@ -549,8 +564,11 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
         before_b = _battery(diags)
         trials = []
         physical = [o for o in options if not _measured(o[0])]
-        # measured fallbacks only once no physical effect explains the residuals left (halves its evidence's error)
-        for batch in (physical, [o for o in options if _measured(o[0])]):
+        # measured fallbacks only where no physical effect explains the residual they were called
+        # for (halves its error): a physical effect that halves its own evidence may leave theirs
+        for fallbacks, batch in enumerate((physical, [o for o in options if _measured(o[0])])):
+            if fallbacks:
+                batch = [o for o in batch if not _explained(o, trials)]
             for token, label, evidence in batch:
                 params = _estimate(token, stacks, diags, estimate_seed(step_no), current, model)
                 if params is None:
@@ -606,10 +624,6 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                             after_b, round=step_no, kind="measured" if _measured(token) else "physical",
                             evidence_after=after.to_dict())
                 trials.append((step, trial, new_diags, trial_stacks, factors, known.get("lambdas_before", {})))
-            # a physical effect that explains its evidence keeps the fallbacks out; one that
-            # leaves more than half of it does not: a measured component may explain it all
-            if any(t[0].accepted and t[0].error_after <= EXPLAIN_FACTOR * t[0].error_before for t in trials):
-                break
         acceptable = [t for t in trials if t[0].accepted]
         chosen = min(acceptable, key=lambda t: (t[0].battery_after["mean_rel_error"], t[0].battery_after["n_significant"])) if acceptable else None
         for step, *_ in trials:
