@@ -1208,6 +1208,56 @@ def dark_rate_jitter(dn, rng, kind="", exposure=0.0, k=1.0, **_):
     return dn + k * rng.poisson(rate * exposure, dn.shape)
 
 
+# the seventeenth fresh batch (thirty-second session), written and committed before the loop ran on it
+def partial_hot_rows(dn, rng, exposure=0.0, k=1.0, **_):
+    """A leaky row-driver segment: sensor rows 60, 61 and 250 collect 20 e-/s more dark current from sensor column 300 to the right edge, with its shot noise, in every kind of frame."""
+    _, h, w = dn.shape
+    rate = np.zeros((2 * h, 2 * w))
+    rate[[60, 61, 250], 300:] = 20.0
+    return dn + k * _raw_to_packed(rng.poisson(rate * exposure).astype(np.float64))
+
+
+def dead_clusters(dn, rng, **_):
+    """Dead clusters: 12 clusters of 3 x 3 sensor pixels (fixed places) read black (0 DN above it, without noise), in every kind of frame."""
+    _, h, w = dn.shape
+    places = np.random.default_rng(171)
+    mask = np.zeros((2 * h, 2 * w), dtype=bool)
+    for y, x in zip(places.integers(4, 2 * h - 4, 12), places.integers(4, 2 * w - 4, 12)):
+        mask[y - 1 : y + 2, x - 1 : x + 2] = True
+    return np.where(_raw_mask_to_packed(mask), 0.0, dn)
+
+
+def dark_half_step(dn, rng, exposure=0.0, k=1.0, **_):
+    """Two stitched halves: the right half of the sensor columns collects 2 e-/s more dark current than the left, with its shot noise, in every kind of frame (long darks step at the middle column)."""
+    _, h, w = dn.shape
+    rate = np.zeros((2 * h, 2 * w))
+    rate[:, w:] = 2.0
+    return dn + k * _raw_to_packed(rng.poisson(rate * exposure).astype(np.float64))
+
+
+def gain_drift_sequence(dn, rng, kind="", k=1.0, **_):
+    """Gain drifting down as the sensor warms through the flat series: the n-th flat of an ISO (n = 0, 1, ... in the order taken) converts at 1 - 0.002 n of the gain, signal and noise alike; bias and dark frames untouched."""
+    if kind != "flat":
+        return dn
+    n = _WALK.get(("gain_drift_sequence", k), 0)
+    _WALK[("gain_drift_sequence", k)] = n + 1
+    return dn * (1.0 - 0.002 * n)
+
+
+def half_column_noise(dn, rng, **_):
+    """Column noise from one ADC bank: each sensor column of the left half takes an offset of 1.2 DN rms, new in every frame, in every kind of frame; the right half none."""
+    _, h, w = dn.shape
+    c = np.concatenate([rng.normal(0.0, 1.2, w), np.zeros(w)])
+    return dn + _raw_to_packed(np.broadcast_to(c, (2 * h, 2 * w)))
+
+
+def shared_pair_gain(dn, rng, **_):
+    """Two pixels share a source follower: each vertical pair of sensor pixels (rows 2i and 2i + 1, one column) converts with one fixed gain, 1 % rms (drawn once), signal and noise alike, in every kind of frame."""
+    _, h, w = dn.shape
+    g = 1.0 + np.random.default_rng(173).normal(0.0, 0.01, (h, 2 * w))  # per tile row, per sensor column
+    return dn * np.stack([g[:, 0::2], g[:, 1::2], g[:, 1::2], g[:, 0::2]])  # R + G2 share, G1 + B share
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -1235,7 +1285,9 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  split_row_noise, column_pairs, block_compression, column_gain_flicker, noisy_rows,
                                  black_step, interleaved_row_gain, frame_row_noise, dark_hot_band, adc_white_clip,
                                  flicker_bands, dust_shadow, row_block_black, clock_feedthrough, vertical_read_corr,
-                                 column_group_gain, row_gain_band, shared_pair_fpn, read_noise_gradient, dark_rate_jitter)}
+                                 column_group_gain, row_gain_band, shared_pair_fpn, read_noise_gradient, dark_rate_jitter,
+                                 partial_hot_rows, dead_clusters, dark_half_step, gain_drift_sequence, half_column_noise,
+                                 shared_pair_gain)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
