@@ -255,13 +255,14 @@ def _nearest_good(bad) -> np.ndarray:
 
 
 def without_stuck(frames):
-    """The frames (N >= 3) with each dead pixel (``stuck_outliers``: stuck far from its channel's
+    """The frames (N >= 2) with each dead pixel (``stuck_outliers``: stuck far from its channel's
     noise) replaced in every frame by its nearest live neighbour along the row (same channel),
     DN: what every statistic but ``stuck_fraction`` looks at, so that a dead pixel counts
-    once, as a stuck pixel, and not also in line means, tails and clips. Fewer frames, or
-    no dead pixel: the frames themselves."""
+    once, as a stuck pixel, and not also in line means, tails and clips (a flat pair's too:
+    clusters of pixels dead at black filled 14 flat pairs' low-frequency power). One frame,
+    or no dead pixel: the frames themselves."""
     frames = np.asarray(frames, dtype=np.float64)
-    if frames.shape[0] < 3:
+    if frames.shape[0] < 2:
         return frames
     lo, hi = temporal_range(frames)
     if not (lo == hi).any():  # no pixel stuck at all: the common case, without the medians
@@ -2465,7 +2466,9 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("row_flicker_fraction", row_flicker_fraction, min_frames=4, kind="bias", line_fraction=True, view="lines"),
         Statistic("noisy_col_fraction", noisy_col_fraction, min_frames=4, kind="bias", column_fraction=True),
         Statistic("tap_step_ratio", tap_step_ratio, min_frames=3, kind="bias"),
-        Statistic("stuck_fraction", stuck_fraction, min_frames=3, pixel_fraction=True, view="raw"),
+        # a pair too (since the thirty-second session): a pixel dead at black shows only in flats, and
+        # flats come in pairs (EMVA 1288's protocol); a pair's dead pixels are repaired for the others
+        Statistic("stuck_fraction", stuck_fraction, min_frames=2, pixel_fraction=True, view="raw"),
         Statistic("repeated_rows", repeated_rows, row_fraction=True, view="raw"),
         Statistic("burst_rows", burst_rows, min_frames=3, kind="bias", row_fraction=True),
         Statistic("burst_cols", burst_cols, min_frames=3, kind="bias", stack_column_fraction=True),

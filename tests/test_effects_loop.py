@@ -1651,8 +1651,32 @@ def test_dead_pixels_are_stuck_at_their_levels_and_estimated():
     assert sorted(set(est["levels_dn"])) == [-40.0, 300.0] and est["levels_dn"].count(300.0) == 2, est
     with pytest.raises(ValueError, match="shows no dead pixels"):  # live pixels move
         dead_pixels.estimate(base[0], base[1:], K)
-    with pytest.raises(ValueError, match=">= 3 frames"):
-        dead_pixels.estimate(f[:2], base, K)
+    with pytest.raises(ValueError, match=">= 2 frames"):
+        dead_pixels.estimate(f[:1], base, K)
+
+
+def test_dead_pixels_at_black_are_measured_on_a_flat_pair():
+    # a pixel dead at black hides in bias and dark frames and shows in flats only; flat pairs
+    # (EMVA 1288's protocol, the issue's manifests) were below the 3 frames the statistic and
+    # the estimator asked for, so the loop never saw them. A flat's shot noise (~17 DN here)
+    # keeps a live pixel far from the noise from reading one value twice
+    from rawaug.statistics import STATISTICS
+
+    assert STATISTICS["stuck_fraction"].applies(2, "flat")
+    at_black = {"seed": 47, "density": 0.005, "levels_dn": [0.0]}
+    f = synth({"Dead": at_black}, batch=2, size=64, level_dn=300.0, model="G+P", sigma_g=2.0)
+    n = f[0].size
+    base = [synth({}, batch=2, size=64, level_dn=300.0, model="G+P", sigma_g=2.0, seed=s) for s in range(1, 4)]
+    est = dead_pixels.estimate(f, base, K)
+    assert abs(est["density"] - 0.005) < 5 * math.sqrt(0.005 / n) and est["levels_dn"] == [0.0] * 8, est
+    # counted once: the other statistics read the pair with its dead pixels repaired
+    assert (f == 0.0).all(axis=0).sum() > 0 and not np.any(repaired(f) == 0.0)
+    # ELD-model flat pairs: no dead pixel found in 10 of 10 (a live pixel 5 robust sigma out and
+    # equal in both frames: about 1e-7 of the pixels)
+    for seed in range(10, 20):
+        pair = synth({}, batch=2, size=64, level_dn=300.0, model="G+P", sigma_g=2.0, seed=seed)
+        with pytest.raises(ValueError, match="shows no dead pixels"):
+            dead_pixels.estimate(pair, base, K)
 
 
 DEAD_LINES = {"seed": 5, "density": 0.002, "levels_dn": [-40.0], "col_density": 0.04, "row_density": 0.02, "partial": 0.5,

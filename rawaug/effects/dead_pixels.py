@@ -23,7 +23,7 @@ Profile entry::
            col_density: 0.0, row_density: 0.0, partial: 0.0, to_end: 1.0,   # optional: dead lines
            cut_lo: 0.0, cut_hi: 1.0}
 
-Detected by ``stuck_fraction`` (pixels with the same value in every frame of a stack, more
+Detected by ``stuck_fraction`` (pixels with the same value in every frame of a stack of 2 or more, more
 than 5 robust sigma from their channel's median, but for those at a clip that moving pixels
 reach too; a pixel stuck within the noise is chance where codes are coarse; a line stuck
 over more than half its length counts as a defect line), ``defect_lines`` (a dead line's
@@ -174,7 +174,7 @@ def dead_parts(frames):
 
 
 def estimate(frames, synthesized, k: float, seed: int = 47, **_) -> dict:
-    """Dead-pixel parameters from a stack (N >= 3, 4, h, w) in DN: the isolated stuck pixels'
+    """Dead-pixel parameters from a stack (N >= 2, 4, h, w) in DN: the isolated stuck pixels'
     fraction over the model's (its syntheses ``synthesized``), the dead lines' fractions of the
     sensor columns and rows over the model's, the share of them dead over a part only (and of
     those, the share dead to the line's end), the stuck levels. Where the model's own pixels
@@ -182,8 +182,8 @@ def estimate(frames, synthesized, k: float, seed: int = 47, **_) -> dict:
     lines draw their levels from the same 8 levels as the pixels. ValueError where the stack
     shows neither more stuck pixels nor more dead lines than the model's."""
     frames = np.asarray(frames, dtype=np.float64)
-    if frames.shape[0] < 3:
-        raise ValueError("dead pixels are measured on stacks of >= 3 frames")
+    if frames.shape[0] < 2:  # a pair is enough: the estimate is over the model's own pixels stuck by chance
+        raise ValueError(f"dead pixels are measured on stacks of >= 2 frames, got {frames.shape[0]}")
     alone, levels, (cols, rows, partial, to_end, n_lines, cuts), line_levels = dead_parts(frames)
     base = [dead_parts(np.asarray(s, dtype=np.float64)) for s in synthesized]
     mean = lambda f: float(np.mean([f(b) for b in base])) if base else 0.0  # noqa: E731
