@@ -173,18 +173,18 @@ def _gap_split(counts, model_counts, a: int, b: int) -> float:
     return float(np.clip(theta, a + 0.5, b - 0.5))
 
 
-def _clear(v, missing) -> list:
-    """The code ranges [a, b] of whole-DN values ``v`` shown without a missing code: between
-    the lowest and the highest code holding MIN_COUNT pixels or more (where a missing code
-    would show), below the first missing code (``missing``: indices from ``v.min()``) and its
-    written neighbour, and above the last and its neighbour; the whole range where none is."""
-    counts = np.bincount((v - v.min()).astype(np.int64))
+def _clear(counts, missing, first: float) -> list:
+    """The code ranges [a, b] shown without a missing code by the ``counts`` of the codes from
+    ``first`` up: between the lowest and the highest code holding MIN_COUNT pixels or more
+    (where a missing code would show), below the first missing code (``missing``: indices
+    into ``counts``) and its written neighbour, and above the last and its neighbour; the
+    whole range where none is."""
     full = np.flatnonzero(counts >= MIN_COUNT)
     if full.size == 0:
         return []
     a, b = full[0], full[-1]
     spans = [(a, b)] if missing.size == 0 else [(a, missing[0] - 2), (missing[-1] + 2, b)]
-    return [[float(v.min() + lo), float(v.min() + hi)] for lo, hi in spans if hi >= lo]
+    return [[float(first + lo), float(first + hi)] for lo, hi in spans if hi >= lo]
 
 
 def _channel_map(v, model):
@@ -197,8 +197,9 @@ def _channel_map(v, model):
     missing = np.flatnonzero(~written)
     r = np.arange(v.min(), v.min() + written.size)
     codes, split = r.copy(), np.full(r.size, 0.5)
+    counts = np.bincount((v - r[0]).astype(np.int64), minlength=r.size).astype(np.float64)  # of the codes r
+    clear = _clear(counts, missing, r[0])
     if missing.size:
-        counts = np.bincount((v - r[0]).astype(np.int64), minlength=r.size).astype(np.float64)
         model = model[(model >= r[0]) & (model <= r[-1])]
         model_counts = np.bincount((model - r[0]).astype(np.int64), minlength=r.size).astype(np.float64)
         starts = missing[np.r_[True, np.diff(missing) > 1]]
@@ -220,7 +221,7 @@ def _channel_map(v, model):
         r = np.concatenate([r[0] - period + np.arange(period), r])
         codes = np.concatenate([r[:period] + template, codes])
         split = np.concatenate([split_template, split])
-    return r, codes, split, period, _clear(v, missing)
+    return r, codes, split, period, clear
 
 
 def _agree(maps) -> bool:
