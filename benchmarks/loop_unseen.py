@@ -1258,6 +1258,60 @@ def shared_pair_gain(dn, rng, **_):
     return dn * np.stack([g[:, 0::2], g[:, 1::2], g[:, 1::2], g[:, 0::2]])  # R + G2 share, G1 + B share
 
 
+# the eighteenth fresh batch (thirty-third session), written and committed before the loop ran on it
+def pixel_nonlinearity(dn, rng, kind="", **_):
+    """Per-pixel response non-linearity: each pixel's signal bends by its own fixed coefficient, s -> s (1 + a s / 16000 DN) with a ~ N(0, 0.01) drawn once, so the flats' fixed pattern grows as the square of the level; bias and dark frames untouched."""
+    if kind != "flat":
+        return dn
+    a = 0.01 * _fixed(181, dn.shape)
+    return dn * (1.0 + a * np.maximum(dn, 0.0) / 16000.0)
+
+
+def vertical_charge_leak(dn, rng, kind="", **_):
+    """Charge leaking down the columns: in flats each pixel keeps 96 % of its charge and gets 4 % of the raw pixel above it's (a one-sided leak; the top row keeps its own), so flat noise is correlated between vertical neighbours; bias and dark frames untouched."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    raw = np.empty((2 * h, 2 * w))
+    for i, (r, c) in enumerate(((0, 0), (0, 1), (1, 1), (1, 0))):
+        raw[r::2, c::2] = dn[i]
+    above = np.concatenate([raw[:1], raw[:-1]], axis=0)
+    return _raw_mask_to_packed(0.96 * raw + 0.04 * above)
+
+
+def partial_dead_rows(dn, rng, **_):
+    """Broken row lines: 3 sensor rows (fixed) read code 0 (512 DN below black) from the left edge to a fixed column, in every kind of frame."""
+    _, h, w = dn.shape
+    raw = np.zeros((2 * h, 2 * w), dtype=bool)
+    where = np.random.default_rng(183)
+    for _ in range(3):
+        y, x = where.integers(0, 2 * h), where.integers(w // 2, 3 * w // 2)
+        raw[y, :x] = True
+    return np.where(_raw_to_packed(raw), -512.0, dn)
+
+
+def readout_dark_gradient(dn, rng, exposure=0.0, k=1.0, **_):
+    """A slow rolling readout: sensor row y is read 1 s x y / rows after the first, so it collects 3 e-/s of dark current for that much longer than the exposure (with its shot noise): bias frames ramp by 3 e- down the rows, darks too."""
+    _, h, w = dn.shape
+    t = exposure + np.arange(2 * h)[:, None] / (2 * h) * np.ones((1, 2 * w))
+    return dn + k * _raw_to_packed(rng.poisson(3.0 * t).astype(np.float64))
+
+
+def column_read_spread(dn, rng, **_):
+    """Every column amplifier its own noise: each sensor column adds white noise of 1 DN x a lognormal factor (sigma 0.5 in log, drawn once), new at every pixel and frame, in every kind of frame."""
+    _, h, w = dn.shape
+    s = np.exp(0.5 * np.random.default_rng(185).standard_normal(2 * w))
+    e = np.stack([s[0::2], s[1::2], s[1::2], s[0::2]])[:, None, :]  # R, G2 on even sensor columns
+    return dn + e * rng.standard_normal(dn.shape)
+
+
+def row_dark_current(dn, rng, exposure=0.0, k=1.0, **_):
+    """Dark current per row driver: each sensor row's dark current is 2 e-/s x a lognormal factor (sigma 0.5 in log, drawn once), with its shot noise, in every kind of frame."""
+    _, h, w = dn.shape
+    rate = 2.0 * np.exp(0.5 * np.random.default_rng(187).standard_normal(2 * h))[:, None] * np.ones((1, 2 * w))
+    return dn + k * _raw_to_packed(rng.poisson(rate * exposure).astype(np.float64))
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -1287,7 +1341,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  flicker_bands, dust_shadow, row_block_black, clock_feedthrough, vertical_read_corr,
                                  column_group_gain, row_gain_band, shared_pair_fpn, read_noise_gradient, dark_rate_jitter,
                                  partial_hot_rows, dead_clusters, dark_half_step, gain_drift_sequence, half_column_noise,
-                                 shared_pair_gain)}
+                                 shared_pair_gain, pixel_nonlinearity, vertical_charge_leak, partial_dead_rows,
+                                 readout_dark_gradient, column_read_spread, row_dark_current)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
