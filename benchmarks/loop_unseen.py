@@ -1312,6 +1312,59 @@ def row_dark_current(dn, rng, exposure=0.0, k=1.0, **_):
     return dn + k * _raw_to_packed(rng.poisson(rate * exposure).astype(np.float64))
 
 
+# the nineteenth fresh batch (thirty-third session), written and committed before the loop ran on it
+def warming_session_dark(dn, rng, kind="", exposure=0.0, k=1.0, **_):
+    """A sensor warming through the calibration session, taken from the lowest ISO up: the dark current is 1 e-/s at K 0.375 and 1.5 times more at each doubling of K (with its shot noise), in every kind of frame."""
+    rate = 1.0 * (k / 0.375) ** np.log2(1.5)
+    return dn + k * rng.poisson(rate * exposure, dn.shape)
+
+
+def edge_row_gain(dn, rng, **_):
+    """Rows at the frame's top and bottom edges convert at a lower gain: the first and last 6 sensor rows read 0.95 of the signal and noise, in every kind of frame."""
+    _, h, w = dn.shape
+    g = np.ones(2 * h)
+    g[:6], g[-6:] = 0.95, 0.95
+    return dn * np.stack([g[0::2], g[0::2], g[1::2], g[1::2]])[:, :, None]  # R, G1 on even sensor rows
+
+
+def coarse_codes_high_iso(dn, rng, k=1.0, **_):
+    """A 12-bit readout mode at the highest ISO: at K 3 the camera writes codes in steps of 4 DN (the signal rounded to a multiple of 4 before the black level is added); the other ISOs write every code."""
+    return 4.0 * np.round(dn / 4.0) if k > 2.5 else dn
+
+
+def dead_column_pairs(dn, rng, **_):
+    """Broken column-pair buses: 3 pairs of adjacent sensor columns (fixed places) read black (0 DN above it, without noise) over their whole length, in every kind of frame."""
+    _, h, w = dn.shape
+    mask = np.zeros((2 * h, 2 * w), dtype=bool)
+    for x in np.random.default_rng(191).integers(2, 2 * w - 3, 3):
+        mask[:, x : x + 2] = True
+    return np.where(_raw_mask_to_packed(mask), 0.0, dn)
+
+
+def hot_pixel_halo(dn, rng, exposure=0.0, k=1.0, **_):
+    """Hot pixels whose charge diffuses: 30 sensor pixels (fixed places) collect 50 e-/s of dark current and each of their four raw neighbours 8 % of that, with its shot noise, in every kind of frame."""
+    _, h, w = dn.shape
+    rate = np.zeros((2 * h, 2 * w))
+    places = np.random.default_rng(193)
+    for y, x in zip(places.integers(1, 2 * h - 1, 30), places.integers(1, 2 * w - 1, 30)):
+        rate[y, x] += 50.0
+        for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            rate[y + dy, x + dx] += 4.0
+    return dn + k * _raw_to_packed(rng.poisson(rate * exposure).astype(np.float64))
+
+
+def serial_cti(dn, rng, kind="", **_):
+    """Charge transfer inefficiency along the rows: in flats each raw pixel keeps 98 % of its charge and the next pixel along its row gets the 2 % it left (the first column keeps its own), so flat noise is correlated between horizontal neighbours; bias and dark frames untouched."""
+    if kind != "flat":
+        return dn
+    _, h, w = dn.shape
+    raw = np.empty((2 * h, 2 * w))
+    for i, (r, c) in enumerate(((0, 0), (0, 1), (1, 1), (1, 0))):
+        raw[r::2, c::2] = dn[i]
+    left = np.concatenate([raw[:, :1], raw[:, :-1]], axis=1)
+    return _raw_mask_to_packed(0.98 * raw + 0.02 * left)
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -1342,7 +1395,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  column_group_gain, row_gain_band, shared_pair_fpn, read_noise_gradient, dark_rate_jitter,
                                  partial_hot_rows, dead_clusters, dark_half_step, gain_drift_sequence, half_column_noise,
                                  shared_pair_gain, pixel_nonlinearity, vertical_charge_leak, partial_dead_rows,
-                                 readout_dark_gradient, column_read_spread, row_dark_current)}
+                                 readout_dark_gradient, column_read_spread, row_dark_current, warming_session_dark,
+                                 edge_row_gain, coarse_codes_high_iso, dead_column_pairs, hot_pixel_halo, serial_cti)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
