@@ -210,6 +210,15 @@ def noisy_frames(dn, rng, **_):
 
 # 2026-11-26: a fresh batch, written before the loop ran on any of them.
 
+def _packed_to_raw(dn):
+    """The raw mosaic (2h, 2w) of a packed frame (4, h, w): R, G1, B, G2 at their RGGB places."""
+    _, h, w = dn.shape
+    raw = np.empty((2 * h, 2 * w))
+    for i, (r, c) in enumerate(((0, 0), (0, 1), (1, 1), (1, 0))):
+        raw[r::2, c::2] = dn[i]
+    return raw
+
+
 def _raw_mask_to_packed(mask):
     return np.stack([mask[0::2, 0::2], mask[0::2, 1::2], mask[1::2, 1::2], mask[1::2, 0::2]])  # R, G1, B, G2 (RGGB)
 
@@ -241,9 +250,7 @@ def charge_sharing(dn, rng, kind="", **_):
     if kind != "flat":
         return dn
     _, h, w = dn.shape
-    raw = np.empty((2 * h, 2 * w))
-    for i, (r, c) in enumerate(((0, 0), (0, 1), (1, 1), (1, 0))):
-        raw[r::2, c::2] = dn[i]
+    raw = _packed_to_raw(dn)
     p = np.pad(raw, 1, mode="reflect")
     raw = 0.88 * raw + 0.03 * (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:])
     return _raw_mask_to_packed(raw)
@@ -1272,9 +1279,7 @@ def vertical_charge_leak(dn, rng, kind="", **_):
     if kind != "flat":
         return dn
     _, h, w = dn.shape
-    raw = np.empty((2 * h, 2 * w))
-    for i, (r, c) in enumerate(((0, 0), (0, 1), (1, 1), (1, 0))):
-        raw[r::2, c::2] = dn[i]
+    raw = _packed_to_raw(dn)
     above = np.concatenate([raw[:1], raw[:-1]], axis=0)
     return _raw_mask_to_packed(0.96 * raw + 0.04 * above)
 
@@ -1358,9 +1363,7 @@ def serial_cti(dn, rng, kind="", **_):
     if kind != "flat":
         return dn
     _, h, w = dn.shape
-    raw = np.empty((2 * h, 2 * w))
-    for i, (r, c) in enumerate(((0, 0), (0, 1), (1, 1), (1, 0))):
-        raw[r::2, c::2] = dn[i]
+    raw = _packed_to_raw(dn)
     left = np.concatenate([raw[:, :1], raw[:, :-1]], axis=1)
     return _raw_mask_to_packed(0.98 * raw + 0.02 * left)
 

@@ -1689,6 +1689,31 @@ def temporal_col_deviations(frames, rows: bool = False):
     return d - d.mean(axis=1, keepdims=True)
 
 
+COL_SPREAD_BLOCKS = 8  # blocks of sensor columns whose column noise ``col_noise_spread`` compares
+
+
+def column_temporal_variance(frames) -> np.ndarray:
+    """(2w,) each sensor column's temporal variance over the stack of its mean
+    (``temporal_col_deviations``; N - 1 degrees of freedom), DN^2: its column noise plus its
+    pixels' noise over the column's length."""
+    d = temporal_col_deviations(frames)
+    return (d * d).sum(axis=0) / max(d.shape[0] - 1, 1)
+
+
+def col_noise_spread(frames, level_dn=None):
+    """The largest over the smallest, over ``COL_SPREAD_BLOCKS`` blocks of sensor columns, of
+    the median of their columns' ``column_temporal_variance``: near 1 where every column's
+    offsets move alike from frame to frame; the ratio of the taps' column noise where a readout
+    tap (an ADC bank) has column noise of its own."""
+    if np.asarray(frames).shape[0] < 3:
+        return 1.0
+    v = column_temporal_variance(frames)
+    if v.size < 2 * COL_SPREAD_BLOCKS:
+        return 1.0
+    med = [float(np.median(b)) for b in np.array_split(v, COL_SPREAD_BLOCKS)]
+    return max(med) / max(min(med), 1e-30)
+
+
 def col_lag_covariances(frames, lags: int) -> np.ndarray:
     """(lags + 1,) covariance of the columns' temporal parts (``temporal_col_deviations``) of
     sensor columns j apart, j = 0 .. lags (DN^2)."""
@@ -2474,6 +2499,7 @@ STATISTICS: dict[str, Statistic] = {
         Statistic("burst_cols", burst_cols, min_frames=3, kind="bias", stack_column_fraction=True),
         Statistic("row_pair_corr", row_pair_corr, min_frames=3, kind="bias"),
         Statistic("row_tap_ratio", row_tap_ratio, min_frames=3, kind="bias"),
+        Statistic("col_noise_spread", col_noise_spread, min_frames=3, kind="bias"),
         Statistic("row_ramp_std", row_ramp_std, min_frames=3, kind="bias"),
         Statistic("row_step_z", row_step_z, min_frames=3, kind="bias"),
         Statistic("col_ramp_std", col_ramp_std, min_frames=3, kind="bias"),

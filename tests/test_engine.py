@@ -40,7 +40,7 @@ LOOP_EFFECTS = {
     "LineGain": {"seed": 37, "row_density": 0.08, "col_density": 0.1, "median": 0.2, "log_std": 0.5, "negative": 0.5},
     "TapGain": {"col_edges": [33, 80], "row_edges": [17], "frame_h": 30, "frame_w": 48,
                 "gain": [[0.98, 1.01, 1.03], [0.99, 1.02, 0.97]]},  # an odd sensor column; a window per sample on smaller inputs
-    "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2], "col_dsnu": [0.3], "channel": [0.5, 1.0, 1.5, 1.0]},
+    "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2], "col_dsnu": [0.3], "row_dsnu": [0.25], "channel": [0.5, 1.0, 1.5, 1.0]},
     "DarkDrift": {"sigma": 0.3, "rho": 0.0},  # a factor per sample on every dark signal above
     "DarkNoise": {"k": [1.0], "rate_dn2_per_s": [2.0]},  # white noise growing with the exposure
     "Glow": {"k": [1.0, 3.0], "rate_e_per_s": [[[0.0, 1.0, 4.0, 9.0], [0.5, 2.0, 6.0, 20.0], [0.0, 0.0, 1.0, 3.0]],
@@ -91,6 +91,8 @@ LOOP_EFFECTS = {
     "RowPair": {"k": [1.0, 3.0], "sigma_dn": [1.0, 2.0]},  # flag word 1: a row offset per Bayer row pair and frame
     "DarkRowNoise": {"k": [1.0, 3.0], "rate_dn2_per_s": [0.5, 1.0]},  # flag word 1: row noise growing with the exposure
     "RowTap": {"col_edges": [30, 61], "frame_h": 24, "frame_w": 40, "k": [1.0, 3.0], "sigma_dn": [1.0, 2.0]},  # flag word 1: row noise per column tap
+    "ColTap": {"col_edges": [25, 52], "frame_h": 24, "frame_w": 40, "k": [1.0, 3.0],
+               "sigma_dn": [[1.0, 0.0, 2.0], [0.5, 3.0, 0.0]]},  # flag word 1: column noise per column tap
     "DNL": {"period": 5, "threshold_dn": [0.0, 0.3, -0.2, 0.25, -0.35]},  # codes 0.4 to 1.45 wide, then the code map
     "CodeMap": {"k": [1.0], "lo_dn": [-5.0], "map_dn": [[-5.0, -5.0, -3.0, -2.0, -2.0, 0.0, 1.0, 1.0, 3.0, 4.0, 4.0]],
                 "split_dn": [[0.5, 0.1, 0.5, 0.5, -0.2, 0.5, 0.5, 0.1, 0.5, 0.5, -0.2]],
@@ -361,7 +363,7 @@ PATTERNS = {
     "FPN": {"seed": 11, "k": [1.0], "sigma_dn": [0.5], "shading_dn": [[[0.0, 0.0], [0.0, 0.0]]]},
     "Hot": LOOP_EFFECTS["Hot"],
     "PRNU": LOOP_EFFECTS["PRNU"],
-    "Dark": {k: v for k, v in LOOP_EFFECTS["Dark"].items() if k not in ("channel", "col_dsnu")},  # channel rates: every sensor's; pixel units only
+    "Dark": {k: v for k, v in LOOP_EFFECTS["Dark"].items() if k not in ("channel", "col_dsnu", "row_dsnu")},  # channel rates: every sensor's; pixel units only
     "Lines": LOOP_EFFECTS["Lines"],
     "RowFix": LOOP_EFFECTS["RowFix"],
 }

@@ -71,6 +71,7 @@ _DHOT_WHERE, _DHOT_SIZE = L.STREAM["dhot_where"], L.STREAM["dhot_size"]
 _CGS, _COLGAIN_PATTERN = L.COLUMN["colgain_sigma"], L.STREAM["colgain_pattern"]
 _CGT, _COLGAIN_FRAME = L.COLUMN["colgain_frame"], L.STREAM["colgain_frame"]
 _DSNU_COL, _DSNU_COL_PATTERN = L.COLUMN["dsnu_col_log"], L.STREAM["dsnu_col_pattern"]
+_DSNU_ROW, _DSNU_ROW_PATTERN = L.COLUMN["dsnu_row_log"], L.STREAM["dsnu_row_pattern"]
 _RGF, _RGT = L.COLUMN["rowgain_fixed"], L.COLUMN["rowgain_frame"]
 _ROWGAIN_PATTERN, _ROWGAIN_FRAME = L.STREAM["rowgain_pattern"], L.STREAM["rowgain_frame"]
 _DCD, _DCE, _DCL = L.COLUMN["dcol_density"], L.COLUMN["dcol_e"], L.COLUMN["dcol_log_std"]
@@ -152,6 +153,8 @@ _DRN, _DARK_ROW_NOISE, _DARK_ROW_NOISE_HIGH = L.COLUMN["dark_row_sigma"], L.STRE
 _RPAIR, _ROW_PAIR, _ROW_PAIR_HIGH = L.COLUMN["rpair_sigma"], L.STREAM["row_pair"], L.ROW_PAIR >> L.WORD_BITS
 _RTS, _RTC0, _RTOX, _RTW = L.COLUMN["rtap_sigma"], L.COLUMN["rtap_c0"], L.COLUMN["rtap_ox"], L.COLUMN["rtap_w"]
 _ROW_TAP, _ROW_TAP_HIGH = L.STREAM["row_tap"], L.ROW_TAP >> L.WORD_BITS
+_CTS0, _CTC0, _CTOX, _CTW = L.COLUMN["ctap_s0"], L.COLUMN["ctap_c0"], L.COLUMN["ctap_ox"], L.COLUMN["ctap_w"]
+_COL_TAP, _COL_TAP_HIGH = L.STREAM["col_tap"], L.COL_TAP >> L.WORD_BITS
 _RAMP_ROW, _RAMP_COL, _BLACK_RAMP, _BLACK_RAMP_HIGH = L.COLUMN["ramp_row"], L.COLUMN["ramp_col"], L.STREAM["black_ramp"], L.BLACK_RAMP >> L.WORD_BITS
 _BSTEP_AT, _BSTEP_DN, _BLACK_STEP_HIGH = L.COLUMN["bstep_at"], L.COLUMN["bstep_dn"], L.BLACK_STEP >> L.WORD_BITS
 _MASK_T, _MASK_B, _MASK_L, _MASK_R, _MASKED_HIGH = (L.COLUMN["mask_top"], L.COLUMN["mask_bottom"], L.COLUMN["mask_left"],
@@ -402,6 +405,7 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
     pixel = np.empty(w)  # ... after them, before the dark signal
     col_frame, col_fixed, col_of = np.empty(w), np.empty(w), -1  # column noise of (sample, channel) col_of: b * 4 + c
     col_drift, col_drift_of = np.empty(w), -1  # column drift of (sample, channel) col_drift_of
+    col_tap, col_tap_of = np.empty(w), -1  # column noise per tap of (sample, channel) col_tap_of
     rt_z = np.empty(_TAPS)  # row noise per tap: this row's offset in each column tap
     for r in range(r0, r1):
         b = r // (4 * h)
@@ -547,13 +551,15 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
             for x in range(w):
                 pixel[x] = sig[x]
         if stages & L.DARK_CURRENT:
+            sr = v[_DSNU_ROW]  # the sensor row's log-normal factor of mean 1 (row DSNU)
+            row_f = sr * symmetric(normal, draw(keys[_DSNU_ROW_PATTERN], (sensor * 2 + row_set) * h + y)) - 0.5 * sr * sr if sr > 0.0 else 0.0
             for x in range(w):
                 p = p0 + x
                 s = sig[x]
                 sl = v[_DSNU_LOG]  # a log-normal rate map of mean 1
                 sc = v[_DSNU_COL]  # ... times the sensor column's log-normal factor of mean 1
                 col = sc * symmetric(normal, draw(keys[_DSNU_COL_PATTERN], (sensor * 2 + col_set) * w + x)) - 0.5 * sc * sc if sc > 0.0 else 0.0
-                s += k * v[_DARK_E] * v[_DARK_C0 + c] * math.exp(sl * symmetric(normal, draw(keys[_DSNU_PATTERN], p)) - 0.5 * sl * sl + col)
+                s += k * v[_DARK_E] * v[_DARK_C0 + c] * math.exp(sl * symmetric(normal, draw(keys[_DSNU_PATTERN], p)) - 0.5 * sl * sl + col + row_f)
                 sig[x] = s
         if stages & L.GLOW:
             for x in range(w):
@@ -846,6 +852,15 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 s += col_frame[x]
                 s += col_fixed[x]
                 sig[x] = s
+        if stages_high & _COL_TAP_HIGH:  # column noise of the column's tap: the sensor column's offset of this frame
+            if col_tap_of != r // h:  # the same in every row of a channel: drawn once for them
+                col_tap_of = r // h
+                ct_cols = 2.0 * (v[_CTW] if v[_CTW] > 0.0 else w)
+                for x in range(w):
+                    tap = tap_at(2 * (x + int(v[_CTOX])) + col_set, v, _CTC0, ct_cols)
+                    col_tap[x] = v[_CTS0 + tap] * symmetric(normal, draw(keys[_COL_TAP], (b * 2 + col_set) * w + x))
+            for x in range(w):
+                sig[x] += col_tap[x]
         if stages_high & _COL_GROUP_HIGH:  # a column group's offset of this frame: groups of width sensor columns from start
             width = max(int(v[_CGRW]), 1)
             shift = width - int(v[_CGR0])

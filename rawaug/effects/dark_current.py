@@ -16,20 +16,23 @@ map of mean 1 and relative spread ``dsnu``. Dark current is skewed (a few pixels
 more than most), and a rate is never negative. Optionally (``col_dsnu``) the rate has a
 factor per sensor column too, log-normal of mean 1 and relative spread ``col_dsnu`` (keyed by
 the sensor column): column DSNU, a column's own leakage or a process gradient across the
-columns, dense where ``DarkCol``'s leaky columns are few. The exposure is a synthesis setting
+columns, dense where ``DarkCol``'s leaky columns are few; and (``row_dsnu``, since the
+thirty-third session) a factor per sensor row, alike: a row driver's or reset line's own
+leakage, dense where ``DarkRow``'s leaky rows are few. The exposure is a synthesis setting
 (``RawNoiseAugment(fixed={"exposure_s": t})``, default 0: no dark signal).
 
 Profile entry (per-K records, nearest record in log K)::
 
-    Dark: {seed: 19, k: [K, ...], rate_e_per_s: [...], dsnu: [...], col_dsnu: [...], channel: [f_R, f_G1, f_B, f_G2]}
+    Dark: {seed: 19, k: [K, ...], rate_e_per_s: [...], dsnu: [...], col_dsnu: [...], row_dsnu: [...],
+           channel: [f_R, f_G1, f_B, f_G2]}
 
 (``channel`` optional: one set for the camera, a property of the pixels' layout; ``col_dsnu``
-optional, 0 by default.)
+and ``row_dsnu`` optional, 0 by default.)
 
 Detected on dark stacks (``FrameStack(kind="dark", exposure_s=t)``, synthesized with the
 offsets and read noise of the bias frames of the same ISO) by ``mean_dn`` (the dark signal),
 ``temporal_std`` (its shot noise), ``fixed_std`` and ``fixed_pixel_var`` (DSNU), ``fixed_col_excess`` (column
-DSNU). Estimated by ``estimate``: the
+DSNU), ``fixed_row_excess`` (row DSNU). Estimated by ``estimate``: the
 mean excess over the model gives the rate, the excess white fixed-pattern variance
 (``fixed_pixel_var``: the dark shot noise left in an N-frame mean, ``Glow`` and ``FPN``
 shading cancel) gives DSNU, solved for through the same statistic (``log_normal_spread``:
@@ -37,7 +40,7 @@ it leaves out a heavy tail's far cells), and each channel's mean excess over the
 relative rate (``combine``: averaged over the stacks, weighted by their signal); the column
 DSNU from the spread of the sensor columns' relative dark signal less what their pixels' spread
 leaves in a column mean, kept where a chi-square test of the columns passes p 1e-3
-(``column_spread``).
+(``column_spread``), the row DSNU alike from the sensor rows (``row_spread``).
 """
 from __future__ import annotations
 
@@ -48,12 +51,12 @@ import torch
 from scipy import optimize, stats
 
 from ..engine import layout as L
-from ..engine.layout import COLUMN_SET
+from ..engine.layout import COLUMN_SET, ROW_SET
 from ..statistics import fixed_pixel_var
 from .base import PHOTON, NoiseEffect, pattern_key, register
 from .k_records import check_seed, validate_records, value_at_k
 
-STATISTICS = ("mean_dn", "temporal_std", "fixed_std", "fixed_pixel_var", "fixed_col_excess")
+STATISTICS = ("mean_dn", "temporal_std", "fixed_std", "fixed_pixel_var", "fixed_col_excess", "fixed_row_excess")
 COLUMN_P = 1e-3  # a column pattern of the dark signal counts where pixels alone make one as large less often
 AMPLITUDES = ("rate_e_per_s", "dsnu")  # corrected by simulation under a clip (rawaug.loop.clip_correction)
 
@@ -63,7 +66,7 @@ class DarkCurrent(NoiseEffect):
     token = "Dark"
     order = PHOTON + 5
     flag = L.DARK_CURRENT
-    columns = ("dark_e", "dsnu_log", "dark_c0", "dark_c1", "dark_c2", "dark_c3", "dsnu_col_log")
+    columns = ("dark_e", "dsnu_log", "dark_c0", "dark_c1", "dark_c2", "dark_c3", "dsnu_col_log", "dsnu_row_log")
     exposure = True
 
     def draw(self, ctx):
@@ -74,19 +77,23 @@ class DarkCurrent(NoiseEffect):
         out = {"dark_e": value_at_k(p, "rate_e_per_s", ctx.k) * exposure, "dsnu_log": torch.sqrt(torch.log1p(dsnu * dsnu))}
         col = value_at_k(p, "col_dsnu", ctx.k) if "col_dsnu" in p else torch.zeros_like(ctx.k)
         out["dsnu_col_log"] = torch.sqrt(torch.log1p(col * col))
+        row = value_at_k(p, "row_dsnu", ctx.k) if "row_dsnu" in p else torch.zeros_like(ctx.k)
+        out["dsnu_row_log"] = torch.sqrt(torch.log1p(row * row))
         for c, f in enumerate(p.get("channel", (1.0,) * 4)):
             out[f"dark_c{c}"] = ctx.k.new_full((ctx.batch,), float(f))
         return out
 
     def pattern_streams(self):
         seed = self.profile.effects[self.token]["seed"]
-        return {"dsnu_pattern": pattern_key(seed, self.token), "dsnu_col_pattern": pattern_key(seed, self.token, "column")}
+        return {"dsnu_pattern": pattern_key(seed, self.token), "dsnu_col_pattern": pattern_key(seed, self.token, "column"),
+                "dsnu_row_pattern": pattern_key(seed, self.token, "row")}
 
     @classmethod
     def validate_params(cls, params):
         validate_records(cls.token, params, ("rate_e_per_s", "dsnu"), nonnegative=("rate_e_per_s", "dsnu"))
-        if "col_dsnu" in params:
-            validate_records(cls.token, params, ("col_dsnu",), nonnegative=("col_dsnu",))
+        for key in ("col_dsnu", "row_dsnu"):
+            if key in params:
+                validate_records(cls.token, params, (key,), nonnegative=(key,))
         check_seed(cls.token, params)
         if "channel" in params:
             f = params["channel"]
@@ -117,33 +124,58 @@ def estimate(frames, synthesized, k: float, exposure_s=None, seed: int = 19, kin
     dsnu = log_normal_spread(excess, base[0], signal_dn / k * channel[:, None, None], k)
     mean_map = frames.mean(axis=0) - np.mean([s.mean(axis=0) for s in base], axis=0)
     return {"seed": int(seed), "k": [float(k)], "rate_e_per_s": [signal_dn / (k * float(exposure_s))], "dsnu": [dsnu],
-            "col_dsnu": [column_spread(mean_map, channel_dn)],
+            "col_dsnu": [column_spread(mean_map, channel_dn, frames, base)],
+            "row_dsnu": [row_spread(mean_map, channel_dn, frames, base)],
             "channel": [float(f) for f in channel], "signal_dn": signal_dn}
 
 
-def column_spread(signal_map, channel_dn) -> float:
-    """Relative spread (sd over mean) of the sensor columns' factors on a dark signal, from its
-    map (4, h, w; DN) and each channel's mean (4,): the variance of the columns' means of the
-    map relative to its channel's mean (a sensor column: its packed channels, all rows) less
-    what their pixels' own spread leaves in a mean; 0 unless the columns' chi-square against
-    that passes ``COLUMN_P``. Channels with a quarter of the strongest one's signal or less are
-    left out (a colour without dark current has no column factor to show), and with them the
-    columns of a column set that keeps none."""
+def _line_means(frames, channel_dn, chans, rows: bool):
+    """(N, lines) each frame's sensor-line means of the channels ``chans`` (one line set),
+    each channel relative to its mean dark signal ``channel_dn``."""
+    return np.mean([np.asarray(frames[:, c], dtype=np.float64).mean(axis=2 if rows else 1) / channel_dn[c] for c in chans], axis=0)
+
+
+def _line_spread(signal_map, channel_dn, rows: bool, frames=None, base=()) -> float:
+    """Relative spread (sd over mean) of the sensor columns' (with ``rows``, the sensor rows')
+    factors on a dark signal, from its map (4, h, w; DN) and each channel's mean (4,): the
+    variance of the lines' means of the map relative to its channel's mean (a sensor line: its
+    packed channels, all pixels along it) less what their pixels' own spread leaves in a mean
+    and, with the stack ``frames`` and the model's stacks ``base`` the map was measured from,
+    what the lines' temporal offsets (row or column noise) leave in the means of both; 0 unless
+    the lines' chi-square against that passes ``COLUMN_P``. Channels with a quarter of the
+    strongest one's signal or less are left out (a colour without dark current has no line
+    factor to show), and with them the lines of a line set that keeps none."""
     channel_dn = np.asarray(channel_dn, dtype=np.float64)
     shown = channel_dn > 0.25 * channel_dn.max()
+    sets = ROW_SET if rows else COLUMN_SET
     means, noise = [], []
-    for col_set in (0, 1):
-        chans = [c for c in range(4) if COLUMN_SET[c] == col_set and shown[c]]
+    for line_set in (0, 1):
+        chans = [c for c in range(4) if sets[c] == line_set and shown[c]]
         if not chans:
             continue
-        pixels = np.concatenate([signal_map[c] / channel_dn[c] for c in chans], axis=0)  # (rows, w)
-        means.append(pixels.mean(axis=0))
-        noise.append(pixels.var(axis=0, ddof=1) / pixels.shape[0])
+        pixels = np.concatenate([(signal_map[c].T if rows else signal_map[c]) / channel_dn[c] for c in chans], axis=0)
+        means.append(pixels.mean(axis=0))  # (lines,): along its pixels
+        v = pixels.var(axis=0, ddof=1) / pixels.shape[0]
+        for stack, share in ([(frames, 1.0)] if frames is not None else []) + [(b, 1.0 / len(base)) for b in base]:
+            if stack.shape[0] > 1:  # the lines' temporal offsets left in the stack's mean (the map's or the model's),
+                t = _line_means(stack, channel_dn, chans, rows)  # pooled over the lines (a line's own has N - 1 degrees)
+                v = v + share * share * float(t.var(axis=0, ddof=1).mean()) / t.shape[0]
+        noise.append(v)
     f, v = np.concatenate(means), np.concatenate(noise)
     chi2 = float(np.sum((f - f.mean()) ** 2 / np.maximum(v, 1e-300)))
     if stats.chi2.sf(chi2, f.size - 1) >= COLUMN_P:
         return 0.0
     return float(math.sqrt(max(f.var(ddof=1) - v.mean(), 0.0)) / max(f.mean(), 1e-12))
+
+
+def column_spread(signal_map, channel_dn, frames=None, base=()) -> float:
+    """Column DSNU: the relative spread of the sensor columns' factors (``_line_spread``)."""
+    return _line_spread(signal_map, channel_dn, False, frames, base)
+
+
+def row_spread(signal_map, channel_dn, frames=None, base=()) -> float:
+    """Row DSNU: the relative spread of the sensor rows' factors (``_line_spread``)."""
+    return _line_spread(signal_map, channel_dn, True, frames, base)
 
 
 DSNU_MAX = 20.0  # relative spread searched up to (log-normal b = 2.45)
@@ -194,9 +226,10 @@ def combine(records: list[dict]) -> dict:
     out = {"seed": records[0]["seed"], "k": ks,
            "rate_e_per_s": [float(np.mean([r["rate_e_per_s"][0] for r in by_k[k]])) for k in ks],
            "dsnu": [float(np.mean([r["dsnu"][0] for r in by_k[k]])) for k in ks]}
-    col = [float(np.mean([r.get("col_dsnu", [0.0])[0] for r in by_k[k]])) for k in ks]
-    if any(col):
-        out["col_dsnu"] = col
+    for key in ("col_dsnu", "row_dsnu"):
+        line = [float(np.mean([r.get(key, [0.0])[0] for r in by_k[k]])) for k in ks]
+        if any(line):
+            out[key] = line
     weights = np.array([max(float(r.get("signal_dn", 0.0)), 0.0) for r in records])
     if weights.sum() > 0.0:
         channel = np.average([r.get("channel", [1.0] * 4) for r in records], axis=0, weights=weights)

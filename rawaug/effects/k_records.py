@@ -56,6 +56,23 @@ def frame_size(token: str, params: dict) -> tuple[int, int] | None:
     return h, w
 
 
+def check_edges(token: str, params: dict, key: str = "col_edges", most: int = 7) -> None:
+    """``params[key]``: at most ``most`` whole sensor columns strictly increasing inside the
+    measured frame (``frame_w`` packed columns: ``(0, 2 frame_w)``); ValueError naming them
+    otherwise (the frame size is required)."""
+    size = frame_size(token, params)
+    if size is None:
+        raise ValueError(f"effect {token!r} needs frame_h and frame_w (packed pixels of the frame its edges are on)")
+    edges = params.get(key)
+    if not isinstance(edges, (list, tuple)) or len(edges) > most:
+        raise ValueError(f"effect {token!r}: {key} must be a list of at most {most} sensor columns, got {edges!r:.80}")
+    for e in edges:
+        if isinstance(e, bool) or not isinstance(e, int) or not 0 < e < 2 * size[1]:
+            raise ValueError(f"effect {token!r}: {key} values must be whole sensor columns in (0, {2 * size[1]}), got {e!r}")
+    if list(edges) != sorted(set(edges)):
+        raise ValueError(f"effect {token!r}: {key} must be strictly increasing, got {list(edges)}")
+
+
 def record_index(params: dict, k: torch.Tensor) -> torch.Tensor:
     """(B,) index of the record nearest each K (log distance; first of ties)."""
     table = KTable(tuple(float(v) for v in params["k"]), tuple(float(i) for i in range(len(params["k"]))))
@@ -157,6 +174,20 @@ def window_columns(ctx, token: str, params: dict, names: tuple[str, str, str, st
             room = frame[axis] - ctx.shape[axis] + 1
             out[oy] = torch.floor(ctx.uniform(oy) * room).clamp(max=room - 1)
             out[size] = torch.full_like(ctx.k, float(frame[axis]))
+    return out
+
+
+def column_edge_columns(ctx, token: str, params: dict, prefix: str, most: int) -> dict:
+    """Kernel columns of a profile's column-tap edges (``col_edges``, sensor columns of the
+    measured frame): ``{prefix}_c0 .. c{most - 1}`` the edges as fractions of the frame's sensor
+    columns (2: none), and ``{prefix}_ox``/``_w`` the window an input is of the frame
+    (``window_columns``)."""
+    n = ctx.k.shape[0]
+    _, w = frame_size(token, params)
+    edges = params["col_edges"]
+    out = {f"{prefix}_c{i}": ctx.k.new_full((n,), edges[i] / (2.0 * w) if i < len(edges) else 2.0) for i in range(most)}
+    window = window_columns(ctx, token, params, tuple(f"{prefix}_{name}" for name in ("oy", "ox", "h", "w")))
+    out[f"{prefix}_ox"], out[f"{prefix}_w"] = window[f"{prefix}_ox"], window[f"{prefix}_w"]
     return out
 
 

@@ -24,7 +24,12 @@ raise (``noisy_fraction``, ``flicker_fraction``: the pixels of a noisy column ar
 pixels, one column at a time). Estimated by ``estimate`` on bias stacks
 of >= 4 frames: the noisy columns beyond the model's, each one's extra noise from its
 excess variance (columns whose noise is lost in the spread are not seen: density and median
-are those of the detectable population).
+are those of the detectable population). Where every column has a noise of its own (the
+columns' pixel noise spread ``SPREAD_FACTOR`` times the model's, by interquartile range, and
+standing ``SPREAD_Z`` standard errors out: column amplifiers of unequal noise), the extra
+noise is in every column (density 1), its median and log spread fitted to the quantiles of
+the columns' noise (``spread_fit``); judged with the base read noise re-fitted, which
+calibration gave the columns' mean extra variance.
 """
 from __future__ import annotations
 
@@ -37,9 +42,12 @@ from ..engine import layout as L
 from ..statistics import column_pixel_noise, median, noisy_columns
 from .base import DARK, NoiseEffect, pattern_key, register
 from .k_records import _number, check_density, check_seed, validate_records, value_at_k
-from .noisy_pixels import combine  # noqa: F401  (one population over the bias stacks, the noise per gain: Noisy's)
+from .noisy_pixels import combine as combine_sparse  # one population over the bias stacks, the noise per gain: Noisy's
 
 STATISTICS = ("noisy_col_fraction", "read_noise_spread", "noisy_fraction", "flicker_fraction")  # its pixels are noisy ones
+SHARES_READ_NOISE = True  # with every column noisy, calibration's read noise holds their mean extra variance
+SPREAD_FACTOR = 3.0  # columns' noise this many times the model's spread (interquartile range): every column its own
+SPREAD_Z = 6.0  # ... standing this many standard errors of the measured range out
 
 
 @register
@@ -63,9 +71,33 @@ class NoisyColumns(NoiseEffect):
     def validate_params(cls, params):
         validate_records(cls.token, params, ("median_dn",), nonnegative=("median_dn",))
         check_seed(cls.token, params)
-        check_density(cls.token, params, of="sensor columns")
+        check_density(cls.token, params, most=1.0, of="sensor columns")
         if _number(params.get("log_std"), "NoisyCol.log_std") < 0:
             raise ValueError(f"effect 'NoisyCol': log_std must be >= 0, got {params.get('log_std')}")
+
+
+def _iqr(v) -> float:
+    q1, q3 = np.percentile(v, [25.0, 75.0])
+    return float(q3 - q1)
+
+
+def spread_fit(v) -> tuple[float, float, float]:
+    """(base variance, median extra std, log spread) of columns' pixel variances ``v`` (DN^2)
+    as ``base + m^2 exp(2 s z)``, ``z`` standard normal: least squares on the quantiles from
+    2 % to 98 % (for each ``s`` on a grid, ``base`` and ``m^2`` are linear)."""
+    p = np.linspace(0.02, 0.98, 49)
+    q = np.quantile(np.asarray(v, dtype=np.float64), p)
+    z = stats.norm.ppf(p)
+    best = (np.inf, 0.0, 0.0, 0.0)
+    for s in np.linspace(0.02, 1.5, 149):
+        a = np.stack([np.ones_like(z), np.exp(2.0 * s * z)], axis=1)
+        (base, m2), *_ = np.linalg.lstsq(a, q, rcond=None)
+        if m2 <= 0:
+            continue
+        err = float(((a @ np.array([base, m2]) - q) ** 2).sum())
+        if err < best[0]:
+            best = (err, float(base), float(math.sqrt(m2)), float(s))
+    return best[1], best[2], best[3]
 
 
 def estimate(frames, synthesized, k: float, seed: int = 101, kind: str = "bias", **_) -> dict:
@@ -73,22 +105,47 @@ def estimate(frames, synthesized, k: float, seed: int = 101, kind: str = "bias",
     sensor columns (``noisy_columns``) beyond the model's (its ``synthesized`` stacks of this
     stack), each one's extra noise the square root of its excess median variance over the
     median column's, scaled from the median of N - 1 degrees to the variance (a Gaussian
-    column's median pixel variance is its variance x chi2.median(N - 1) / (N - 1))."""
+    column's median pixel variance is its variance x chi2.median(N - 1) / (N - 1)); where every
+    column has a noise of its own, all of them (``spread_fit``)."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind != "bias" or frames.shape[0] < 4:
         raise ValueError("NoisyCol is measured on bias stacks of >= 4 frames")
     none = {"seed": int(seed), "density": 0.0, "log_std": 0.0, "k": [float(k)], "median_dn": [0.0]}
+    n = frames.shape[0]
+    scale = (n - 1) / stats.chi2.median(n - 1)
+    v = column_pixel_noise(frames)
+    if len(synthesized):
+        model = float(np.mean([_iqr(column_pixel_noise(s)) for s in synthesized]))
+        se = _iqr(v) * 1.36 / math.sqrt(v.size)  # an interquartile range's standard error, relative (normal)
+        if _iqr(v) > SPREAD_FACTOR * model and _iqr(v) - model > SPREAD_Z * se:
+            _, m, s = spread_fit(v * scale)
+            if m > 0:
+                return {"seed": int(seed), "density": 1.0, "log_std": s, "k": [float(k)], "median_dn": [m]}
     noisy, med = noisy_columns(frames)
     base = float(np.mean([noisy_columns(s)[0].mean() for s in synthesized])) if len(synthesized) else 0.0
     density = float(noisy.mean()) - base
     if density <= 0.0 or noisy.sum() < 2:
         return none
-    n = frames.shape[0]
-    scale = (n - 1) / stats.chi2.median(n - 1)
-    extra = np.sqrt(np.maximum(column_pixel_noise(frames)[noisy] - med, 1e-12) * scale)
+    extra = np.sqrt(np.maximum(v[noisy] - med, 1e-12) * scale)
     logs = np.log(extra)
     return {"seed": int(seed), "density": min(density, 0.1), "log_std": float(logs.std(ddof=1)), "k": [float(k)],
             "median_dn": [float(math.exp(float(median(logs))))]}
+
+
+def combine(records: list[dict]) -> dict:
+    """Every column with a noise of its own where a stack showed it (density 1; a stack whose
+    read noise hides the columns' spread sees only its tail, as sparse columns): the log spread
+    the median over those stacks, the noise per gain their geometric mean at that K; else one
+    sparse population (``noisy_pixels.combine``)."""
+    spread = [r for r in records if float(r["density"]) == 1.0]
+    if not spread:
+        return combine_sparse(records)
+    by_k: dict = {}
+    for r in spread:
+        by_k.setdefault(float(r["k"][0]), []).append(r["median_dn"][0])
+    ks = sorted(by_k)
+    return {"seed": spread[0]["seed"], "density": 1.0, "log_std": float(np.median([r["log_std"] for r in spread])), "k": ks,
+            "median_dn": [float(np.exp(np.mean(np.log(by_k[k])))) for k in ks]}
 
 
 def empty(params) -> bool:

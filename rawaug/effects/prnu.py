@@ -10,8 +10,10 @@ map ``g`` (the same in every frame). ``sigma`` does not depend on ISO.
 Profile entry::  ``PRNU: {seed: 17, sigma: 0.01}``  (fraction of the signal)
 
 Detected by ``flat_fixed_rel`` on flat stacks (fixed-pattern std over the mean level).
-Estimated by ``estimate``: the excess fixed-pattern variance of the flat stack over the
-current model, divided by the squared mean level. Bias frames cannot show PRNU.
+Estimated by ``estimate``: the excess fixed-pattern variance of each flat stack over the
+current model, against its squared mean level; ``combine`` fits one spread to every flat stack
+(before the thirty-third session the loop took the first flat stack's alone: the dimmest, where
+the gains show least). Bias frames cannot show PRNU.
 """
 from __future__ import annotations
 
@@ -52,13 +54,30 @@ def _fixed_var(frames):
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, seed: int = 17, **_) -> dict:
-    """PRNU from a flat stack (N >= 2, 4, h, w) in DN at clean level ``level_dn`` (DN)."""
+    """PRNU from a flat stack (N >= 2, 4, h, w) in DN at clean level ``level_dn`` (DN): its
+    fixed-pattern variance over the model's, over the squared level (``combine`` of this stack
+    alone; what it saw is kept under ``"_seen"`` for ``combine`` over stacks)."""
     frames = np.asarray(frames, dtype=np.float64)
     if level_dn is None or frames.shape[0] < 2:
         raise ValueError("PRNU needs a flat stack of >= 2 frames and its clean level level_dn (DN)")
-    level = float(np.mean(level_dn))
+    level = max(float(np.mean(level_dn)), 1e-12)
+    measured = _fixed_var(frames)
     base = float(np.mean([_fixed_var(np.asarray(s, dtype=np.float64)) for s in synthesized]))
-    return {"seed": int(seed), "sigma": float(np.sqrt(max(_fixed_var(frames) - base, 0.0)) / max(level, 1e-12))}
+    seen = {"level": level, "excess": measured - base, "var": max(measured, 1e-30), "seed": int(seed)}
+    return {**combine([{"_seen": seen}]), "_seen": seen}
+
+
+def combine(records: list[dict]) -> dict:
+    """One gain spread for every flat stack (PRNU does not depend on the level or the ISO): the
+    least-squares fit of the stacks' excess fixed-pattern variances by ``sigma^2 x level^2``,
+    each weighted by its precision (a variance's standard error is proportional to it), so the
+    brightest flats, where the gains show most, count most."""
+    seen = [r["_seen"] for r in records]
+    w = np.array([1.0 / s["var"] ** 2 for s in seen])
+    x = np.array([s["level"] ** 2 for s in seen])
+    y = np.array([s["excess"] for s in seen])
+    var = float((w * x * y).sum() / max(float((w * x * x).sum()), 1e-300))
+    return {"seed": seen[0]["seed"], "sigma": float(np.sqrt(max(var, 0.0)))}
 
 
 def empty(params) -> bool:

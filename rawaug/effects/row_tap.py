@@ -37,7 +37,7 @@ from scipy import stats as sstats
 from ..engine import layout as L
 from ..statistics import ROW_TAP_ROWS, TAP_P, TAP_WINDOW, row_tap_steps
 from .base import BANDING, NoiseEffect, register
-from .k_records import frame_size, validate_records, value_at_k, window_columns
+from .k_records import check_edges, column_edge_columns, validate_records, value_at_k
 from .tap_black import _consensus
 
 STATISTICS = ("row_tap_ratio",)
@@ -55,30 +55,12 @@ class RowTap(NoiseEffect):
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        n = ctx.k.shape[0]
-        _, w = frame_size(self.token, p)
-        edges = p["col_edges"]
-        out = {"rtap_sigma": value_at_k(p, "sigma_dn", ctx.k)}
-        for i in range(MAX_EDGES):
-            out[f"rtap_c{i}"] = ctx.k.new_full((n,), edges[i] / (2.0 * w) if i < len(edges) else 2.0)
-        window = window_columns(ctx, self.token, p, ("rtap_oy", "rtap_ox", "rtap_h", "rtap_w"))
-        out["rtap_ox"], out["rtap_w"] = window["rtap_ox"], window["rtap_w"]
-        return out
+        return {"rtap_sigma": value_at_k(p, "sigma_dn", ctx.k), **column_edge_columns(ctx, self.token, p, "rtap", MAX_EDGES)}
 
     @classmethod
     def validate_params(cls, params):
         validate_records(cls.token, params, ("sigma_dn",), nonnegative=("sigma_dn",))
-        size = frame_size(cls.token, params)
-        if size is None:
-            raise ValueError("effect 'RowTap' needs frame_h and frame_w (packed pixels of the frame its edges are on)")
-        edges = params.get("col_edges")
-        if not isinstance(edges, (list, tuple)) or len(edges) > MAX_EDGES:
-            raise ValueError(f"effect 'RowTap': col_edges must be a list of at most {MAX_EDGES} sensor columns, got {edges!r:.80}")
-        for e in edges:
-            if isinstance(e, bool) or not isinstance(e, int) or not 0 < e < 2 * size[1]:
-                raise ValueError(f"effect 'RowTap': col_edges values must be whole sensor columns in (0, {2 * size[1]}), got {e!r}")
-        if list(edges) != sorted(set(edges)):
-            raise ValueError(f"effect 'RowTap': col_edges must be strictly increasing, got {list(edges)}")
+        check_edges(cls.token, params, most=MAX_EDGES)
 
 
 def _rows(frames) -> int:

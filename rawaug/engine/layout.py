@@ -90,6 +90,7 @@ DARK_ROW_NOISE = 1 << 75  # exposure row noise: row offsets whose variance grows
 ROW_TAP = 1 << 76  # row noise per readout tap: each column tap's own offset per sensor row, new in every frame
 BLACK_STEP = 1 << 77  # black steps: the black level steps from a row drawn per frame on, by a size drawn per frame
 MASKED = 1 << 78  # masked lines: the sensor lines at the frame's edges get no light (optically black rows and columns)
+COL_TAP = 1 << 79  # column noise per readout tap: each sensor column's offset, new in every frame, with its column tap's std
 BLACK_RAMP = 1 << 73  # black ramps: the black level a linear ramp down the sensor rows and across the columns, a new slope in every frame
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
@@ -208,6 +209,9 @@ COLUMNS = (
     "bstep_at", "bstep_dn",  # black step: this frame's first stepped sensor row (fraction of the input's), its size (DN)
     "ggrid_conv",  # gain grid: share of the log gain applied after shot noise (0: optical, before it; 1: a conversion gain)
     "colgain_frame",  # column gain: std of each sensor column's gain drawn anew in every frame (fraction of the signal)
+    *(f"ctap_s{i}" for i in range(TAP_EDGES + 1)),  # column noise per tap: each column tap's std (DN) ...
+    *(f"ctap_c{i}" for i in range(TAP_EDGES)), "ctap_ox", "ctap_w",  # ... its column edges (fractions; 2: none), window
+    "dsnu_row_log",  # dark current: log-normal sigma of the sensor rows' factors on the rate (row DSNU)
 )
 COLUMN = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -230,7 +234,7 @@ STREAMS = (
     "burst_row", "burst_noise", "dead_col", "dead_row", "row_map",
     "hot_tile_where", "hot_tile_size", "dsnu_col_pattern", "rspike_where", "rspike_size", "lines_row_cut", "lines_col_cut",
     "burst_col", "burst_col_noise", "well_pattern", "col_group", "black_ramp", "row_pair", "dark_row_noise",
-    "row_tap", "colgain_frame",
+    "row_tap", "colgain_frame", "col_tap", "dsnu_row_pattern",
 )
 STREAM = {name: i for i, name in enumerate(STREAMS)}
 N_STREAMS = len(STREAMS)

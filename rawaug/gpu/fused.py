@@ -24,6 +24,7 @@ def _column(name: str) -> tl.constexpr:
 C_K, C_RATIO, C_PRNU = _column("k"), _column("ratio"), _column("prnu_sigma")
 C_DARK_E, C_DSNU_LOG, C_DARK_C0 = _column("dark_e"), _column("dsnu_log"), _column("dark_c0")
 C_DSNU_COL = _column("dsnu_col_log")
+C_DSNU_ROW = _column("dsnu_row_log")
 C_LF, C_LF_GH, C_LF_GW = _column("lowfreq_sigma"), _column("lowfreq_gh"), _column("lowfreq_gw")
 C_CM_REC0 = _column("codemap_record_c0")  # channel c's record: C_CM_REC0 + c
 C_RQ_REC, C_RQ_SCALE = _column("readq_record"), _column("readq_scale")
@@ -102,6 +103,7 @@ C_RAMP_ROW, C_RAMP_COL = _column("ramp_row"), _column("ramp_col")
 C_BSTEP_AT, C_BSTEP_DN = _column("bstep_at"), _column("bstep_dn")
 C_MASK_T, C_MASK_B, C_MASK_L, C_MASK_R = (_column(n) for n in ("mask_top", "mask_bottom", "mask_left", "mask_right"))
 C_RTS, C_RTC0, C_RTOX, C_RTW = _column("rtap_sigma"), _column("rtap_c0"), _column("rtap_ox"), _column("rtap_w")
+C_CTS0, C_CTC0, C_CTOX, C_CTW = _column("ctap_s0"), _column("ctap_c0"), _column("ctap_ox"), _column("ctap_w")
 C_CGRS, C_CGRW, C_CGR0 = _column("cgroup_sigma"), _column("cgroup_width"), _column("cgroup_start")
 C_RSD, C_RSM, C_RSL, C_RSN = _column("rspike_density"), _column("rspike_median"), _column("rspike_log_std"), _column("rspike_negative")
 C_RWY0, C_RWOY, C_RWH = _column("rowmap_y0"), _column("rowmap_oy"), _column("rowmap_h")
@@ -136,6 +138,7 @@ K_BURST_ROW, K_BURST_NOISE = S["burst_row"], S["burst_noise"]
 K_BURST_COL, K_BURST_COL_NOISE = S["burst_col"], S["burst_col_noise"]
 K_WELL_PATTERN, K_COL_GROUP, K_BLACK_RAMP, K_ROW_PAIR = S["well_pattern"], S["col_group"], S["black_ramp"], S["row_pair"]
 K_DARK_ROW_NOISE, K_ROW_TAP = S["dark_row_noise"], S["row_tap"]
+K_COL_TAP = S["col_tap"]
 K_RSPIKE_WHERE, K_RSPIKE_SIZE = S["rspike_where"], S["rspike_size"]
 K_ROW_MAP = S["row_map"]
 K_HOT_TILE_WHERE, K_HOT_TILE_SIZE = S["hot_tile_where"], S["hot_tile_size"]
@@ -143,6 +146,7 @@ K_COL_BAND = S["col_band"]
 K_DHOT_WHERE, K_DHOT_SIZE = S["dhot_where"], S["dhot_size"]
 K_COLGAIN, K_COLGAIN_FRAME = S["colgain_pattern"], S["colgain_frame"]
 K_DSNU_COL = S["dsnu_col_pattern"]
+K_DSNU_ROW = S["dsnu_row_pattern"]
 K_ROWGAIN, K_ROWGAIN_FRAME = S["rowgain_pattern"], S["rowgain_frame"]
 K_DCOL_WHERE, K_DCOL_SIZE = S["dcol_where"], S["dcol_size"]
 K_DROW_WHERE, K_DROW_SIZE = S["drow_where"], S["drow_size"]
@@ -407,6 +411,8 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         sl = _col(v, C_DSNU_LOG)
         sc = _col(v, C_DSNU_COL)  # the sensor column's log-normal factor of mean 1 (column DSNU)
         col = tl.where(sc > 0.0, sc * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU_COL), ((sensor * 2 + col_set) * W + x).to(tl.uint64))) - 0.5 * sc * sc, 0.0)
+        sr = _col(v, C_DSNU_ROW)  # the sensor row's log-normal factor of mean 1 (row DSNU)
+        col += tl.where(sr > 0.0, sr * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU_ROW), ((sensor * 2 + row_set) * H + y).to(tl.uint64))) - 0.5 * sr * sr, 0.0)
         s += k * _col(v, C_DARK_E) * tl.load(v + C_DARK_C0 + c) * tl.exp(sl * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_DSNU), p)) - 0.5 * sl * sl + col)
     if FLAGS & 524288:  # amplifier glow: K * exposure * a smooth dark-current map (e-/s), a window of glow_h x glow_w
         gh_ = _col(v, C_GLH)
@@ -617,6 +623,10 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
                       * _normal(draw(kc, ((m * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64))))
         s += _col(v, C_CS) * z
         s += _col(v, C_CF) * _normal(draw(_key(keys_ptr, K_COL_PATTERN), ((sensor * 2 + col_set) * W + x).to(tl.uint64)))
+    if FLAGS_HIGH & 65536:  # (word 1) column noise per tap: the sensor column's offset of this frame, its tap's std
+        ctc = _tap(v, C_CTC0, C_CTOX, C_CTW, x, col_set, W)
+        cts = tl.load(v + C_CTS0 + ctc)
+        s += cts * symmetric_table(normal_ptr, draw(_key(keys_ptr, K_COL_TAP), ((b * 2 + col_set).to(tl.int64) * W + x).to(tl.uint64)))
     if FLAGS_HIGH & 512:  # (word 1) column groups: the group's offset of this frame (groups of width sensor columns from start)
         width = tl.maximum(_col(v, C_CGRW).to(tl.int64), 1)
         group = ((2 * x + col_set).to(tl.int64) + width - _col(v, C_CGR0).to(tl.int64)) // width
