@@ -535,6 +535,26 @@ def test_cameras_of_the_thirty_second_session_are_fixed_by_their_effect(tmp_path
     assert row["fixed"] and row["added"] == [token], row
 
 
+@pytest.mark.slow  # about 4 minutes each: the issue's geometry
+@pytest.mark.parametrize("case, token", [("half_column_noise", "ColTap"), ("pixel_nonlinearity", "PRNU"),
+                                         ("column_read_spread", "NoisyCol"), ("row_dark_current", "Dark")])
+def test_cameras_of_the_thirty_third_session_are_fixed_by_their_effect(tmp_path, case, token):
+    """Probes missed on their first run: half_column_noise (seventeenth batch: column noise in
+    the left half only) had no effect with column noise by region; from the eighteenth,
+    pixel_nonlinearity (each pixel's gain bending with the level) had PRNU estimated on the
+    first, dimmest flat stack alone (nothing), column_read_spread (every column its own white
+    noise, log-normal) had NoisyCol's few noisy columns, row_dark_current (every row its own
+    dark current) had no row factor on the dark rate. Each now gets its one effect and nothing
+    is left."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from loop_unseen import run_case
+
+    row = run_case(case, 0, "issue", keep=tmp_path)
+    assert row["fixed"] and row["added"] == [token], row
+
+
 @pytest.mark.slow  # the default run checks the glow at one exposure (the manifest case "glow"); 17 s
 def test_glow_grows_with_exposure_over_two_dark_exposures(tmp_path):
     check_glow_two_exposures(tmp_path, seed=0)
