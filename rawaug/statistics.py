@@ -1213,7 +1213,11 @@ def noisy_columns(frames):
     """(mask over the 2w sensor columns of the noisy ones, ``column_pixel_noise``'s median over
     the columns, DN^2): a column is noisy where its pixels' temporal noise exceeds the median
     column's by NOISY_LINE_Z robust sigmas (1.4826 MAD over the columns)."""
-    v = column_pixel_noise(frames)
+    return noisy_of(column_pixel_noise(frames))
+
+
+def noisy_of(v):
+    """``noisy_columns`` of the columns' ``column_pixel_noise`` ``v`` (2w,), DN^2."""
     med = float(median(v))
     mad = 1.482602218505602 * float(median(np.abs(v - med)))
     return v > med + NOISY_LINE_Z * max(mad, 1e-12), med

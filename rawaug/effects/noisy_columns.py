@@ -39,7 +39,7 @@ import numpy as np
 from scipy import stats
 
 from ..engine import layout as L
-from ..statistics import column_pixel_noise, median, noisy_columns
+from ..statistics import column_pixel_noise, median, noisy_of
 from .base import DARK, NoiseEffect, pattern_key, register
 from .k_records import _number, check_density, check_seed, validate_records, value_at_k
 from .noisy_pixels import combine as combine_sparse  # one population over the bias stacks, the noise per gain: Noisy's
@@ -114,15 +114,16 @@ def estimate(frames, synthesized, k: float, seed: int = 101, kind: str = "bias",
     n = frames.shape[0]
     scale = (n - 1) / stats.chi2.median(n - 1)
     v = column_pixel_noise(frames)
-    if len(synthesized):
-        model = float(np.mean([_iqr(column_pixel_noise(s)) for s in synthesized]))
+    synth = [column_pixel_noise(s) for s in synthesized]  # one pass over each synthesized stack
+    if synth:
+        model = float(np.mean([_iqr(x) for x in synth]))
         se = _iqr(v) * 1.36 / math.sqrt(v.size)  # an interquartile range's standard error, relative (normal)
         if _iqr(v) > SPREAD_FACTOR * model and _iqr(v) - model > SPREAD_Z * se:
             _, m, s = spread_fit(v * scale)
             if m > 0:
                 return {"seed": int(seed), "density": 1.0, "log_std": s, "k": [float(k)], "median_dn": [m]}
-    noisy, med = noisy_columns(frames)
-    base = float(np.mean([noisy_columns(s)[0].mean() for s in synthesized])) if len(synthesized) else 0.0
+    noisy, med = noisy_of(v)
+    base = float(np.mean([noisy_of(x)[0].mean() for x in synth])) if synth else 0.0
     density = float(noisy.mean()) - base
     if density <= 0.0 or noisy.sum() < 2:
         return none
