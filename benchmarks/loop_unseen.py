@@ -1368,6 +1368,56 @@ def serial_cti(dn, rng, kind="", **_):
     return _raw_mask_to_packed(0.98 * raw + 0.02 * left)
 
 
+# the twentieth fresh batch (thirty-fourth session), written and committed before the loop ran on it
+def row_read_spread(dn, rng, **_):
+    """Every row driver its own noise: each sensor row adds white noise of 1 DN x a lognormal factor (sigma 0.5 in log, drawn once), new at every pixel and frame, in every kind of frame."""
+    _, h, w = dn.shape
+    s = np.exp(0.5 * np.random.default_rng(197).standard_normal(2 * h))
+    e = np.stack([s[0::2], s[0::2], s[1::2], s[1::2]])[:, :, None]  # R, G1 on even sensor rows
+    return dn + e * rng.standard_normal(dn.shape)
+
+
+def pixel_read_spread(dn, rng, **_):
+    """Every pixel its own read noise: each pixel adds white noise of 1.5 DN x a lognormal factor (sigma 0.4 in log, drawn once per pixel), new in every frame, in every kind of frame."""
+    s = 1.5 * np.exp(0.4 * _fixed(199, dn.shape))
+    return dn + s * rng.standard_normal(dn.shape)
+
+
+def dark_excess_noise(dn, rng, exposure=0.0, k=1.0, **_):
+    """Dark current released in packets: dark electrons come 4 at a time, 2 e-/s on average, so the dark signal's shot noise is twice Poisson's (4 x its variance), in every kind of frame (it only shows in the 4 s darks)."""
+    return dn + k * 4.0 * rng.poisson(0.5 * exposure, dn.shape)
+
+
+def embedded_data_rows(dn, rng, **_):
+    """Embedded metadata left in the raw: the last 2 sensor rows hold status words, codes fixed from frame to frame (uniform 0 to 1000 DN above black, drawn once) except the first 8 pixels of the last row, a frame counter, in every kind of frame."""
+    _, h, w = dn.shape
+    raw = _packed_to_raw(dn)
+    raw[-2:] = np.random.default_rng(201).integers(0, 1000, (2, 2 * w)).astype(np.float64)
+    n = _WALK.get("embedded_data_rows", 0)
+    _WALK["embedded_data_rows"] = n + 1
+    raw[-1, :8] = float(n % 256)
+    return _raw_mask_to_packed(raw)
+
+
+def diagonal_crosstalk(dn, rng, kind="", **_):
+    """Optical crosstalk through the microlenses at an angle: in flats each raw pixel keeps 97 % of its charge and gets 3 % of its upper-left diagonal neighbour's (the first row and column keep their own), so flat noise is correlated at the diagonal lag; bias and dark frames untouched."""
+    if kind != "flat":
+        return dn
+    raw = _packed_to_raw(dn)
+    upper_left = raw.copy()
+    upper_left[1:, 1:] = raw[:-1, :-1]
+    return _raw_mask_to_packed(0.97 * raw + 0.03 * upper_left)
+
+
+def column_gain_high_iso(dn, rng, k=1.0, **_):
+    """Column amplifier gain mismatch at high analog gain only: at K >= 1.5 each sensor column's gain is off by 0.8 % rms (one fixed pattern), signal and noise alike; below, the columns match."""
+    if k < 1.5:
+        return dn
+    _, h, w = dn.shape
+    g = 1.0 + 0.008 * np.random.default_rng(203).standard_normal(2 * w)
+    return dn * np.stack([g[0::2], g[1::2], g[1::2], g[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -1399,7 +1449,9 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  partial_hot_rows, dead_clusters, dark_half_step, gain_drift_sequence, half_column_noise,
                                  shared_pair_gain, pixel_nonlinearity, vertical_charge_leak, partial_dead_rows,
                                  readout_dark_gradient, column_read_spread, row_dark_current, warming_session_dark,
-                                 edge_row_gain, coarse_codes_high_iso, dead_column_pairs, hot_pixel_halo, serial_cti)}
+                                 edge_row_gain, coarse_codes_high_iso, dead_column_pairs, hot_pixel_halo, serial_cti,
+                                 row_read_spread, pixel_read_spread, dark_excess_noise, embedded_data_rows,
+                                 diagonal_crosstalk, column_gain_high_iso)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
