@@ -828,6 +828,47 @@ def highpass_gain(h: int, w: int) -> float:
     return (1.0 - 1.0 / h) * (1.0 - 1.0 / w) * (1.0 - 1.0 / HIGH_PASS**2)
 
 
+@functools.lru_cache(maxsize=32)
+def _axis_diagonals(n: int, lags: tuple) -> np.ndarray:
+    """(4, len(lags)) sums of the lag-th diagonals of the four n x n matrices whose Kronecker
+    products make ``temporal_highpass``'s covariance of white noise along one axis: C, C U^T,
+    U C and U C U^T (C the centring, U the HIGH_PASS box mean with reflected ends; U keeps
+    constants, so U C = U - J / n)."""
+    u = ndimage.uniform_filter1d(np.eye(n), HIGH_PASS, axis=0, mode="reflect")  # u[i, k]: weight of x_k in the mean at i
+    out = np.zeros((4, len(lags)))
+    for j, a in enumerate(lags):
+        a = abs(int(a))  # every matrix here is symmetric or transposed into its pair at -a: the sums agree
+        ones = (n - a) / n  # the lag-th diagonal of J / n
+        if a >= n:
+            continue
+        out[0, j] = (n if a == 0 else 0.0) - ones
+        out[1, j] = out[2, j] = float(np.trace(u, offset=a)) - ones
+        out[3, j] = float(np.sum(u[: n - a] * u[a:])) - ones
+    return out
+
+
+@functools.lru_cache(maxsize=32)
+def highpass_lag_correlations(h: int, w: int, lags: tuple = XTALK_LAGS) -> np.ndarray:
+    """(len(lags),) correlation that ``temporal_mosaic`` gives white noise at each raw lag
+    (dy, dx) on h x w channels, exactly: 0 between two channels (each is filtered alone), and
+    about -1 / HIGH_PASS^2 at one channel's neighbours (each pixel and its neighbour share
+    most of their local mean). What a lag's correlation is measured against."""
+    packed = [(dy // 2, dx // 2) for dy, dx in lags]
+    rows, cols = _axis_diagonals(h, tuple(a for a, _ in packed) + (0,)), _axis_diagonals(w, tuple(b for _, b in packed) + (0,))
+    sign = np.array([1.0, -1.0, -1.0, 1.0])
+
+    def lag_sum(i):  # sum over every pixel pair at packed lag i of their covariance
+        return float(np.sum(sign * rows[:, i] * cols[:, i]))
+
+    var = lag_sum(len(lags)) / (h * w)
+    out = np.zeros(len(lags))
+    for i, ((dy, dx), (a, b)) in enumerate(zip(lags, packed)):
+        if dy % 2 == 0 and dx % 2 == 0 and abs(a) < h and abs(b) < w:
+            out[i] = lag_sum(i) / ((h - abs(a)) * (w - abs(b))) / var
+    out.flags.writeable = False
+    return out
+
+
 def temporal_highpass(frames):
     """The temporal residual of a stack (N >= 2, 4, h, w), DN: each frame minus the stack mean
     (scaled by sqrt(N / (N - 1)), so its variances are the frames'), less each channel's row
@@ -944,11 +985,14 @@ def tile_corr(frames, level_dn=None):
 
 def neighbour_corr(frames, level_dn=None):
     """Rms over the raw lags of ``XTALK_LAGS`` of the correlation of the temporal residual
-    (``temporal_mosaic``): about 1 / sqrt(pixels) for independent pixels, more where
+    (``temporal_mosaic``), each less what the high-pass gives white noise there
+    (``highpass_lag_correlations``): about 1 / sqrt(pixels) for independent pixels, more where
     neighbouring pixels share noise (crosstalk, a shared readout; in flats, where shot noise
-    dominates, photo charge that diffuses to the neighbours)."""
+    dominates, photo charge that diffuses to the neighbours, or is left behind in transfer).
+    Without the baseline, one lag's 0.02 hid under the -0.03 of the same-colour lags."""
+    frames = np.asarray(frames)
     var, cov = lag_covariances(frames)
-    return _rms(cov / max(var, 1e-12))
+    return _rms(cov / max(var, 1e-12) - highpass_lag_correlations(*frames.shape[2:]))
 
 
 def block_index(n: int, blocks: int = READ_MAP_BLOCKS) -> np.ndarray:
@@ -2186,6 +2230,7 @@ def grid_excess(frames, level_dn=None):
 GAIN_WINDOW = 32  # sensor lines each side of a gap in the local fit of a flat's step (a light is smooth over 64 lines)
 GAIN_DEGREE = 3  # the light's local shape: a cubic (its slope, curvature and skew do not read as a step)
 GAIN_P = 1e-3  # chance that a flat of one gain shows an edge along an axis
+GAIN_END_WINDOW = GAIN_DEGREE + 2  # the fewest lines a side a step is fitted over, near a frame's end (a cubic and a step)
 GAIN_TRIM = 0.05  # share of a line's values left out at each end of its profile's mean (dead, hot and PDAF pixels)
 
 
@@ -2265,8 +2310,9 @@ def gain_steps(p, window: int = GAIN_WINDOW, excess: float = 0.0):
     """(L + 1,) of a flat's log line profile ``p`` (L,): at each gap g (before line g), the
     step of a local fit of a cubic plus a step over the ``window`` lines either side
     (``step_kernel``) of the profile ``despiked``, over its noise: the white noise's (``line_noise``) and ``excess``, the
-    step variance coloured temporal noise adds (``temporal_step_excess``); NaN within
-    ``window`` lines of an end. A readout tap with a gain of its own steps at its edges by the
+    step variance coloured temporal noise adds (``temporal_step_excess``); within ``window``
+    lines of an end, over the lines there are (down to ``GAIN_END_WINDOW`` a side; NaN
+    nearer). A readout tap with a gain of its own steps at its edges by the
     log of the gains' ratio; a light's smooth shape does not step. Profiles are
     ``trimmed_line_means``."""
     p = np.asarray(p, dtype=np.float64)
@@ -2275,8 +2321,17 @@ def gain_steps(p, window: int = GAIN_WINDOW, excess: float = 0.0):
         return out
     p = despiked(p)
     w = step_kernel(window)
-    noise = math.sqrt((line_noise(p) * float(np.linalg.norm(w))) ** 2 + max(float(excess), 0.0))
+    white = line_noise(p)
+    noise = math.sqrt((white * float(np.linalg.norm(w))) ** 2 + max(float(excess), 0.0))
     out[window:p.shape[0] - window + 1] = np.correlate(p, w, "valid") / max(noise, 1e-30)
+    # near an end, the window shrinks to the lines there are (a band of edge rows or columns with a
+    # gain of its own); the coloured excess scaled as white noise through the shorter kernel
+    for half in range(GAIN_END_WINDOW, window):
+        wk = step_kernel(half)
+        scale = float(wk @ wk)
+        noise_k = math.sqrt(white**2 * scale + max(float(excess), 0.0) * scale / float(w @ w))
+        for gap in (half, p.shape[0] - half):
+            out[gap] = float(p[gap - half:gap + half] @ wk) / max(noise_k, 1e-30)
     return out
 
 

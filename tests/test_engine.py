@@ -34,7 +34,7 @@ LOOP_EFFECTS = {
                  "sigma_dn": [0.6, 1.1]},  # an odd sensor column; larger than the test inputs' 24 rows: a window per sample
     "BlackDrift": {"k": [1.0, 3.0], "sigma_dn": [0.7, 1.5], "rho": [0.8, 0.8]},
     "PRNU": {"seed": 17, "sigma": 0.02},
-    "ChargeShare": {"share_x": 0.04, "share_y": 0.02},  # neighbours' shot draws, through this pixel's gains
+    "ChargeShare": {"share_x": 0.04, "share_y": 0.02, "share_d1": 0.03, "share_d2": 0.01},  # neighbours' shot draws (sides and diagonals), through this pixel's gains
     "ColGain": {"seed": 67, "sigma": 0.01, "frame": 0.004},
     "RowGain": {"seed": 71, "fixed": 0.01, "frame": 0.02},
     "LineGain": {"seed": 37, "row_density": 0.08, "col_density": 0.1, "median": 0.2, "log_std": 0.5, "negative": 0.5},

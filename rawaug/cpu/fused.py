@@ -176,6 +176,8 @@ _CHANNEL_AT = np.array(L.CHANNEL_AT, dtype=np.int64)
 _NB_DY = np.array([n[0] for n in L.NEIGHBOURS], dtype=np.int64)
 _NB_DX = np.array([n[1] for n in L.NEIGHBOURS], dtype=np.int64)
 _SHC, _SHX, _SHY = L.COLUMN["share_c"], L.COLUMN["share_x"], L.COLUMN["share_y"]
+_SHD1, _SHD2 = L.COLUMN["share_d1"], L.COLUMN["share_d2"]
+_SHARE_DIAG_HIGH = L.CHARGE_SHARE_DIAG >> L.WORD_BITS
 
 
 @njit(inline="always")
@@ -381,15 +383,16 @@ def clean_at(c32, c64, g):
 
 
 @njit(inline="always")
-def neighbour_at(c32, c64, n, b, ry, rx, h, w, scale_in, gain, dark, wx, wy):
+def neighbour_at(c32, c64, n, b, ry, rx, h, w, scale_in, gain, dark, wx, wy, wd1, wd2):
     """(index, signal in DN, weight) of raw neighbour ``n`` (of ``NEIGHBOURS``) of raw pixel
     (ry, rx) of sample b: its clean value through this pixel's ``gain`` and ``dark`` signal;
-    weight 0 outside the frame."""
+    weight 0 outside the frame (``wx``, ``wy``: the sides'; ``wd1``, ``wd2``: the diagonals')."""
     ny, nx = ry + _NB_DY[n], rx + _NB_DX[n]
     if not (0 <= ny < 2 * h and 0 <= nx < 2 * w):
         return 0, 0.0, 0.0
     gn = ((b * 4 + _CHANNEL_AT[ny & 1, nx & 1]) * h + (ny >> 1)) * w + (nx >> 1)
-    return gn, clean_at(c32, c64, gn) * scale_in * gain + dark, wx if _NB_DY[n] == 0 else wy
+    weight = wx if n < 2 else wy if n < 4 else wd1 if n < 6 else wd2
+    return gn, clean_at(c32, c64, gn) * scale_in * gain + dark, weight
 
 
 @njit(nogil=True, cache=True)
@@ -627,6 +630,7 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 s_pixel = pixel[x]
                 s = sig[x]
                 share = (stages & L.CHARGE_SHARE) != 0 and math.isfinite(s)  # shot deviations mixed with the raw neighbours'
+                around = 8 if stages_high & _SHARE_DIAG_HIGH else 4  # the sides, and the diagonals
                 if share:
                     gain = s_pixel / s_photo if s_photo != 0.0 else 1.0
                     dark = s - s_pixel
@@ -635,10 +639,11 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                     shared = 0.0
                 if stages & L.SHOT_POISSON:  # exact Poisson: tables and PTRS of rawaug.cpu.poisson, inlined (a call with the table tuples per element costs ~100 ns)
                     s_own = s
-                    for n in range(5 if share else 1):  # this pixel, then (charge sharing) its four raw neighbours
+                    for n in range(1 + around if share else 1):  # this pixel, then (charge sharing) its raw neighbours
                         gn, sn, wn = g, s_own, v[_SHC]
                         if n > 0:
-                            gn, sn, wn = neighbour_at(c32, c64, n - 1, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY])
+                            gn, sn, wn = neighbour_at(c32, c64, n - 1, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY],
+                                                      v[_SHD1], v[_SHD2])
                         lam = sn / k
                         if not math.isfinite(lam) or (share and wn == 0.0):
                             continue  # NaN/Inf pass through (counted above); a neighbour off the frame adds nothing
@@ -664,8 +669,9 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 elif stages & L.SHOT_GAUSS:
                     if share:
                         shared = v[_SHC] * math.sqrt(k * max(s, 0.0)) * symmetric(normal, draw(keys[_SHOT], g))
-                        for n in range(4):
-                            gn, sn, wn = neighbour_at(c32, c64, n, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY])
+                        for n in range(around):
+                            gn, sn, wn = neighbour_at(c32, c64, n, b, ry, rx, h, w, scale_in, gain, dark, v[_SHX], v[_SHY],
+                                                      v[_SHD1], v[_SHD2])
                             if wn != 0.0 and math.isfinite(sn):
                                 shared += wn * math.sqrt(k * max(sn, 0.0)) * symmetric(normal, draw(keys[_SHOT], gn))
                         s = mean + shared

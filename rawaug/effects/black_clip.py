@@ -11,8 +11,8 @@ Profile entry::  ``Clip: {floor_dn: -512.0}``  (DN relative to black; a raw code
 black + floor_dn).
 
 Detected by ``clip_low`` (fraction of pixels at the lowest code). Estimated by
-``estimate``: the lowest measured code, if pixels pile up there beyond what the current
-model predicts.
+``estimate``: a stack's lowest measured code; ``combine``: the lowest over every stack (a
+bright flat never reaches the floor, so no one stack's code stands for the camera's).
 """
 from __future__ import annotations
 
@@ -44,3 +44,10 @@ class BlackClip(NoiseEffect):
 def estimate(frames, synthesized, k: float, **_) -> dict:
     """Clip floor (DN) from measured frames: their lowest code."""
     return {"floor_dn": float(np.rint(np.asarray(frames)).min())}
+
+
+def combine(records: list[dict]) -> dict:
+    """One floor (DN) from the stacks' records: the lowest of their lowest codes."""
+    if not records:
+        raise ValueError("Clip.combine needs at least one stack's record")
+    return {"floor_dn": min(float(r["floor_dn"]) for r in records)}

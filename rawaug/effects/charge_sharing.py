@@ -4,27 +4,33 @@ Physics: carriers generated deep in the silicon diffuse sideways before a photod
 them, and inter-pixel capacitance couples a pixel's collected charge into its neighbours'
 sense nodes. Either mixes each pixel's shot-noise count with its four raw neighbours': a flat
 field's noise is then correlated between neighbours (and lower than Poisson per pixel), bias
-frames show nothing. Read noise, added after, is not shared (that is ``Xtalk``).
+frames show nothing. Light reaching the silicon at an angle crosses into a diagonal
+neighbour (optical crosstalk), and charge left behind in a transfer lands in the next pixel
+of the line (CTI): one direction only, but a pixel's noise keeps the same correlations with
+half its share each way. Read noise, added after, is not shared (that is ``Xtalk``).
 
 Stage (DN, after shot noise, before ``NonLin`` and the readout gains): the pixel's shot-noise
 deviation ``d = count K - s`` is replaced by
-``c d(Y, X) + a_x (d(Y, X-1) + d(Y, X+1)) + a_y (d(Y-1, X) + d(Y+1, X))``
-at raw position ``(Y, X)``, with ``c = 1 - 2 a_x - 2 a_y`` and all three divided by
-``sqrt(c^2 + 2 a_x^2 + 2 a_y^2)``. A neighbour's deviation is its own shot draw (the same
+``c d(Y, X) + a_x (d(Y, X-1) + d(Y, X+1)) + a_y (d(Y-1, X) + d(Y+1, X))
++ a_d1 (d(Y-1, X-1) + d(Y+1, X+1)) + a_d2 (d(Y-1, X+1) + d(Y+1, X-1))``
+at raw position ``(Y, X)``, with ``c = 1 - 2 (a_x + a_y + a_d1 + a_d2)`` and all divided by
+``sqrt(c^2 + 2 (a_x^2 + a_y^2 + a_d1^2 + a_d2^2))`` (the diagonals a stage of their own,
+``CHARGE_SHARE_DIAG``, only where one is shared). A neighbour's deviation is its own shot draw (the same
 counter-based count its own element draws), from the neighbour's clean value taken through
 this pixel's gains and dark signal; a neighbour outside the frame contributes nothing.
 The mean is left as it is (a clean image of the camera holds its blur already), and so is each
 pixel's variance: the profile's K is the photon-transfer gain, measured on shared charge
 (the conversion gain proper is K over that sum of squares).
 
-Profile entry::  ``ChargeShare: {share_x: 0.03, share_y: 0.03}``
-(fraction of a pixel's charge going to each horizontal / vertical neighbour; no ISO dependence)
+Profile entry::  ``ChargeShare: {share_x: 0.03, share_y: 0.03, share_d1: 0.0, share_d2: 0.0}``
+(fraction of a pixel's charge going to each horizontal / vertical / diagonal neighbour, along
+(1, 1) and along (1, -1); the diagonals optional; no ISO dependence)
 
 Detected by ``neighbour_corr`` on flat stacks. Estimated by ``estimate``: the covariance of the
 temporal residual at the raw lags of ``XTALK_LAGS`` in excess of the model's, over the shot
 variance ``K x level``, lags within 3 sd of the model's spread left at 0; ``combine`` pools the
 flats weighted by their shot variance's share and fits ``a_x``, ``a_y`` to the correlations
-(``correlations``).
+(``correlations``), the diagonals where a diagonal lag shows any.
 """
 from __future__ import annotations
 
@@ -39,35 +45,45 @@ from .base import SHOT, NoiseEffect, register
 from .k_records import _number
 
 STATISTICS = ("neighbour_corr",)
-KEYS = ("share_x", "share_y")
+KEYS = ("share_x", "share_y", "share_d1", "share_d2")
 MAX_SHARE = 1.0 / 6.0  # beyond it a neighbour's weight passes the pixel's own
 SIGNIFICANT = 3.0  # a lag's excess counts beyond this many sd of the model's
 
 
-def weights(share_x: float, share_y: float) -> tuple[float, float, float]:
-    """(centre, horizontal, vertical) weights of the shot deviations, of unit sum of squares."""
-    centre = 1.0 - 2.0 * share_x - 2.0 * share_y
-    norm = math.sqrt(centre**2 + 2.0 * share_x**2 + 2.0 * share_y**2)
-    return centre / norm, share_x / norm, share_y / norm
+def weights(share_x: float, share_y: float, share_d1: float = 0.0, share_d2: float = 0.0) -> tuple[float, ...]:
+    """(centre, horizontal, vertical, diagonal (1, 1), diagonal (1, -1)) weights of the shot
+    deviations, of unit sum of squares."""
+    shares = (share_x, share_y, share_d1, share_d2)
+    centre = 1.0 - 2.0 * sum(shares)
+    norm = math.sqrt(centre**2 + 2.0 * sum(a * a for a in shares))
+    return (centre / norm,) + tuple(a / norm for a in shares)
 
 
-def correlations(share_x: float, share_y: float) -> np.ndarray:
-    """Correlation of the shared shot noise at each raw lag of ``XTALK_LAGS``."""
-    c, hx, hy = weights(share_x, share_y)
-    by_lag = {(0, 1): 2 * c * hx, (1, 0): 2 * c * hy, (1, 1): 2 * hx * hy, (1, -1): 2 * hx * hy, (0, 2): hx**2, (2, 0): hy**2}
-    return np.array([by_lag.get(lag, 0.0) for lag in L.XTALK_LAGS])
+def correlations(share_x: float, share_y: float, share_d1: float = 0.0, share_d2: float = 0.0) -> np.ndarray:
+    """Correlation of the shared shot noise at each raw lag of ``XTALK_LAGS``: the kernel's
+    autocorrelation (a flat of one level)."""
+    c, hx, hy, d1, d2 = weights(share_x, share_y, share_d1, share_d2)
+    kernel = {(0, 0): c, (0, -1): hx, (0, 1): hx, (-1, 0): hy, (1, 0): hy, (-1, -1): d1, (1, 1): d1, (-1, 1): d2, (1, -1): d2}
+    return np.array([sum(w * kernel.get((dy + ly, dx + lx), 0.0) for (dy, dx), w in kernel.items())
+                     for ly, lx in L.XTALK_LAGS])
 
 
 @register
 class ChargeShare(NoiseEffect):
     token = "ChargeShare"
     order = SHOT + 1  # on the shot draws, before the gains that act on the signal read
-    flag = L.CHARGE_SHARE
-    columns = ("share_c", "share_x", "share_y")
+    flag = L.CHARGE_SHARE | L.CHARGE_SHARE_DIAG  # every stage it may run; an instance's: the diagonals where shared
+    columns = ("share_c", "share_x", "share_y", "share_d1", "share_d2")
+
+    def __init__(self, profile):
+        super().__init__(profile)
+        p = profile.effects[self.token]
+        diagonal = any(float(p.get(key, 0.0)) > 0.0 for key in ("share_d1", "share_d2"))
+        self.flag = L.CHARGE_SHARE | (L.CHARGE_SHARE_DIAG if diagonal else 0)
 
     def draw(self, ctx):
         p = self.profile.effects[self.token]
-        w = weights(float(p.get("share_x", 0.0)), float(p.get("share_y", 0.0)))
+        w = weights(*(float(p.get(key, 0.0)) for key in KEYS))
         return {col: ctx.k.new_full((ctx.k.shape[0],), value) for col, value in zip(self.columns, w)}
 
     @classmethod
@@ -85,6 +101,10 @@ class ChargeShare(NoiseEffect):
                 if not 0.0 <= value <= MAX_SHARE:
                     raise ValueError(f"effect {cls.token!r}: {key} (fraction of a pixel's charge per neighbour) must be "
                                      f"in [0, {MAX_SHARE:.4f}], got {value}")
+        shares = [float(params.get(key, 0.0)) for key in KEYS]
+        if 1.0 - 2.0 * sum(shares) < max(shares):
+            raise ValueError(f"effect {cls.token!r}: the pixel keeps 1 - 2 x the sum of its shares {sum(shares):.4f}, less "
+                             f"than it gives one neighbour ({max(shares):.4f}); got {params!r}")
 
 
 def estimate(frames, synthesized, k: float, level_dn=None, kind=None, **_) -> dict:
@@ -107,15 +127,19 @@ def estimate(frames, synthesized, k: float, level_dn=None, kind=None, **_) -> di
 
 
 def fit(corr) -> dict:
-    """``share_x``, ``share_y`` whose correlations (``correlations``) come nearest ``corr``
-    (one per lag of ``XTALK_LAGS``), in least squares within [0, MAX_SHARE]."""
+    """``share_x``, ``share_y`` (and, where a diagonal lag's correlation is above 0, ``share_d1``,
+    ``share_d2``) whose correlations (``correlations``) come nearest ``corr`` (one per lag of
+    ``XTALK_LAGS``), in least squares within [0, MAX_SHARE]."""
     corr = np.asarray(corr, dtype=np.float64)
     if not np.any(corr > 0.0):
         return {"share_x": 0.0, "share_y": 0.0}
-    start = [min(max(corr[0] / 2.0, 0.0), MAX_SHARE), min(max(corr[1] / 2.0, 0.0), MAX_SHARE)]
-    got = optimize.least_squares(lambda a: correlations(*a) - corr, start, bounds=([0.0, 0.0], [MAX_SHARE, MAX_SHARE]),
-                                 xtol=1e-12, ftol=1e-12)
-    return {"share_x": float(got.x[0]), "share_y": float(got.x[1])}
+    at = {lag: i for i, lag in enumerate(L.XTALK_LAGS)}
+    diagonal = corr[at[(1, 1)]] > 0.0 or corr[at[(1, -1)]] > 0.0
+    lags = [(0, 1), (1, 0)] + ([(1, 1), (1, -1)] if diagonal else [])
+    start = [min(max(corr[at[lag]] / 2.0, 0.0), MAX_SHARE) for lag in lags]
+    got = optimize.least_squares(lambda a: correlations(*a) - corr, start,
+                                 bounds=([0.0] * len(lags), [MAX_SHARE] * len(lags)), xtol=1e-12, ftol=1e-12)
+    return {key: float(v) for key, v in zip(KEYS, got.x)}
 
 
 def combine(records: list[dict]) -> dict:

@@ -9,7 +9,9 @@ pixel, and ``ReadMap`` varies it by blocks, not by pixel.
 
 Stage (DN, with the read noise): ``s -> s + median_dn * exp(log_std * z) * n`` at the pixels
 where a seeded U(0, 1) pattern falls below ``density``, ``z`` a seeded standard normal of the
-pixel (both fixed: the sensor's), ``n`` a standard normal new in every frame.
+pixel (both fixed: the sensor's), ``n`` a standard normal new in every frame. Density 1: every
+pixel its own read noise (a source follower's trap population differs from pixel to pixel:
+a log-normal spread of the read noise, not a sparse population).
 
 Profile entry (the noise in DN per gain: one record per calibrated K)::
 
@@ -22,7 +24,11 @@ telegraph pixels do not count) and ``flicker_fraction`` (noisy pixels whose valu
 split in two groups). Estimated by ``estimate`` on bias stacks: the upper tail of the pixels'
 temporal variances without their most extreme value as the model's syntheses plus a
 population of noisy pixels made from the syntheses' own pixels (``combine``: one population
-over the ISOs, the noise per gain).
+over the ISOs, the noise per gain). Where the pixels' log temporal variances spread wider
+than the model's (interquartile range, ``SPREAD_REL`` and ``SPREAD_Z`` standard errors
+beyond), every pixel: the share of the variance and the log spread whose variances, through
+the syntheses' own sampling of a pixel's variance, give the measured quantiles
+(``spread_fit``); judged with the base read noise re-fitted (calibration's holds their mean).
 """
 from __future__ import annotations
 
@@ -38,6 +44,10 @@ from .k_records import _number, check_density, check_seed, validate_records, val
 
 STATISTICS = ("noisy_fraction", "flicker_fraction")
 SIMULATED = 20_000  # noisy pixels simulated (the same ones at every point of the grid)
+SHARES_READ_NOISE = True  # with every pixel noisy, calibration's read noise holds their mean extra variance
+SPREAD_REL = 0.05  # every pixel its own noise: the log variances' interquartile range this much above the model's ...
+SPREAD_Z = 6.0  # ... and this many standard errors (the model's, over its syntheses) out
+SPREAD_SAMPLE = 100_000  # pixels of the quantile fit (measured and simulated)
 
 
 @register
@@ -61,7 +71,7 @@ class NoisyPixels(NoiseEffect):
     def validate_params(cls, params):
         validate_records(cls.token, params, ("median_dn",), nonnegative=("median_dn",))
         check_seed(cls.token, params)
-        check_density(cls.token, params)
+        check_density(cls.token, params, most=1.0)
         if _number(params.get("log_std"), "Noisy.log_std") < 0:
             raise ValueError(f"effect 'Noisy': log_std must be >= 0, got {params.get('log_std')}")
 
@@ -86,6 +96,37 @@ def _pixels(frames):
     return frames.reshape(frames.shape[0], -1).T
 
 
+def _log_iqr(var) -> float:
+    q1, q3 = np.percentile(np.log(np.maximum(var, 1e-12)), [25.0, 75.0])
+    return float(q3 - q1)
+
+
+def spread_fit(var, model_vars, seed: int = 0) -> tuple[float, float, float]:
+    """(mean variance V, share f of it that is the pixels' own, log spread s) of pixel variances
+    ``var`` (DN^2; N frames each) as ``V g r``: ``g = (1 - f) + f exp(2 s z - 2 s^2)`` a pixel's
+    variance over the mean (z standard normal), ``r`` a pixel's sampling ratio, from the
+    model's syntheses ``model_vars`` (their pixels' variances over their mean: the read noise's
+    own shape). Least squares on the log quantiles from 2 % to 98 % over a grid of (f, s),
+    log V the mean difference."""
+    rng = np.random.default_rng(seed)
+    p = np.linspace(0.02, 0.98, 49)
+    q = np.quantile(np.log(np.maximum(var, 1e-12)), p)
+    pool = np.concatenate([np.asarray(v, dtype=np.float64) / max(float(np.mean(v)), 1e-12) for v in model_vars])
+    log_r = np.log(np.maximum(rng.choice(pool, SPREAD_SAMPLE), 1e-12))
+    z = rng.standard_normal(SPREAD_SAMPLE)
+    def cost(f, s):
+        sim = np.quantile(np.log((1.0 - f) + f * np.exp(2.0 * s * z - 2.0 * s * s)) + log_r, p)
+        c = float(np.mean(q - sim))
+        return float(np.sum((q - sim - c) ** 2)), math.exp(c), float(f), float(s)
+
+    best = min(cost(f, s) for s in np.linspace(0.05, 1.5, 30) for f in np.linspace(0.05, 1.0, 20))
+    _, _, f0, s0 = best  # refined 5-fold about the best
+    fine = [cost(f, s) for s in s0 + np.linspace(-0.05, 0.05, 11) if s > 0.0
+            for f in f0 + np.linspace(-0.05, 0.05, 11) if 0.0 < f <= 1.0]
+    _, mean_var, share, log_std = min([best] + fine)
+    return mean_var, share, log_std
+
+
 def estimate(frames, synthesized, k: float, seed: int = 83, kind: str = "bias", **_) -> dict:
     """Noisy-pixel parameters at gain ``k`` from a bias stack (N >= 4, 4, h, w) in DN.
 
@@ -104,6 +145,14 @@ def estimate(frames, synthesized, k: float, seed: int = 83, kind: str = "bias", 
         return none
     n = frames.shape[0]
     var, median_var = pixel_variances(frames)
+    model_vars = [pixel_variances(s)[0] for s in synthesized]
+    model_iqr = [_log_iqr(v) for v in model_vars]
+    spread_se = float(np.std(model_iqr, ddof=1)) if len(model_iqr) > 1 else 0.0
+    if (_log_iqr(var) > (1.0 + SPREAD_REL) * float(np.mean(model_iqr))
+            and _log_iqr(var) - float(np.mean(model_iqr)) > SPREAD_Z * max(spread_se, 1e-12)):
+        mean_var, share, log_std = spread_fit(var, model_vars, seed)
+        return {"seed": int(seed), "density": 1.0, "log_std": log_std, "k": [float(k)],
+                "median_dn": [math.sqrt(mean_var * share) * math.exp(-log_std**2)]}  # E exp(2 s z) = exp(2 s^2)
     measured = _tail_counts(_pixels(frames), median_var).astype(np.float64)
     base = np.mean([_tail_counts(_pixels(s), median_var) for s in synthesized], axis=0)
     if measured.sum() <= base.sum():
@@ -143,8 +192,11 @@ def estimate(frames, synthesized, k: float, seed: int = 83, kind: str = "bias", 
 def combine(records: list[dict]) -> dict:
     """One population from the bias stacks: density and log spread the medians over the stacks
     that found any (a stack whose read noise hides the pixels finds few, and guesses), the noise
-    per gain the geometric mean of those stacks at that K."""
-    seen = [r for r in records if r["density"] > 0]
+    per gain the geometric mean of those stacks at that K; every pixel (density 1) where a stack
+    showed the pixels' spread (one whose read noise hides it sees only the tail, as sparse
+    pixels)."""
+    spread = [r for r in records if float(r["density"]) == 1.0]
+    seen = spread or [r for r in records if r["density"] > 0]
     if not seen:
         return {**records[0], "k": [float(records[0]["k"][0])], "median_dn": [0.0]}
     by_k: dict = {}

@@ -91,6 +91,7 @@ ROW_TAP = 1 << 76  # row noise per readout tap: each column tap's own offset per
 BLACK_STEP = 1 << 77  # black steps: the black level steps from a row drawn per frame on, by a size drawn per frame
 MASKED = 1 << 78  # masked lines: the sensor lines at the frame's edges get no light (optically black rows and columns)
 COL_TAP = 1 << 79  # column noise per readout tap: each sensor column's offset, new in every frame, with its column tap's std
+CHARGE_SHARE_DIAG = 1 << 80  # charge sharing with the four diagonal raw neighbours as well (with CHARGE_SHARE)
 BLACK_RAMP = 1 << 73  # black ramps: the black level a linear ramp down the sensor rows and across the columns, a new slope in every frame
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
@@ -158,6 +159,7 @@ COLUMNS = (
     "ggrid_record", "ggrid_py", "ggrid_px", "ggrid_oy", "ggrid_ox",  # gain grid: first grids record, period, phase (packed pixels)
     "black_drift",  # black-level drift: this frame's offset (DN), all channels
     "share_c", "share_x", "share_y",  # charge sharing: weights of the pixel's own, a horizontal and a vertical neighbour's shot deviation
+    "share_d1", "share_d2",  # ... and of a diagonal neighbour's: along (1, 1) and along (1, -1)
     "dband_f0", "dband_f1", "dband_f2",  # diagonal banding: amplitude (DN) of each tone's part fixed in phase (the sensor's)
     "drow_density", "drow_e", "drow_log_std",  # leaky rows: share of sensor rows, median electrons this exposure, log-normal spread
     "noisy_density", "noisy_median", "noisy_log_std",  # noisy pixels: share, median extra noise (DN), log-normal spread
@@ -252,4 +254,4 @@ XTALK_PAD = 2  # raw pixels of margin in the draw index, so that a lag's neighbo
 ROW_SET = (0, 0, 1, 1)
 COLUMN_SET = (0, 1, 1, 0)
 CHANNEL_AT = ((0, 1), (3, 2))  # the packed channel of a raw pixel, by (row, column) parity
-NEIGHBOURS = ((0, -1), (0, 1), (-1, 0), (1, 0))  # raw (dy, dx) of the four neighbours charge is shared with
+NEIGHBOURS = ((0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (1, 1), (-1, 1), (1, -1))  # raw (dy, dx) of the neighbours charge is shared with: the four sides, then the diagonals

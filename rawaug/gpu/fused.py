@@ -114,6 +114,7 @@ XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, 
     tl.constexpr(d) for tap in L.XTALK_TAPS for d in tap)
 C_SENSOR = _column("sensor")
 C_SHC, C_SHX, C_SHY = _column("share_c"), _column("share_x"), _column("share_y")
+C_SHD1, C_SHD2 = _column("share_d1"), _column("share_d2")
 C_HD, C_HM, C_HL = _column("hot_density"), _column("hot_median"), _column("hot_log_std")
 C_Q, C_B0, C_BS, C_BC, C_CL = (_column("step_dn"), _column("bias_r"), _column("ble_sigma"),
                                _column("ble_channel_sigma"), _column("clip_floor"))
@@ -482,6 +483,21 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
             shared += _neighbour_deviation(clean_ptr, b, ry, rx, 1, 0, H, W, scale_in, gain, dark, k, wy, kf, kr, kc,
                                            f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
                                            c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
+            if FLAGS_HIGH & 131072:  # (word 1) ... and the diagonal neighbours'
+                wd1 = _col(v, C_SHD1)
+                wd2 = _col(v, C_SHD2)
+                shared += _neighbour_deviation(clean_ptr, b, ry, rx, -1, -1, H, W, scale_in, gain, dark, k, wd1, kf, kr, kc,
+                                               f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                                               c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
+                shared += _neighbour_deviation(clean_ptr, b, ry, rx, 1, 1, H, W, scale_in, gain, dark, k, wd1, kf, kr, kc,
+                                               f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                                               c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
+                shared += _neighbour_deviation(clean_ptr, b, ry, rx, -1, 1, H, W, scale_in, gain, dark, k, wd2, kf, kr, kc,
+                                               f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                                               c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
+                shared += _neighbour_deviation(clean_ptr, b, ry, rx, 1, -1, H, W, scale_in, gain, dark, k, wd2, kf, kr, kc,
+                                               f_cdf, f_cdf_off, f_guide, f_guide_off, f_guide_size, f_kmin,
+                                               c_cdf, c_cdf_off, c_guide, c_guide_off, c_guide_size, c_kmin, live & finite, (FLAGS & 2) != 0)
             s = tl.where(finite, mean + shared, s)
     elif FLAGS & 2:  # P*
         lam = s / k

@@ -310,8 +310,9 @@ def _estimate(token, stacks, diags, seed, profile=None, model=None):
         params = cand.module.combine(records)
     elif all("k" in r for r in records):
         params = merge_records(records)
-    else:
-        params = records[0]
+    else:  # one stack's record would stand for the camera's (the first stack is the dimmest)
+        raise TypeError(f"effect {token!r}: its estimates carry no gain 'k' and its module "
+                        f"{cand.module.__name__} has no combine(records); give it one")
     if profile is None or _adds_nothing(token, params):
         return params
     return clip_corrected(token, params, profile, stacks, lambda part: _estimate(token, part, diags, seed), model, seed)
