@@ -1418,6 +1418,51 @@ def column_gain_high_iso(dn, rng, k=1.0, **_):
     return dn * np.stack([g[0::2], g[1::2], g[1::2], g[0::2]])[:, None, :]  # R, G2 on even sensor columns
 
 
+# the twenty-first fresh batch (thirty-fourth session), written and committed before the loop ran on it
+def column_pattern_per_iso(dn, rng, k=1.0, **_):
+    """Column offsets set anew at every gain: each ISO has a fixed pattern of sensor-column offsets of its own, 1.0 DN rms (drawn once per ISO), the same in every frame of that ISO, in every kind of frame."""
+    _, h, w = dn.shape
+    c = np.random.default_rng(205 + int(round(100 * k))).normal(0.0, 1.0, 2 * w)
+    return dn + np.stack([c[0::2], c[1::2], c[1::2], c[0::2]])[:, None, :]  # R, G2 on even sensor columns
+
+
+def first_frame_noise(dn, rng, kind="", exposure=0.0, k=1.0, **_):
+    """A readout that settles after each change of setting: the first frame after a change (the first bias frame of an ISO, the first dark, the first flat of each level) reads with 2.5 DN more white noise."""
+    key = ("first_noise", id(rng), kind, exposure, k)
+    first = key not in _WALK
+    _WALK[key] = True
+    return dn + (2.5 * rng.standard_normal(dn.shape) if first else 0.0)
+
+
+def bimodal_hot_pixels(dn, rng, exposure=0.0, k=1.0, **_):
+    """Two kinds of hot pixels: 0.2 % of the pixels (fixed) collect 15 e-/s more and another 0.02 % 400 e-/s more, with its shot noise, so bias frames show none."""
+    u = np.random.default_rng(207).random(dn.shape)
+    rate = np.where(u < 0.002, 15.0, 0.0) + np.where((u >= 0.002) & (u < 0.0022), 400.0, 0.0)
+    return dn + k * rng.poisson(rate * exposure)
+
+
+def adc_inl(dn, rng, **_):
+    """The ADC's integral non-linearity: every reading bent by 12 DN x sin(2 pi x DN / 16000) (an S-shaped transfer over the range), in every kind of frame."""
+    return dn + 12.0 * np.sin(2.0 * np.pi * dn / 16000.0)
+
+
+def ring_pattern(dn, rng, **_):
+    """A fixed pattern of rings: the black level off by 0.7 DN x cos(2 pi r / 48) about the frame's centre (r in sensor pixels), the same in every frame of every kind (the mura of a clamp network)."""
+    _, h, w = dn.shape
+    y, x = np.mgrid[0 : 2 * h, 0 : 2 * w]
+    r = np.hypot(y - h + 0.5, x - w + 0.5)
+    return dn + _raw_mask_to_packed(0.7 * np.cos(2.0 * np.pi * r / 48.0))
+
+
+def dark_column_telegraph(dn, rng, exposure=0.0, k=1.0, **_):
+    """Leaky columns that switch: 0.5 % of the sensor columns (fixed) collect 3 e-/s more dark current in about half of the frames (high or low drawn per frame), with its shot noise, at every pixel of the column."""
+    _, h, w = dn.shape
+    leaky = np.random.default_rng(209).random(2 * w) < 0.005
+    high = leaky & (rng.random(2 * w) < 0.5)
+    rate = np.broadcast_to(np.where(high, 3.0, 0.0), (2 * h, 2 * w))
+    return dn + k * _raw_to_packed(rng.poisson(rate * exposure).astype(np.float64))
+
+
 CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones, black_drift, telegraph, channel_read,
                                  split_readout, parity_rows, fixed_rows, column_tone, dead_pixels, row_flicker, adc_dnl,
                                  column_gain, dark_hot_pixels, diagonal_tone, green_imbalance,
@@ -1451,7 +1496,8 @@ CASES = {f.__name__: f for f in (coupled_readout, shared_pixel, tone, two_tones,
                                  readout_dark_gradient, column_read_spread, row_dark_current, warming_session_dark,
                                  edge_row_gain, coarse_codes_high_iso, dead_column_pairs, hot_pixel_halo, serial_cti,
                                  row_read_spread, pixel_read_spread, dark_excess_noise, embedded_data_rows,
-                                 diagonal_crosstalk, column_gain_high_iso)}
+                                 diagonal_crosstalk, column_gain_high_iso, column_pattern_per_iso, first_frame_noise,
+                                 bimodal_hot_pixels, adc_inl, ring_pattern, dark_column_telegraph)}
 CASES["none"] = None
 # cameras whose right answer is to add nothing: black_by_iso joined after its first run (twenty-first
 # session): a per-ISO black offset is the ELD model's own colour bias, which the loop fitted as
