@@ -24,11 +24,13 @@ telegraph pixels do not count) and ``flicker_fraction`` (noisy pixels whose valu
 split in two groups). Estimated by ``estimate`` on bias stacks: the upper tail of the pixels'
 temporal variances without their most extreme value as the model's syntheses plus a
 population of noisy pixels made from the syntheses' own pixels (``combine``: one population
-over the ISOs, the noise per gain). Where the pixels' log temporal variances spread wider
-than the model's (interquartile range, ``SPREAD_REL`` and ``SPREAD_Z`` standard errors
-beyond), every pixel: the share of the variance and the log spread whose variances, through
-the syntheses' own sampling of a pixel's variance, give the measured quantiles
-(``spread_fit``); judged with the base read noise re-fitted (calibration's holds their mean).
+over the ISOs, the noise per gain). Where a pixel's variance in the first half of the
+frames and in the second vary together over the pixels beyond the model's (``half_spread``:
+the covariance of their logs, ``SPREAD_Z`` standard errors out, over all pixels and over
+the bulk, where sparse noisy pixels add none; a heavy read-noise tail is new in every frame
+and gives none), every pixel: the share of the variance and the log
+spread whose variance of log and relative variance are those covariances (``spread_fit``);
+judged with the base read noise re-fitted (calibration's holds their mean).
 """
 from __future__ import annotations
 
@@ -38,16 +40,19 @@ import numpy as np
 from scipy import stats
 
 from ..engine import layout as L
-from ..statistics import pixel_variances, trimmed_variances
+from ..statistics import median, pixel_variances, temporal_moments, trimmed_variances
 from .base import DARK, NoiseEffect, pattern_key, register
 from .k_records import _number, check_density, check_seed, validate_records, value_at_k
 
 STATISTICS = ("noisy_fraction", "flicker_fraction")
 SIMULATED = 20_000  # noisy pixels simulated (the same ones at every point of the grid)
 SHARES_READ_NOISE = True  # with every pixel noisy, calibration's read noise holds their mean extra variance
-SPREAD_REL = 0.05  # every pixel its own noise: the log variances' interquartile range this much above the model's ...
-SPREAD_Z = 6.0  # ... and this many standard errors (the model's, over its syntheses) out
-SPREAD_SAMPLE = 100_000  # pixels of the quantile fit (measured and simulated)
+SPREAD_Z = 6.0  # every pixel its own noise: the halves' log-variance covariance this many standard errors above the model's ...
+SPREAD_MIN = 0.01  # ... and this much (a spread of the pixels' variance of ~0.1 in log)
+SPREAD_TRIM = 25.0  # pixels whose variance in a half passes this many times the median (telegraph, hot) left out
+BULK = 0.8  # the bulk of the pixels: below this quantile of one half's log variances
+_NODES, _WEIGHTS = np.polynomial.hermite_e.hermegauss(61)  # standard normal quadrature
+_WEIGHTS = _WEIGHTS / _WEIGHTS.sum()
 
 
 @register
@@ -96,35 +101,52 @@ def _pixels(frames):
     return frames.reshape(frames.shape[0], -1).T
 
 
-def _log_iqr(var) -> float:
-    q1, q3 = np.percentile(np.log(np.maximum(var, 1e-12)), [25.0, 75.0])
-    return float(q3 - q1)
+def half_spread(frames) -> tuple[float, float, float, float, float, float]:
+    """(covariance of log variance, relative covariance of variance, mean variance (DN^2), the
+    log covariance's standard error, the bulk's log covariance, its standard error) of each
+    pixel's temporal variance in the first half of a stack's frames and in the second (N >= 4),
+    over the pixels neither of whose halves passes ``SPREAD_TRIM`` x the median. A pixel's own
+    noise level is in both halves; the sampling of a variance, whatever the noise's shape, is
+    new in each: the covariances are the spread of the pixels' true variances alone (0 for a
+    sensor of one noise). The bulk: the pixels below ``BULK`` of one half's log variances (each
+    half in turn; the other half is not selected on), where a sparse population of noisy or
+    telegraph pixels adds nothing and a spread of every pixel's noise still shows."""
+    frames = np.asarray(frames, dtype=np.float64)
+    half = frames.shape[0] // 2
+    va = temporal_moments(frames[:half])[1].ravel()
+    vb = temporal_moments(frames[half:2 * half])[1].ravel()
+    med = max(float(median(0.5 * (va + vb))), 1e-12)
+    keep = (va > 0.0) & (vb > 0.0) & (va < SPREAD_TRIM * med) & (vb < SPREAD_TRIM * med)
+    va, vb = va[keep], vb[keep]
+    la, lb = np.log(va), np.log(vb)
+    c_log = float(np.mean((la - la.mean()) * (lb - lb.mean())))
+    mean = float(0.5 * (va.mean() + vb.mean()))
+    c_lin = float(np.mean((va - va.mean()) * (vb - vb.mean()))) / mean**2
+    se = math.sqrt(float(la.var() * lb.var()) / max(la.size, 1))
+    bulk, bulk_var = [], []
+    for x, y in ((la, lb), (lb, la)):
+        k = x < np.percentile(x, 100.0 * BULK)
+        bulk.append(float(np.mean((x[k] - x[k].mean()) * (y[k] - y[k].mean()))))
+        bulk_var.append(float(x[k].var() * y[k].var()) / max(int(k.sum()), 1))
+    return c_log, c_lin, mean, se, float(np.mean(bulk)), math.sqrt(float(np.mean(bulk_var)))
 
 
-def spread_fit(var, model_vars, seed: int = 0) -> tuple[float, float, float]:
-    """(mean variance V, share f of it that is the pixels' own, log spread s) of pixel variances
-    ``var`` (DN^2; N frames each) as ``V g r``: ``g = (1 - f) + f exp(2 s z - 2 s^2)`` a pixel's
-    variance over the mean (z standard normal), ``r`` a pixel's sampling ratio, from the
-    model's syntheses ``model_vars`` (their pixels' variances over their mean: the read noise's
-    own shape). Least squares on the log quantiles from 2 % to 98 % over a grid of (f, s),
-    log V the mean difference."""
-    rng = np.random.default_rng(seed)
-    p = np.linspace(0.02, 0.98, 49)
-    q = np.quantile(np.log(np.maximum(var, 1e-12)), p)
-    pool = np.concatenate([np.asarray(v, dtype=np.float64) / max(float(np.mean(v)), 1e-12) for v in model_vars])
-    log_r = np.log(np.maximum(rng.choice(pool, SPREAD_SAMPLE), 1e-12))
-    z = rng.standard_normal(SPREAD_SAMPLE)
+def spread_fit(c_log: float, c_lin: float) -> tuple[float, float]:
+    """(share f of the mean variance that is the pixels' own, log spread s) whose pixel variances
+    ``(1 - f) + f exp(2 s z - 2 s^2)`` (of mean 1, z standard normal) have variance of log
+    ``c_log`` and variance ``c_lin``: least squares in relative error on a grid, refined."""
     def cost(f, s):
-        sim = np.quantile(np.log((1.0 - f) + f * np.exp(2.0 * s * z - 2.0 * s * s)) + log_r, p)
-        c = float(np.mean(q - sim))
-        return float(np.sum((q - sim - c) ** 2)), math.exp(c), float(f), float(s)
+        g = np.log((1.0 - f) + f * np.exp(2.0 * s * _NODES - 2.0 * s * s))
+        var_log = float(_WEIGHTS @ g**2 - (_WEIGHTS @ g) ** 2)
+        var_lin = f * f * math.expm1(4.0 * s * s)
+        return (var_log / c_log - 1.0) ** 2 + (var_lin / max(c_lin, 1e-12) - 1.0) ** 2, float(f), float(s)
 
-    best = min(cost(f, s) for s in np.linspace(0.05, 1.5, 30) for f in np.linspace(0.05, 1.0, 20))
-    _, _, f0, s0 = best  # refined 5-fold about the best
-    fine = [cost(f, s) for s in s0 + np.linspace(-0.05, 0.05, 11) if s > 0.0
-            for f in f0 + np.linspace(-0.05, 0.05, 11) if 0.0 < f <= 1.0]
-    _, mean_var, share, log_std = min([best] + fine)
-    return mean_var, share, log_std
+    best = min(cost(f, s) for f in np.linspace(0.05, 1.0, 20) for s in np.linspace(0.05, 1.5, 30))
+    _, f0, s0 = best
+    fine = [cost(f, s) for f in f0 + np.linspace(-0.05, 0.05, 11) if 0.0 < f <= 1.0
+            for s in s0 + np.linspace(-0.05, 0.05, 11) if s > 0.0]
+    _, share, log_std = min([best] + fine)
+    return share, log_std
 
 
 def estimate(frames, synthesized, k: float, seed: int = 83, kind: str = "bias", **_) -> dict:
@@ -145,12 +167,15 @@ def estimate(frames, synthesized, k: float, seed: int = 83, kind: str = "bias", 
         return none
     n = frames.shape[0]
     var, median_var = pixel_variances(frames)
-    model_vars = [pixel_variances(s)[0] for s in synthesized]
-    model_iqr = [_log_iqr(v) for v in model_vars]
-    spread_se = float(np.std(model_iqr, ddof=1)) if len(model_iqr) > 1 else 0.0
-    if (_log_iqr(var) > (1.0 + SPREAD_REL) * float(np.mean(model_iqr))
-            and _log_iqr(var) - float(np.mean(model_iqr)) > SPREAD_Z * max(spread_se, 1e-12)):
-        mean_var, share, log_std = spread_fit(var, model_vars, seed)
+    c_log, c_lin, mean_var, se, c_bulk, se_bulk = half_spread(frames)
+    model = np.array([[h[0], h[1], h[4]] for h in map(half_spread, synthesized)])
+    excess_log, excess_lin = c_log - float(model[:, 0].mean()), c_lin - float(model[:, 1].mean())
+    # the excess's standard error: the stack's own and that of the syntheses' mean
+    spread_se = math.hypot(se, (float(model[:, 0].std(ddof=1)) if len(model) > 1 else se) / math.sqrt(len(model)))
+    bulk_se = math.hypot(se_bulk, (float(model[:, 2].std(ddof=1)) if len(model) > 1 else se_bulk) / math.sqrt(len(model)))
+    if (excess_log > max(SPREAD_Z * spread_se, SPREAD_MIN) and excess_lin > 0.0
+            and c_bulk - float(model[:, 2].mean()) > SPREAD_Z * bulk_se):
+        share, log_std = spread_fit(excess_log, excess_lin)
         return {"seed": int(seed), "density": 1.0, "log_std": log_std, "k": [float(k)],
                 "median_dn": [math.sqrt(mean_var * share) * math.exp(-log_std**2)]}  # E exp(2 s z) = exp(2 s^2)
     measured = _tail_counts(_pixels(frames), median_var).astype(np.float64)
