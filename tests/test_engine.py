@@ -42,6 +42,9 @@ LOOP_EFFECTS = {
                 "gain": [[0.98, 1.01, 1.03], [0.99, 1.02, 0.97]]},  # an odd sensor column; a window per sample on smaller inputs
     "Dark": {"seed": 19, "k": [1.0], "rate_e_per_s": [3.0], "dsnu": [0.2], "col_dsnu": [0.3], "row_dsnu": [0.25], "channel": [0.5, 1.0, 1.5, 1.0]},
     "DarkDrift": {"sigma": 0.3, "rho": 0.0},  # a factor per sample on every dark signal above
+    "FixedMap": {"k": [1.0, 3.0], "map_dn": [[[0.0, 1.0, -2.0, 0.5, 3.0], [1.5, -1.0, 0.0, 2.0, -0.5], [0.2, 0.4, -0.6, 0.8, 1.0]],
+                                          [[1.0, 0.0, 2.0, -0.5, 0.0], [0.0, 1.0, 0.0, -2.0, 0.5], [2.2, -0.4, 0.6, 0.0, 1.0]]],
+                 "frame_h": 30, "frame_w": 50},  # a measured map: 3 x 5 grids beside FPN's and Glow's (a padded table), a window per sample
     "DarkNoise": {"k": [1.0], "rate_dn2_per_s": [2.0]},  # white noise growing with the exposure
     "Glow": {"k": [1.0, 3.0], "rate_e_per_s": [[[0.0, 1.0, 4.0, 9.0], [0.5, 2.0, 6.0, 20.0], [0.0, 0.0, 1.0, 3.0]],
                                                [[1.0, 1.0, 2.0, 5.0], [0.0, 2.0, 3.0, 10.0], [0.0, 1.0, 1.0, 2.0]]],

@@ -177,6 +177,8 @@ _NB_DY = np.array([n[0] for n in L.NEIGHBOURS], dtype=np.int64)
 _NB_DX = np.array([n[1] for n in L.NEIGHBOURS], dtype=np.int64)
 _SHC, _SHX, _SHY = L.COLUMN["share_c"], L.COLUMN["share_x"], L.COLUMN["share_y"]
 _SHD1, _SHD2 = L.COLUMN["share_d1"], L.COLUMN["share_d2"]
+_FMR, _FMOY, _FMOX, _FMH, _FMW = (L.COLUMN[c] for c in ("fmap_record", "fmap_oy", "fmap_ox", "fmap_h", "fmap_w"))
+_FMGH, _FMGW, _FIXED_MAP_HIGH = L.COLUMN["fmap_gh"], L.COLUMN["fmap_gw"], L.FIXED_MAP >> L.WORD_BITS
 _SHARE_DIAG_HIGH = L.CHARGE_SHARE_DIAG >> L.WORD_BITS
 
 
@@ -733,6 +735,14 @@ def _rows(c32, c64, o32, o64, values, flags, flags_high, keys, span, h, w, r0, r
                 p = p0 + x
                 s = sig[x]
                 s += v[_FS] * symmetric(normal, draw(keys[_FPN_PATTERN], p)) + shading_at(grids, record, fy0, x + fox, fh, fw, fgh, fgw)
+                sig[x] = s
+        if stages_high & _FIXED_MAP_HIGH:  # the measured fixed map: a window (fmap_oy, fmap_ox) of fmap_h x fmap_w (0: this input)
+            mrec, mgh, mgw = int(v[_FMR]), int(v[_FMGH]), int(v[_FMGW])
+            mh = v[_FMH] if v[_FMH] > 0.0 else float(h)
+            mw = v[_FMW] if v[_FMW] > 0.0 else float(w)
+            for x in range(w):
+                s = sig[x]
+                s += shading_at(grids, mrec, y + v[_FMOY], x + v[_FMOX], mh, mw, mgh, mgw)
                 sig[x] = s
         if stages & L.HOT:
             for x in range(w):

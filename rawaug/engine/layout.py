@@ -92,6 +92,7 @@ BLACK_STEP = 1 << 77  # black steps: the black level steps from a row drawn per 
 MASKED = 1 << 78  # masked lines: the sensor lines at the frame's edges get no light (optically black rows and columns)
 COL_TAP = 1 << 79  # column noise per readout tap: each sensor column's offset, new in every frame, with its column tap's std
 CHARGE_SHARE_DIAG = 1 << 80  # charge sharing with the four diagonal raw neighbours as well (with CHARGE_SHARE)
+FIXED_MAP = 1 << 81  # measured fallback: the measured fixed map itself, a fine bilinear grid of offsets over the measured frame
 BLACK_RAMP = 1 << 73  # black ramps: the black level a linear ramp down the sensor rows and across the columns, a new slope in every frame
 BANK_PERIOD_MAX = 16  # readout banks: the longest period (sensor lines)
 TAP_EDGES = 7  # edges per axis of the readout taps' grid (up to 8 x 8 taps)
@@ -160,6 +161,7 @@ COLUMNS = (
     "black_drift",  # black-level drift: this frame's offset (DN), all channels
     "share_c", "share_x", "share_y",  # charge sharing: weights of the pixel's own, a horizontal and a vertical neighbour's shot deviation
     "share_d1", "share_d2",  # ... and of a diagonal neighbour's: along (1, 1) and along (1, -1)
+    "fmap_record", "fmap_oy", "fmap_ox", "fmap_h", "fmap_w", "fmap_gh", "fmap_gw",  # measured fixed map: its grid record, window, size
     "dband_f0", "dband_f1", "dband_f2",  # diagonal banding: amplitude (DN) of each tone's part fixed in phase (the sensor's)
     "drow_density", "drow_e", "drow_log_std",  # leaky rows: share of sensor rows, median electrons this exposure, log-normal spread
     "noisy_density", "noisy_median", "noisy_log_std",  # noisy pixels: share, median extra noise (DN), log-normal spread

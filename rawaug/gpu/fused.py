@@ -115,6 +115,8 @@ XT_DY0, XT_DX0, XT_DY1, XT_DX1, XT_DY2, XT_DX2, XT_DY3, XT_DX3, XT_DY4, XT_DX4, 
 C_SENSOR = _column("sensor")
 C_SHC, C_SHX, C_SHY = _column("share_c"), _column("share_x"), _column("share_y")
 C_SHD1, C_SHD2 = _column("share_d1"), _column("share_d2")
+C_FMR, C_FMOY, C_FMOX, C_FMH, C_FMW = _column("fmap_record"), _column("fmap_oy"), _column("fmap_ox"), _column("fmap_h"), _column("fmap_w")
+C_FMGH, C_FMGW = _column("fmap_gh"), _column("fmap_gw")
 C_HD, C_HM, C_HL = _column("hot_density"), _column("hot_median"), _column("hot_log_std")
 C_Q, C_B0, C_BS, C_BC, C_CL = (_column("step_dn"), _column("bias_r"), _column("ble_sigma"),
                                _column("ble_channel_sigma"), _column("clip_floor"))
@@ -538,6 +540,13 @@ def fused_kernel(clean_ptr, out_ptr, values_ptr, keys_ptr, span, H, W,
         shading = _shading(grids_ptr, GH.to(tl.int64), GW.to(tl.int64), _col(v, C_FR).to(tl.int64), y.to(tl.float64) + _col(v, C_FOY),
                            x.to(tl.float64) + _col(v, C_FOX), fh, fw, _col(v, C_FGH).to(tl.int64), _col(v, C_FGW).to(tl.int64), live)
         s += _col(v, C_FS) * _normal(draw(_key(keys_ptr, K_FPN), p)) + shading
+    if FLAGS_HIGH & 262144:  # (word 1) the measured fixed map: a window (fmap_oy, fmap_ox) of fmap_h x fmap_w
+        mh = _col(v, C_FMH)
+        mw = _col(v, C_FMW)
+        mh = tl.where(mh > 0.0, mh, H.to(tl.float64))
+        mw = tl.where(mw > 0.0, mw, W.to(tl.float64))
+        s += _shading(grids_ptr, GH.to(tl.int64), GW.to(tl.int64), _col(v, C_FMR).to(tl.int64), y.to(tl.float64) + _col(v, C_FMOY),
+                      x.to(tl.float64) + _col(v, C_FMOX), mh, mw, _col(v, C_FMGH).to(tl.int64), _col(v, C_FMGW).to(tl.int64), live)
     if FLAGS & 16:  # hot pixels
         hot = unit(draw(_key(keys_ptr, K_HOT_WHERE), p)) < _col(v, C_HD)
         size = _col(v, C_HM) * tl.exp(_col(v, C_HL) * _normal(draw(_key(keys_ptr, K_HOT_SIZE), p)))
