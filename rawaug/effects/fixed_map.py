@@ -18,7 +18,7 @@ Profile entry (per-K records of one grid shape, DN)::
 Estimated from bias and dark stacks of >= 2 frames: the channel-averaged stack-mean map less
 the model's syntheses' (``shading_map``), fitted on the grid of the cell size (packed pixels)
 that predicts one half of each stack's frames best from the other (split-half cross
-validation, summed over the stacks, each half less syntheses of its own: a cell fine enough
+validation, relative errors summed over the stacks, each half less syntheses of its own: a cell fine enough
 for the pattern, coarse enough not to fit the frames' temporal noise), at most ``MAX_NODES``
 nodes; shrunk by the temporal power a mean of N frames keeps (as ``FPN``'s shading); the
 stacks of one gain averaged. None where no cell predicts the other half ``MIN_GAIN`` better
@@ -126,15 +126,17 @@ def _shrunk_grid(seen: dict, shape) -> np.ndarray:
 
 
 def combine(records: list[dict]) -> dict:
-    """One grid shape for the sensor: the cell of least split-half error summed over the stacks
-    of the frame size most stacks have (none where no map beats no map); per gain, the stacks'
-    shrunk grids averaged."""
+    """One grid shape for the sensor: the cell of least split-half error, relative to each
+    stack's without a map, summed over the stacks of the frame size most stacks have (none
+    where no cell beats no map by ``MIN_GAIN``); per gain, the stacks' shrunk grids averaged."""
     seen = [r["_seen"] for r in records]
     frame = Counter(tuple(s["frame"]) for s in seen).most_common(1)[0][0]
     same = [s for s in seen if tuple(s["frame"]) == frame]
     h, w = frame
-    none = sum(float((np.mean(s["a"] ** 2) + np.mean(s["b"] ** 2)) / 2.0) for s in same)
-    errors = {c: sum(_cv_error(s, c) for s in same) for c in cells(h, w)}
+    # each stack's error relative to its own without a map: a noisy high-gain stack does not outvote the others
+    nothing = [max(float((np.mean(s["a"] ** 2) + np.mean(s["b"] ** 2)) / 2.0), 1e-30) for s in same]
+    none = float(len(same))
+    errors = {c: sum(_cv_error(s, c) / z for s, z in zip(same, nothing)) for c in cells(h, w)}
     ks = sorted({s["k"] for s in same})
     if not errors or min(errors.values()) > (1.0 - MIN_GAIN) * none:
         shape = (1, 1)
