@@ -557,15 +557,17 @@ def test_cameras_of_the_thirty_third_session_are_fixed_by_their_effect(tmp_path,
 
 @pytest.mark.slow  # about 3 minutes each: the issue's geometry
 @pytest.mark.parametrize("case, token", [("serial_cti", "ChargeShare"), ("diagonal_crosstalk", "ChargeShare"),
-                                         ("edge_row_gain", "TapGain"), ("column_gain_high_iso", "ColGain")])
+                                         ("edge_row_gain", "TapGain"), ("column_gain_high_iso", "ColGain"),
+                                         ("pixel_read_spread", "Noisy")])
 def test_cameras_of_the_thirty_fourth_session_are_fixed_by_their_effect(tmp_path, case, token):
     """Probes missed on their first run: serial_cti (nineteenth batch: 2 % of each pixel's charge
     trailing along the row, in flats) was hidden in neighbour_corr's rms under the high-pass's
     -0.03 at the same-colour lags; edge_row_gain (the first and last 6 sensor rows at 0.95 gain)
     was out of the gain steps' reach, 32 lines from the ends; from the twentieth,
     diagonal_crosstalk (3 % from the upper-left diagonal neighbour, in flats) had no diagonal
-    share, and column_gain_high_iso (column gains off by 0.8 % at K >= 1.5 only) one ColGain
-    for every gain, rejected. Each now gets its one effect and nothing is left."""
+    share, column_gain_high_iso (column gains off by 0.8 % at K >= 1.5 only) one ColGain for
+    every gain, rejected, and pixel_read_spread (every pixel its own read noise, log-normal) a
+    sparse population of noisy pixels. Each now gets its one effect and nothing is left."""
     import sys
     from pathlib import Path
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
