@@ -2230,6 +2230,7 @@ def grid_excess(frames, level_dn=None):
 GAIN_WINDOW = 32  # sensor lines each side of a gap in the local fit of a flat's step (a light is smooth over 64 lines)
 GAIN_DEGREE = 3  # the light's local shape: a cubic (its slope, curvature and skew do not read as a step)
 GAIN_P = 1e-3  # chance that a flat of one gain shows an edge along an axis
+UNLIT = math.log(0.5)  # a flat's line below half the light (log): masked or dead, not a gain
 GAIN_END_WINDOW = GAIN_DEGREE + 2  # the fewest lines a side a step is fitted over, near a frame's end (a cubic and a step)
 GAIN_TRIM = 0.05  # share of a line's values left out at each end of its profile's mean (dead, hot and PDAF pixels)
 
@@ -2332,6 +2333,13 @@ def gain_steps(p, window: int = GAIN_WINDOW, excess: float = 0.0):
         noise_k = math.sqrt(white**2 * scale + max(float(excess), 0.0) * scale / float(w @ w))
         for gap in (half, p.shape[0] - half):
             out[gap] = float(p[gap - half:gap + half] @ wk) / max(noise_k, 1e-30)
+    # no step across lines that see less than half the light (masked or dead bands, which a
+    # despike of single lines leaves): they are no tap's gain
+    dark = np.concatenate([[0], np.cumsum(p < UNLIT)])
+    gaps = np.arange(out.size)
+    reach = np.where((gaps >= window) & (gaps <= p.shape[0] - window), window, np.minimum(gaps, p.shape[0] - gaps))
+    lo, hi = np.clip(gaps - reach, 0, p.shape[0]), np.clip(gaps + reach, 0, p.shape[0])
+    out[dark[hi] - dark[lo] > 0] = np.nan
     return out
 
 

@@ -102,3 +102,16 @@ def test_a_band_of_edge_lines_with_a_gain_of_its_own_is_found_at_its_edge(at):
         p[band] += np.log(0.95)
         hits.append(gain_edges(p))
     assert all(h == [at] for h in hits), hits
+
+
+
+def test_no_step_is_measured_across_lines_without_light():
+    """8 masked lines at one end (black in a flat, far below half the light): no edge and no
+    finite step within reach of them (a masked band is Masked's, not a tap's gain); an edge
+    beyond their reach is still found."""
+    p = np.random.default_rng(6000).normal(0.0, WHITE, 384)
+    p[:8] = np.log(1e-6)
+    steps = gain_steps(p)
+    assert np.all(np.isnan(steps[:8 + 32])) and gain_edges(p) == []
+    p[200:] += 10 * WHITE
+    assert gain_edges(p) == [200]

@@ -22,7 +22,8 @@ validation, relative errors summed over the stacks, each half less syntheses of 
 for the pattern, coarse enough not to fit the frames' temporal noise), at most ``MAX_NODES``
 nodes; shrunk by the temporal power a mean of N frames keeps (as ``FPN``'s shading); the
 stacks of one gain averaged. None where no cell predicts the other half ``MIN_GAIN`` better
-than no map.
+than no map. A last resort (``LAST_RESORT``): the loop keeps it only where no other candidate
+of its round is acceptable.
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ from .k_records import frame_size, grid_columns, validate_records
 
 STATISTICS = ("fixed_std", "fixed_pixel_var", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq", "row_tone", "col_tone", "diag_tone")
 MEASURED = True
+LAST_RESORT = True  # chosen only where no other candidate is acceptable: FixedField's few numbers, if they do, before a map's thousands
 MAX_NODES = 4096  # grid nodes per record (a 64 x 64 grid): the profile stays small
 CELLS = (2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)  # cell sizes tried (packed pixels)
 MIN_GAIN = 0.02  # a map predicts the other half's map this much better than none, relative (a coarse grid fits noise by ~nodes / pixels)

@@ -626,7 +626,9 @@ def run_frame_loop(stacks: list[FrameStack], profile, *, model: str | None = Non
                             evidence_after=after.to_dict())
                 trials.append((step, trial, new_diags, trial_stacks, factors, known.get("lambdas_before", {})))
         acceptable = [t for t in trials if t[0].accepted]
-        chosen = min(acceptable, key=lambda t: (t[0].battery_after["mean_rel_error"], t[0].battery_after["n_significant"])) if acceptable else None
+        # a last resort (a measured map of thousands of numbers) only where nothing else is acceptable
+        preferred = [t for t in acceptable if not getattr(CANDIDATES[t[0].effect].module, "LAST_RESORT", False)] or acceptable
+        chosen = min(preferred, key=lambda t: (t[0].battery_after["mean_rel_error"], t[0].battery_after["n_significant"])) if acceptable else None
         for step, *_ in trials:
             if step is not (chosen[0] if chosen else None):
                 if step.accepted:
