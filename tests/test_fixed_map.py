@@ -26,7 +26,7 @@ def test_a_ring_pattern_is_reproduced_as_measured():
     base = [synth({}, batch=8, size=SIZE, sigma_g=2.0, seed=100 + i) for i in range(4)]
     for session in range(5):
         measured = synth({}, batch=8, size=SIZE, sigma_g=2.0, seed=10 + session) + rings(SIZE, SIZE)
-        est = fixed_map.estimate(measured, base, K, kind="bias")
+        est = fixed_map.combine([fixed_map.estimate(measured, base, K, kind="bias")])
         up = upsample_grid(np.asarray(est["map_dn"][0]), SIZE, SIZE)
         assert np.corrcoef(up.ravel(), truth.ravel())[0, 1] > 0.95, est["map_dn"]
         assert np.sqrt(np.mean((up - (truth - truth.mean())) ** 2)) < 0.15
@@ -39,8 +39,8 @@ def test_no_map_is_measured_where_there_is_none():
     """White frames (2 DN, 8 frames, 20 stacks): no cell predicts one half from the other 2 %
     better than no map in 20 of 20 (measured: the best cell within 0.1 % of no map)."""
     base = [synth({}, batch=8, size=SIZE, sigma_g=2.0, seed=200 + i) for i in range(4)]
-    empty = [fixed_map.empty(fixed_map.estimate(synth({}, batch=8, size=SIZE, sigma_g=2.0, seed=300 + s), base, K, kind="bias"))
-             for s in range(20)]
+    empty = [fixed_map.empty(fixed_map.combine([fixed_map.estimate(synth({}, batch=8, size=SIZE, sigma_g=2.0, seed=300 + s), base, K,
+                                                                   kind="bias")])) for s in range(20)]
     assert sum(empty) == 20, empty
 
 

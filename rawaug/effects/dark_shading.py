@@ -134,14 +134,17 @@ def fixed_shading_grids(frames, shapes) -> list[np.ndarray]:
         return [fit_grid(m, shape) for shape in shapes]
     mean = frames.mean(axis=0)
     deviations = [shading_map((f - mean)[None]) for f in frames]
-    out = []
-    for shape in shapes:
-        grid = fit_grid(m, shape)
-        temporal = np.mean([np.sum(fit_grid(d, shape) ** 2) for d in deviations]) * n / (n - 1)
-        power = float(np.sum(grid**2))
-        shrink = max(0.0, 1.0 - temporal / n / power) if power > 0 else 0.0
-        out.append(grid * shrink)
-    return out
+    return [shrunk_grid(m, deviations, shape) for shape in shapes]
+
+
+def shrunk_grid(m, deviations, shape: tuple) -> np.ndarray:
+    """``fit_grid`` of a stack's mean map ``m`` shrunk by the temporal power a mean of N frames
+    keeps, N the frames' maps about the mean ``deviations`` (each frame's grid power, x N/(N-1))."""
+    n = len(deviations)
+    grid = fit_grid(m, shape)
+    temporal = np.mean([np.sum(fit_grid(np.asarray(d, dtype=np.float64), shape) ** 2) for d in deviations]) * n / (n - 1)
+    power = float(np.sum(grid**2))
+    return grid * (max(0.0, 1.0 - temporal / n / power) if power > 0 else 0.0)
 
 
 def fixed_shading_grid(frames, shape: tuple | None = None) -> np.ndarray:

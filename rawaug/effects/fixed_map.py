@@ -34,7 +34,7 @@ import torch
 
 from ..engine import layout as L
 from .base import DARK, NoiseEffect, register
-from .dark_shading import fit_grid, shading_map, upsample_grid
+from .dark_shading import fit_grid, shading_map, shrunk_grid, upsample_grid
 from .k_records import frame_size, grid_columns, validate_records
 
 STATISTICS = ("fixed_std", "fixed_pixel_var", "psd2d_lowfreq", "row_lowfreq", "col_lowfreq", "row_tone", "col_tone", "diag_tone")
@@ -85,8 +85,8 @@ def cells(h: int, w: int) -> list[int]:
 
 
 def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
-    """One stack's record: what ``combine`` needs (``_seen``: its residual map and its halves'),
-    and the map of this stack alone."""
+    """One stack's record for ``combine`` (``_seen``: its residual map, its halves' and its
+    frames' temporal maps); the cell is chosen over every stack there, once."""
     frames = np.asarray(frames, dtype=np.float64)
     if kind not in ("bias", "dark") or frames.ndim != 4 or frames.shape[0] < 2:
         raise ValueError("FixedMap is measured on bias or dark stacks of >= 2 frames (N, 4, h, w)")
@@ -97,10 +97,10 @@ def estimate(frames, synthesized, k: float, kind=None, **_) -> dict:
     split = len(maps) // 2
     model_a, model_b = (np.mean(maps[:split], axis=0), np.mean(maps[split:], axis=0)) if split else (model, model)
     half = frames.shape[0] // 2
-    seen = {"k": float(k), "frame": frames.shape[2:], "n": frames.shape[0], "map": shading_map(frames) - model,
+    seen = {"k": float(k), "frame": frames.shape[2:], "map": shading_map(frames) - model,
             "a": shading_map(frames[:half]) - model_a, "b": shading_map(frames[half:2 * half]) - model_b,
             "temporal": _temporal_maps(frames)}
-    return {**combine([{"_seen": seen}]), "_seen": seen}
+    return {"_seen": seen}
 
 
 def _temporal_maps(frames) -> np.ndarray:
@@ -117,14 +117,6 @@ def _cv_error(seen: dict, cell: int) -> float:
     for x, y in ((seen["a"], seen["b"]), (seen["b"], seen["a"])):
         err += float(np.mean((upsample_grid(fit_grid(x, shape), h, w) - y) ** 2))
     return err / 2.0
-
-
-def _shrunk_grid(seen: dict, shape) -> np.ndarray:
-    grid = fit_grid(seen["map"], shape)
-    n = seen["n"]
-    temporal = np.mean([np.sum(fit_grid(t.astype(np.float64), shape) ** 2) for t in seen["temporal"]]) * n / (n - 1)
-    power = float(np.sum(grid**2))
-    return grid * (max(0.0, 1.0 - temporal / n / power) if power > 0 else 0.0)
 
 
 def combine(records: list[dict]) -> dict:
@@ -145,7 +137,7 @@ def combine(records: list[dict]) -> dict:
         grids = [np.zeros(shape) for _ in ks]
     else:
         shape = grid_shape(h, w, min(errors, key=errors.get))
-        grids = [np.mean([_shrunk_grid(s, shape) for s in same if s["k"] == k], axis=0) for k in ks]
+        grids = [np.mean([shrunk_grid(s["map"], s["temporal"], shape) for s in same if s["k"] == k], axis=0) for k in ks]
     return {"k": ks, "map_dn": [np.round(g, 4).tolist() for g in grids], "frame_h": int(h), "frame_w": int(w)}
 
 
